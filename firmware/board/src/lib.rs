@@ -1,0 +1,2 @@
+//! The board seam.
+#![no_std]

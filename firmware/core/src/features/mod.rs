@@ -1,0 +1,1 @@
+//! Streaming accelerometer features (placeholder; being written).

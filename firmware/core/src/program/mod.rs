@@ -1,0 +1,1 @@
+//! The twin program (placeholder; being written).

@@ -1,0 +1,1 @@
+//! The wire protocol (placeholder; being written).

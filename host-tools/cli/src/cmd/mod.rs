@@ -1,0 +1,4 @@
+//! One module per `sts-twin` subcommand: its arguments and its `run`.
+
+pub mod measure;
+pub mod regress;

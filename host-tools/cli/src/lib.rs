@@ -1,0 +1,7 @@
+//! # sts-twin
+//!
+//! The library under the `sts-twin` command: every command is a thin layer over a function
+//! here, so that tests and other programs drive the same code the user runs.
+#![deny(missing_docs)]
+
+pub mod cmd;

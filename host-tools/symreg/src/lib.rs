@@ -1,0 +1,2 @@
+//! Deterministic parallel symbolic regression: islands, Pareto front, constant optimisation, model selection.
+#![deny(missing_docs)]

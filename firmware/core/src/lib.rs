@@ -19,6 +19,7 @@
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
 
+pub mod bus;
 pub mod features;
 pub mod program;
 pub mod wire;

@@ -20,8 +20,12 @@
 #![forbid(unsafe_code)]
 
 pub mod bus;
+pub mod config;
+pub mod counters;
 pub mod features;
+pub mod feedforward;
 pub mod program;
+pub mod synth;
 pub mod wire;
 
 #[cfg(feature = "std")]

@@ -1,0 +1,125 @@
+//! The persistent configuration: what the firmware loads at boot from its config store.
+//!
+//! Layout of a stored record (little endian): magic `"STSC"` (4 bytes), format version
+//! (u16), payload length (u16), the postcard payload, CRC-32/ISO-HDLC of everything before
+//! it (4 bytes). A record that fails any check is not used: the firmware runs on safe
+//! defaults (compensation off, default parameters) and reports
+//! [`ConfigSource::DefaultsAfterCorrupt`](crate::wire::ConfigSource).
+
+use serde::{Deserialize, Serialize};
+
+use crate::feedforward::FeedforwardParams;
+use crate::wire::frame_crc32;
+
+/// Magic bytes at the start of a record.
+pub const CONFIG_MAGIC: [u8; 4] = *b"STSC";
+/// Format version of the record.
+pub const CONFIG_VERSION: u16 = 1;
+/// Largest record, bytes.
+pub const MAX_CONFIG_BYTES: usize = 256;
+
+/// What the firmware keeps across power cycles.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PersistentConfig {
+    /// Feedforward parameters, including the calibrated offset and K_dv.
+    pub params: FeedforwardParams,
+}
+
+/// Why a stored record was not used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigError {
+    /// The store is blank (erased or all zero): not an error, just no config.
+    Blank,
+    /// The magic bytes are wrong.
+    Magic,
+    /// The format version is not [`CONFIG_VERSION`].
+    Version,
+    /// The length field is impossible.
+    Length,
+    /// The CRC does not match.
+    Crc,
+    /// The payload does not decode.
+    Decode,
+    /// The payload decodes but its parameters are invalid.
+    Invalid,
+    /// The record does not fit the buffer (encoding only).
+    BufferTooSmall,
+}
+
+impl PersistentConfig {
+    /// Writes the record into `out`; returns its length.
+    pub fn encode(&self, out: &mut [u8]) -> Result<usize, ConfigError> {
+        if out.len() < 12 {
+            return Err(ConfigError::BufferTooSmall);
+        }
+        let payload_len = {
+            let (_, rest) = out.split_at_mut(8);
+            postcard::to_slice(self, rest).map_err(|_| ConfigError::BufferTooSmall)?.len()
+        };
+        let end = 8 + payload_len;
+        if out.len() < end + 4 {
+            return Err(ConfigError::BufferTooSmall);
+        }
+        out[..4].copy_from_slice(&CONFIG_MAGIC);
+        out[4..6].copy_from_slice(&CONFIG_VERSION.to_le_bytes());
+        out[6..8].copy_from_slice(&(payload_len as u16).to_le_bytes());
+        let crc = frame_crc32(&out[..end]);
+        out[end..end + 4].copy_from_slice(&crc.to_le_bytes());
+        Ok(end + 4)
+    }
+
+    /// Reads and checks a record.
+    pub fn decode(bytes: &[u8]) -> Result<Self, ConfigError> {
+        if bytes.iter().take(12).all(|&b| b == 0) || bytes.iter().take(12).all(|&b| b == 0xff) {
+            return Err(ConfigError::Blank);
+        }
+        if bytes.len() < 12 {
+            return Err(ConfigError::Length);
+        }
+        if bytes[..4] != CONFIG_MAGIC {
+            return Err(ConfigError::Magic);
+        }
+        if u16::from_le_bytes([bytes[4], bytes[5]]) != CONFIG_VERSION {
+            return Err(ConfigError::Version);
+        }
+        let payload_len = u16::from_le_bytes([bytes[6], bytes[7]]) as usize;
+        let end = 8 + payload_len;
+        if end + 4 > bytes.len() || end + 4 > MAX_CONFIG_BYTES {
+            return Err(ConfigError::Length);
+        }
+        let stored = u32::from_le_bytes([bytes[end], bytes[end + 1], bytes[end + 2], bytes[end + 3]]);
+        if frame_crc32(&bytes[..end]) != stored {
+            return Err(ConfigError::Crc);
+        }
+        let config: Self = match postcard::take_from_bytes(&bytes[8..end]) {
+            Ok((config, [])) => config,
+            _ => return Err(ConfigError::Decode),
+        };
+        config.params.validate().map_err(|_| ConfigError::Invalid)?;
+        Ok(config)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_record_round_trips_and_every_corruption_is_caught() {
+        let config = PersistentConfig { params: FeedforwardParams { offset_v: 0.0123, ..Default::default() } };
+        let mut buf = [0u8; MAX_CONFIG_BYTES];
+        let len = config.encode(&mut buf).unwrap();
+        assert_eq!(PersistentConfig::decode(&buf[..len]), Ok(config));
+        assert_eq!(PersistentConfig::decode(&[0u8; 64]), Err(ConfigError::Blank));
+        for byte in 0..len {
+            let mut bad = buf;
+            bad[byte] ^= 0x04;
+            assert!(PersistentConfig::decode(&bad).is_err(), "flip in byte {byte} not caught");
+        }
+        assert_eq!(PersistentConfig::decode(&buf[..len - 1]), Err(ConfigError::Length));
+        let invalid = PersistentConfig { params: FeedforwardParams { k_dv_um_per_v: 0.0, ..Default::default() } };
+        let len = invalid.encode(&mut buf).unwrap();
+        assert_eq!(PersistentConfig::decode(&buf[..len]), Err(ConfigError::Invalid));
+    }
+}

@@ -1,0 +1,39 @@
+//! Event counters of the firmware.
+
+use serde::{Deserialize, Serialize};
+
+/// Event counters. Every fault the firmware sees is counted here.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Counters {
+    /// Servo ticks processed.
+    pub ticks: u64,
+    /// Ticks whose input arrived late or never (the output was held).
+    pub bus_underruns: u32,
+    /// Ticks that started before the previous one finished.
+    pub bus_overruns: u32,
+    /// Ticks whose DAC target was clamped at full scale.
+    pub dac_saturations: u32,
+    /// Ticks on which the output moved at the slew limit.
+    pub slew_limited_ticks: u32,
+    /// Control frames dropped (stuffing, CRC, decode, length).
+    pub frame_errors: u32,
+    /// Uploaded programs rejected by validation.
+    pub rejected_programs: u32,
+    /// Parameter sets rejected.
+    pub rejected_params: u32,
+    /// Model evaluations that failed (non-finite values, torn feature snapshot).
+    pub model_faults: u32,
+    /// Model results that arrived after their due tick.
+    pub model_late: u32,
+    /// Model updates made.
+    pub model_updates: u32,
+    /// Episodes of a stuck or dead accelerometer.
+    pub input_stuck: u32,
+    /// Episodes of accelerometer saturation.
+    pub input_saturated: u32,
+    /// Times the servo entered the degraded state.
+    pub degraded_entries: u32,
+    /// Config store reads or writes that failed.
+    pub config_store_errors: u32,
+}

@@ -1,0 +1,117 @@
+//! The messages of the control protocol.
+
+use serde::{Deserialize, Serialize};
+
+use crate::feedforward::{FeedforwardParams, ParamError};
+use crate::program::{Program, ProgramError};
+use crate::counters::Counters;
+
+/// A message with the sequence number its answer carries back.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Envelope<T> {
+    /// Chosen by the host; the firmware answers with the same number.
+    pub seq: u16,
+    /// The message.
+    pub body: T,
+}
+
+/// Host to firmware.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Request {
+    /// Answered by [`Response::Pong`] with the same nonce.
+    Ping {
+        /// Echoed back.
+        nonce: u32,
+    },
+    /// Answered by [`Response::Status`].
+    GetStatus,
+    /// Validates and stages a twin program; with `activate` it takes effect at the next
+    /// model update. A rejected program leaves the staged and active ones as they were.
+    UploadProgram {
+        /// The program.
+        program: Program,
+        /// Activate at once.
+        activate: bool,
+    },
+    /// Activates the staged program.
+    ActivateStaged,
+    /// Removes the active program: the prediction ramps to zero.
+    ClearProgram,
+    /// Sets the feedforward parameters; rejected ones leave the old in force.
+    SetParams(FeedforwardParams),
+    /// Switches compensation on or off (the output ramps, never steps).
+    SetEnabled(bool),
+    /// Writes the parameters in force to the persistent config store.
+    SaveConfig,
+    /// Sets every counter to zero.
+    ResetCounters,
+}
+
+/// Firmware to host.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Response {
+    /// Answer to [`Request::Ping`].
+    Pong {
+        /// The request's nonce.
+        nonce: u32,
+    },
+    /// Answer to [`Request::GetStatus`].
+    Status(Status),
+    /// The request was carried out.
+    Ack,
+    /// The request was refused; nothing changed.
+    Rejected(Rejection),
+}
+
+/// Why a request was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Rejection {
+    /// The uploaded program is malformed.
+    Program(ProgramError),
+    /// The parameters are invalid.
+    Params(ParamError),
+    /// There is no staged program to activate.
+    NoStagedProgram,
+    /// The config store could not be written.
+    Store,
+}
+
+/// Where the configuration in force came from at boot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigSource {
+    /// The store was empty: safe defaults.
+    Defaults,
+    /// The store held a valid config.
+    Stored,
+    /// The store was corrupt (bad magic, version, CRC or content): safe defaults.
+    DefaultsAfterCorrupt,
+}
+
+/// The firmware's state and counters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Status {
+    /// Event counters since boot or the last reset.
+    pub counters: Counters,
+    /// Compensation is asked for.
+    pub enabled: bool,
+    /// Gain in force, 0 to 1 (ramps).
+    pub gain: f32,
+    /// `servo::DEGRADED_*` bits: why the inputs are not trusted now (0: trusted).
+    pub degraded: u16,
+    /// Id of the active program, if any.
+    pub program_id: Option<u32>,
+    /// Id of the staged program, if any.
+    pub staged_program_id: Option<u32>,
+    /// Feedforward parameters in force.
+    pub params: FeedforwardParams,
+    /// Where the boot configuration came from.
+    pub config_source: ConfigSource,
+    /// Amplitude of the last model output, micrometres.
+    pub amp_um: f32,
+    /// Phase of the last model output, degrees.
+    pub phase_deg: f32,
+    /// The features of the last model update (f1..f12).
+    pub features: [f32; 12],
+}

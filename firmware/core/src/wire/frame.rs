@@ -153,6 +153,12 @@ mod tests {
     }
 
     #[test]
+    fn the_crc_is_crc32_iso_hdlc_and_the_frame_limit_is_as_specified() {
+        assert_eq!(frame_crc32(b"123456789"), 0xCBF4_3926);
+        assert_eq!(MAX_ENCODED_FRAME, 608);
+    }
+
+    #[test]
     fn the_largest_message_fits_a_frame() {
         let mut program = paper_program();
         while program.code.push(crate::program::op::NEG).is_ok() {}

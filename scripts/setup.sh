@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Installs what sts-twin needs and a fresh machine lacks: QEMU for the HIL rig and the
+# Rust targets of the firmware. Idempotent: does nothing when everything is present.
+set -euo pipefail
+
+as_root() {
+    if [ "$(id -u)" -eq 0 ]; then "$@"; elif command -v sudo >/dev/null; then sudo "$@"; else
+        echo "error: need root to run: $*" >&2; exit 1; fi
+}
+
+apt_packages=()
+command -v qemu-system-arm >/dev/null || apt_packages+=(qemu-system-arm)
+if [ "${STS_TWIN_WITH_BROWSER:-0}" = 1 ] && ! command -v chromium >/dev/null; then
+    apt_packages+=(chromium)
+fi
+if [ ${#apt_packages[@]} -gt 0 ]; then
+    if ! command -v apt-get >/dev/null; then
+        echo "error: please install ${apt_packages[*]} with your package manager" >&2
+        exit 1
+    fi
+    echo "setup: installing ${apt_packages[*]}"
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${apt_packages[@]}" >/dev/null
+fi
+
+if ! command -v rustup >/dev/null; then
+    echo "error: rustup not found; install Rust from https://rustup.rs first" >&2
+    exit 1
+fi
+installed=$(rustup target list --installed)
+for target in thumbv7em-none-eabihf riscv32imac-unknown-none-elf; do
+    if ! grep -qx "$target" <<<"$installed"; then
+        echo "setup: rustup target add $target"
+        rustup target add "$target"
+    fi
+done

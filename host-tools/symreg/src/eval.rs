@@ -1,0 +1,461 @@
+//! Fast column-wise evaluation of expressions, and forward-mode derivatives with respect to
+//! the constants (the Jacobian that Levenberg-Marquardt needs).
+
+use crate::expr::{BinaryOp, Expr, PostfixNode, UnaryOp};
+
+/// One instruction of a compiled program. A binary operator whose right operand is a leaf is
+/// fused with it, which saves one buffer fill per leaf.
+#[derive(Clone, Copy, Debug)]
+enum Instr {
+    Const(f64),
+    Var(usize),
+    Unary(UnaryOp),
+    Binary(BinaryOp),
+    BinaryConst(BinaryOp, f64),
+    BinaryVar(BinaryOp, usize),
+}
+
+/// An expression compiled for repeated evaluation on columns of data.
+#[derive(Clone, Debug)]
+pub struct Program {
+    fused: Vec<Instr>,
+    postfix: Vec<PostfixNode>,
+    n_constants: usize,
+    max_stack: usize,
+}
+
+impl Program {
+    /// Compiles an expression.
+    pub fn compile(expr: &Expr) -> Program {
+        let postfix = expr.postfix();
+        let mut fused: Vec<Instr> = Vec::with_capacity(postfix.len());
+        for node in &postfix {
+            match *node {
+                PostfixNode::Const(c) => fused.push(Instr::Const(c)),
+                PostfixNode::Var(i) => fused.push(Instr::Var(i)),
+                PostfixNode::Unary(op) => fused.push(Instr::Unary(op)),
+                PostfixNode::Binary(op) => {
+                    // The right operand was pushed last; if it is a leaf and the left operand
+                    // is already on the stack (the previous instruction is not the left
+                    // operand's only push), fuse. The left operand always precedes, so a leaf
+                    // right operand is exactly the last instruction.
+                    match fused.last().copied() {
+                        Some(Instr::Const(c)) if fused.len() >= 2 => {
+                            fused.pop();
+                            fused.push(Instr::BinaryConst(op, c));
+                        }
+                        Some(Instr::Var(i)) if fused.len() >= 2 => {
+                            fused.pop();
+                            fused.push(Instr::BinaryVar(op, i));
+                        }
+                        _ => fused.push(Instr::Binary(op)),
+                    }
+                }
+            }
+        }
+        let mut depth = 0usize;
+        let mut max_stack = 0usize;
+        for node in &postfix {
+            match node {
+                PostfixNode::Const(_) | PostfixNode::Var(_) => depth += 1,
+                PostfixNode::Unary(_) => {}
+                PostfixNode::Binary(_) => depth -= 1,
+            }
+            max_stack = max_stack.max(depth);
+        }
+        let n_constants = postfix
+            .iter()
+            .filter(|n| matches!(n, PostfixNode::Const(_)))
+            .count();
+        Program {
+            fused,
+            postfix,
+            n_constants,
+            max_stack,
+        }
+    }
+
+    /// Number of constants (the parameters of [`Evaluator::eval_with_jacobian`]).
+    pub fn n_constants(&self) -> usize {
+        self.n_constants
+    }
+}
+
+/// Reusable evaluation buffers for a fixed number of rows.
+#[derive(Clone, Debug)]
+pub struct Evaluator {
+    n_rows: usize,
+    stack: Vec<Vec<f64>>,
+    jac_stack: Vec<(Vec<f64>, bool)>,
+    tmp_value: Vec<f64>,
+    tmp_fa: Vec<f64>,
+    tmp_fb: Vec<f64>,
+}
+
+/// Sum of `v - v`: zero when every value is finite, NaN otherwise. Vectorises well.
+#[inline]
+fn all_finite(v: &[f64]) -> bool {
+    let mut acc = 0.0f64;
+    for &x in v {
+        acc += x - x;
+    }
+    acc == 0.0
+}
+
+#[inline]
+fn apply_binary(op: BinaryOp, a: &mut [f64], b: &[f64]) {
+    match op {
+        BinaryOp::Add => a.iter_mut().zip(b).for_each(|(x, y)| *x += *y),
+        BinaryOp::Sub => a.iter_mut().zip(b).for_each(|(x, y)| *x -= *y),
+        BinaryOp::Mul => a.iter_mut().zip(b).for_each(|(x, y)| *x *= *y),
+        BinaryOp::Div => a.iter_mut().zip(b).for_each(|(x, y)| *x /= *y),
+        BinaryOp::Pow => a.iter_mut().zip(b).for_each(|(x, y)| *x = x.abs().powf(*y)),
+    }
+}
+
+#[inline]
+fn apply_binary_const(op: BinaryOp, a: &mut [f64], c: f64) {
+    match op {
+        BinaryOp::Add => a.iter_mut().for_each(|x| *x += c),
+        BinaryOp::Sub => a.iter_mut().for_each(|x| *x -= c),
+        BinaryOp::Mul => a.iter_mut().for_each(|x| *x *= c),
+        BinaryOp::Div => a.iter_mut().for_each(|x| *x /= c),
+        BinaryOp::Pow => {
+            if c == 2.0 {
+                a.iter_mut().for_each(|x| *x *= *x)
+            } else {
+                a.iter_mut().for_each(|x| *x = x.abs().powf(c))
+            }
+        }
+    }
+}
+
+#[inline]
+fn apply_unary(op: UnaryOp, a: &mut [f64]) {
+    match op {
+        UnaryOp::Abs => a.iter_mut().for_each(|x| *x = x.abs()),
+        UnaryOp::Sqrt => a.iter_mut().for_each(|x| *x = x.abs().sqrt()),
+        UnaryOp::Exp => a.iter_mut().for_each(|x| *x = x.exp()),
+        UnaryOp::Log => a.iter_mut().for_each(|x| *x = x.abs().ln()),
+        UnaryOp::Tanh => a.iter_mut().for_each(|x| *x = x.tanh()),
+        UnaryOp::Sin => a.iter_mut().for_each(|x| *x = x.sin()),
+    }
+}
+
+impl Evaluator {
+    /// Buffers for `n_rows` rows.
+    pub fn new(n_rows: usize) -> Evaluator {
+        Evaluator {
+            n_rows,
+            stack: Vec::new(),
+            jac_stack: Vec::new(),
+            tmp_value: vec![0.0; n_rows],
+            tmp_fa: vec![0.0; n_rows],
+            tmp_fb: vec![0.0; n_rows],
+        }
+    }
+
+    /// Number of rows this evaluator is sized for.
+    pub fn n_rows(&self) -> usize {
+        self.n_rows
+    }
+
+    /// Evaluates `program` on `columns` (each `n_rows` long) into `out`. Returns `false` (and
+    /// leaves `out` unspecified) if any intermediate value is non-finite.
+    ///
+    /// ```
+    /// use sts_symreg::{Evaluator, Expr, Program, BinaryOp};
+    /// let p = Program::compile(&Expr::binary(BinaryOp::Mul, Expr::Var(0), Expr::Const(3.0)));
+    /// let mut ev = Evaluator::new(2);
+    /// let mut out = [0.0; 2];
+    /// assert!(ev.eval(&p, &[&[1.0, 2.0]], &mut out));
+    /// assert_eq!(out, [3.0, 6.0]);
+    /// ```
+    pub fn eval(&mut self, program: &Program, columns: &[&[f64]], out: &mut [f64]) -> bool {
+        let n = self.n_rows;
+        assert_eq!(out.len(), n, "output length must equal the evaluator's row count");
+        while self.stack.len() < program.max_stack {
+            self.stack.push(vec![0.0; n]);
+        }
+        let mut sp = 0usize;
+        for instr in &program.fused {
+            match *instr {
+                Instr::Const(c) => {
+                    self.stack[sp].iter_mut().for_each(|x| *x = c);
+                    sp += 1;
+                    continue;
+                }
+                Instr::Var(i) => {
+                    self.stack[sp].copy_from_slice(&columns[i][..n]);
+                    sp += 1;
+                    continue;
+                }
+                Instr::Unary(op) => apply_unary(op, &mut self.stack[sp - 1]),
+                Instr::Binary(op) => {
+                    let (lo, hi) = self.stack.split_at_mut(sp - 1);
+                    apply_binary(op, &mut lo[sp - 2], &hi[0]);
+                    sp -= 1;
+                }
+                Instr::BinaryConst(op, c) => apply_binary_const(op, &mut self.stack[sp - 1], c),
+                Instr::BinaryVar(op, i) => apply_binary(op, &mut self.stack[sp - 1], &columns[i][..n]),
+            }
+            if !all_finite(&self.stack[sp - 1]) {
+                return false;
+            }
+        }
+        debug_assert_eq!(sp, 1);
+        out.copy_from_slice(&self.stack[0]);
+        // A lone constant or variable was never checked.
+        all_finite(out)
+    }
+
+    /// Evaluates `program` and the derivatives of its value with respect to each of its
+    /// constants (postfix order). `jacobian` holds `n_constants * n_rows` values, the
+    /// derivatives for constant `j` at `jacobian[j * n_rows..(j + 1) * n_rows]`. Returns
+    /// `false` if any value or derivative is non-finite.
+    pub fn eval_with_jacobian(
+        &mut self,
+        program: &Program,
+        columns: &[&[f64]],
+        out: &mut [f64],
+        jacobian: &mut [f64],
+    ) -> bool {
+        let n = self.n_rows;
+        let k = program.n_constants;
+        let width = (k + 1) * n;
+        assert_eq!(out.len(), n);
+        assert_eq!(jacobian.len(), k * n);
+        while self.jac_stack.len() < program.max_stack {
+            self.jac_stack.push((Vec::new(), false));
+        }
+        for (buf, _) in &mut self.jac_stack {
+            if buf.len() < width {
+                buf.resize(width, 0.0);
+            }
+        }
+        let mut sp = 0usize;
+        let mut const_idx = 0usize;
+        for node in &program.postfix {
+            match *node {
+                PostfixNode::Const(c) => {
+                    let (buf, dep) = &mut self.jac_stack[sp];
+                    buf[..n].iter_mut().for_each(|x| *x = c);
+                    buf[n..width].iter_mut().for_each(|x| *x = 0.0);
+                    let row = (const_idx + 1) * n;
+                    buf[row..row + n].iter_mut().for_each(|x| *x = 1.0);
+                    *dep = true;
+                    const_idx += 1;
+                    sp += 1;
+                }
+                PostfixNode::Var(i) => {
+                    let (buf, dep) = &mut self.jac_stack[sp];
+                    buf[..n].copy_from_slice(&columns[i][..n]);
+                    *dep = false;
+                    sp += 1;
+                }
+                PostfixNode::Unary(op) => {
+                    let (buf, dep) = &mut self.jac_stack[sp - 1];
+                    let (a, rest) = buf.split_at_mut(n);
+                    if *dep {
+                        let fa = &mut self.tmp_fa;
+                        for i in 0..n {
+                            let x = a[i];
+                            let v = op.apply(x);
+                            self.tmp_value[i] = v;
+                            fa[i] = match op {
+                                UnaryOp::Abs => {
+                                    if x > 0.0 {
+                                        1.0
+                                    } else if x < 0.0 {
+                                        -1.0
+                                    } else {
+                                        0.0
+                                    }
+                                }
+                                UnaryOp::Sqrt => 0.5 * v / x,
+                                UnaryOp::Exp => v,
+                                UnaryOp::Log => 1.0 / x,
+                                UnaryOp::Tanh => 1.0 - v * v,
+                                UnaryOp::Sin => x.cos(),
+                            };
+                        }
+                        for j in 0..k {
+                            let d = &mut rest[j * n..(j + 1) * n];
+                            d.iter_mut().zip(fa.iter()).for_each(|(d, f)| *d *= *f);
+                        }
+                        a.copy_from_slice(&self.tmp_value);
+                        if !all_finite(&buf[..width]) {
+                            return false;
+                        }
+                    } else {
+                        apply_unary(op, a);
+                        if !all_finite(a) {
+                            return false;
+                        }
+                    }
+                }
+                PostfixNode::Binary(op) => {
+                    let (lo, hi) = self.jac_stack.split_at_mut(sp - 1);
+                    let (abuf, adep) = &mut lo[sp - 2];
+                    let (bbuf, bdep) = &hi[0];
+                    let bdep = *bdep;
+                    if !*adep && !bdep {
+                        apply_binary(op, &mut abuf[..n], &bbuf[..n]);
+                        if !all_finite(&abuf[..n]) {
+                            return false;
+                        }
+                        sp -= 1;
+                        continue;
+                    }
+                    let (a, arest) = abuf.split_at_mut(n);
+                    let (b, brest) = bbuf.split_at(n);
+                    let fa = &mut self.tmp_fa;
+                    let fb = &mut self.tmp_fb;
+                    for i in 0..n {
+                        let (x, y) = (a[i], b[i]);
+                        let v = op.apply(x, y);
+                        self.tmp_value[i] = v;
+                        let (da, db) = match op {
+                            BinaryOp::Add => (1.0, 1.0),
+                            BinaryOp::Sub => (1.0, -1.0),
+                            BinaryOp::Mul => (y, x),
+                            BinaryOp::Div => (1.0 / y, -v / y),
+                            BinaryOp::Pow => {
+                                if v == 0.0 {
+                                    (0.0, 0.0)
+                                } else {
+                                    (y * v / x, v * x.abs().ln())
+                                }
+                            }
+                        };
+                        fa[i] = da;
+                        fb[i] = db;
+                    }
+                    for j in 0..k {
+                        let d = &mut arest[j * n..(j + 1) * n];
+                        let dbj = &brest[j * n..(j + 1) * n];
+                        match (*adep, bdep) {
+                            (true, true) => {
+                                for i in 0..n {
+                                    d[i] = fa[i] * d[i] + fb[i] * dbj[i];
+                                }
+                            }
+                            (true, false) => {
+                                for i in 0..n {
+                                    d[i] *= fa[i];
+                                }
+                            }
+                            (false, true) => {
+                                for i in 0..n {
+                                    d[i] = fb[i] * dbj[i];
+                                }
+                            }
+                            (false, false) => unreachable!("handled above"),
+                        }
+                    }
+                    a.copy_from_slice(&self.tmp_value);
+                    *adep = true;
+                    if !all_finite(&abuf[..width]) {
+                        return false;
+                    }
+                    sp -= 1;
+                }
+            }
+        }
+        debug_assert_eq!(sp, 1);
+        let (buf, dep) = &self.jac_stack[0];
+        out.copy_from_slice(&buf[..n]);
+        if *dep {
+            jacobian.copy_from_slice(&buf[n..width]);
+        } else {
+            jacobian.iter_mut().for_each(|x| *x = 0.0);
+        }
+        all_finite(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::expr::{BinaryOp::*, UnaryOp::*};
+
+    fn sample() -> Expr {
+        // 1.3 - 0.7 * tanh(0.2*x0 + |x1/x0|^0.6) + sqrt(exp(0.1*x1)) * log(x0) - sin(x1*0.5)
+        let inner = Expr::binary(
+            Add,
+            Expr::binary(Mul, Expr::Const(0.2), Expr::Var(0)),
+            Expr::binary(Pow, Expr::binary(Div, Expr::Var(1), Expr::Var(0)), Expr::Const(0.6)),
+        );
+        let t = Expr::binary(Sub, Expr::Const(1.3), Expr::binary(Mul, Expr::Const(0.7), Expr::unary(Tanh, inner)));
+        let s = Expr::binary(
+            Mul,
+            Expr::unary(Sqrt, Expr::unary(Exp, Expr::binary(Mul, Expr::Const(0.1), Expr::Var(1)))),
+            Expr::unary(Log, Expr::Var(0)),
+        );
+        let w = Expr::unary(Sin, Expr::binary(Mul, Expr::Var(1), Expr::Const(0.5)));
+        Expr::binary(Sub, Expr::binary(Add, t, s), Expr::unary(Abs, w))
+    }
+
+    fn data() -> Vec<Vec<f64>> {
+        let x0: Vec<f64> = (0..37).map(|i| 0.5 + i as f64 * 0.13).collect();
+        let x1: Vec<f64> = (0..37).map(|i| -2.0 + i as f64 * 0.21).collect();
+        vec![x0, x1]
+    }
+
+    #[test]
+    fn column_eval_matches_row_eval() {
+        let e = sample();
+        let cols = data();
+        let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
+        let out = e.eval_columns(&refs).unwrap();
+        for (r, v) in out.iter().enumerate() {
+            let row = [cols[0][r], cols[1][r]];
+            assert_eq!(*v, e.eval_row(&row));
+        }
+    }
+
+    #[test]
+    fn jacobian_matches_finite_differences() {
+        let e = sample();
+        let cols = data();
+        let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
+        let p = Program::compile(&e);
+        let n = cols[0].len();
+        let k = p.n_constants();
+        let mut ev = Evaluator::new(n);
+        let mut out = vec![0.0; n];
+        let mut jac = vec![0.0; k * n];
+        assert!(ev.eval_with_jacobian(&p, &refs, &mut out, &mut jac));
+        let base = e.eval_columns(&refs).unwrap();
+        assert_eq!(out, base);
+        let consts = e.constants();
+        for j in 0..k {
+            let h = 1e-6 * consts[j].abs().max(1.0);
+            let mut plus = consts.clone();
+            plus[j] += h;
+            let mut minus = consts.clone();
+            minus[j] -= h;
+            let mut ep = e.clone();
+            ep.set_constants(&plus);
+            let mut em = e.clone();
+            em.set_constants(&minus);
+            let fp = ep.eval_columns(&refs).unwrap();
+            let fm = em.eval_columns(&refs).unwrap();
+            for r in 0..n {
+                let fd = (fp[r] - fm[r]) / (2.0 * h);
+                let an = jac[j * n + r];
+                assert!((fd - an).abs() <= 1e-5 * (1.0 + an.abs()), "const {j} row {r}: fd {fd} vs {an}");
+            }
+        }
+    }
+
+    #[test]
+    fn non_finite_intermediate_is_invalid() {
+        // tanh(1/(x0 - x0)) would be finite at the output (tanh(inf) = 1) but is invalid.
+        let e = Expr::unary(
+            Tanh,
+            Expr::binary(Div, Expr::Const(1.0), Expr::binary(Sub, Expr::Var(0), Expr::Var(0))),
+        );
+        assert_eq!(e.eval_columns(&[&[1.0, 2.0]]), None);
+    }
+}

@@ -1,2 +1,267 @@
+//! # sts-twin-firmware
+//!
+//! The firmware for QEMU `mps2-an386` (Cortex-M4F). Interrupt priorities, most urgent
+//! first:
+//!
+//! 1. TIMER0, the 8 kHz servo tick: waits (bounded) for the host's input `k` on the
+//!    virtual analogue bus, runs [`ServoApp::tick`], writes output `k`. Never logs.
+//! 2. UART0 RX/TX: moves control-link bytes between the UART and two queues.
+//! 3. IRQ 30 (not wired to a device): an embassy `InterruptExecutor` running the
+//!    background half ([`BackgroundApp`]: model work, control protocol) and all logging.
+//!
+//! Thread mode idles with WFI. Logs are defmt over semihosting; a panic or HardFault ends
+//! QEMU with a failing exit status. docs/firmware.md has the whole story.
+//!
+//! To plug in another application, change [`App`], [`AppBackground`], [`AppShared`] and
+//! [`make_app`].
 #![no_std]
 #![no_main]
+#![deny(missing_docs)]
+
+mod hw;
+
+use core::cell::UnsafeCell;
+use core::mem::MaybeUninit;
+use core::sync::atomic::Ordering;
+
+use cortex_m_rt::{entry, exception, ExceptionFrame};
+use cortex_m_semihosting::debug;
+use defmt_semihosting as _;
+use embassy_executor::InterruptExecutor;
+use sts_twin_board::bringup::{BringUpBackground, BringUpServo, BringUpShared};
+use sts_twin_board::bus::{BusAdc, BusDac, BusView};
+use sts_twin_board::config::{AbStore, MemoryMedium};
+use sts_twin_board::qemu::{self, DIAG_WORDS};
+use sts_twin_board::servo::{
+    background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickState,
+    EVENT_CONTROL_RX, EVENT_UNDERRUN,
+};
+use sts_twin_board::sync::{Events, SharedCell};
+
+use hw::{Irq, Timer0, Uart0Link};
+
+/// The servo half of the application.
+pub type App = BringUpServo;
+/// The background half of the application.
+pub type AppBackground = BringUpBackground;
+/// The state the two halves share.
+pub type AppShared = BringUpShared;
+
+/// Builds the application at boot.
+fn make_app() -> (App, AppBackground, AppShared) {
+    (BringUpServo::new(), BringUpBackground::new(), BringUpShared::new())
+}
+
+/// A static initialised once at boot, before the interrupts that use it are enabled.
+struct BootCell<T>(UnsafeCell<MaybeUninit<T>>);
+
+// SAFETY: written once in `main` before any interrupt that reads it is unmasked; afterwards
+// each cell is used by one context only (documented at each static).
+unsafe impl<T> Sync for BootCell<T> {}
+
+impl<T> BootCell<T> {
+    const fn new() -> Self {
+        Self(UnsafeCell::new(MaybeUninit::uninit()))
+    }
+
+    /// # Safety
+    /// Call once, before any reader runs.
+    #[allow(clippy::mut_from_ref)]
+    unsafe fn init(&self, value: T) -> &mut T {
+        (*self.0.get()).write(value)
+    }
+
+    /// # Safety
+    /// After `init`, and from the one context that owns the cell (or shared-only use).
+    #[allow(clippy::mut_from_ref)]
+    unsafe fn get(&self) -> &mut T {
+        (*self.0.get()).assume_init_mut()
+    }
+}
+
+/// Everything the servo interrupt owns.
+struct ServoContext {
+    app: App,
+    adc: BusAdc,
+    dac: BusDac,
+    timer: Timer0,
+    state: TickState,
+}
+
+type QemuConfigStore = AbStore<MemoryMedium>;
+
+/// Owned by the TIMER0 interrupt.
+static SERVO: BootCell<ServoContext> = BootCell::new();
+/// Shared by the servo tick and the background (a critical-section cell).
+static SHARED: BootCell<SharedCell<AppShared>> = BootCell::new();
+/// Owned by the background task.
+static BACKGROUND: BootCell<(AppBackground, QemuConfigStore)> = BootCell::new();
+
+static COUNTERS: ServoCounters = ServoCounters::new();
+static EVENTS: Events = Events::new();
+static MODEL_EXEC: InterruptExecutor = InterruptExecutor::new();
+
+// SAFETY: the PSRAM at PSRAM_BASE is not used by the linker (memory.x) and is the bus.
+const BUS: BusView = unsafe { BusView::new(qemu::PSRAM_BASE as *mut u32) };
+
+defmt::timestamp!("tick {=u32}", COUNTERS.ticks.load(Ordering::Relaxed));
+
+fn diag_write(word: usize, value: u32) {
+    debug_assert!(word < DIAG_WORDS);
+    let addr = (qemu::PSRAM_BASE + qemu::DIAG_OFFSET) as *mut u32;
+    // SAFETY: the diagnostics block lies in the PSRAM, written by the firmware only.
+    unsafe { addr.add(word).write_volatile(value) }
+}
+
+fn config_store() -> QemuConfigStore {
+    // SAFETY: the config region lies in the PSRAM after the bus and diagnostics block and
+    // is used by this one store.
+    AbStore::new(unsafe {
+        MemoryMedium::new((qemu::PSRAM_BASE + qemu::CONFIG_OFFSET) as *mut u8, qemu::CONFIG_SLOT_BYTES)
+    })
+}
+
+/// Ends QEMU with a failing status.
+fn fail() -> ! {
+    loop {
+        debug::exit(debug::EXIT_FAILURE);
+    }
+}
+
+#[entry]
+fn main() -> ! {
+    let mut core = cortex_m::Peripherals::take().unwrap();
+    defmt::info!("sts-twin firmware {=str} on mps2-an386", env!("CARGO_PKG_VERSION"));
+    if !BUS.header_valid() {
+        defmt::error!("no analogue bus at PSRAM 0x2100_0000 (magic/version): start QEMU through the sts-twin HIL harness");
+        fail();
+    }
+    diag_write(qemu::DIAG_MAGIC, qemu::DIAG_MAGIC_VALUE);
+    diag_write(qemu::DIAG_PERIOD_COUNTS, qemu::SERVO_PERIOD_COUNTS);
+
+    let (app, background, shared) = make_app();
+    // SAFETY: no interrupt is enabled yet.
+    let (shared, (background, config)) = unsafe {
+        let shared: &'static SharedCell<AppShared> = SHARED.init(SharedCell::new(shared));
+        SERVO.init(ServoContext {
+            app,
+            adc: BusAdc::new(BUS, qemu::BUS_SPIN_BOUND),
+            dac: BusDac::new(BUS),
+            timer: Timer0,
+            state: TickState::default(),
+        });
+        (shared, BACKGROUND.init((background, config_store())))
+    };
+    // What the boot hook loads (stored settings) is in force from tick 0.
+    let mut link = Uart0Link;
+    background.on_boot(&mut BackgroundCtx { shared, link: &mut link, config, counters: &COUNTERS });
+
+    Uart0Link::start(&mut core.NVIC);
+    // SAFETY: priority set before the executor unmasks its interrupt.
+    unsafe { core.NVIC.set_priority(Irq::ModelExecutor, hw::prio::MODEL) };
+    let spawner = MODEL_EXEC.start(Irq::ModelExecutor);
+    spawner.spawn(background_task(background, config, shared).unwrap());
+
+    BUS.set_ready(0);
+    defmt::info!("serving the bus: 8 kHz tick, spin bound {=u32} polls", qemu::BUS_SPIN_BOUND);
+    Timer0::start(&mut core.NVIC);
+    loop {
+        // WFI, not WFE: QEMU treats WFE as a yield and would spin a host core.
+        cortex_m::asm::wfi();
+    }
+}
+
+#[embassy_executor::task]
+async fn background_task(
+    app: &'static mut AppBackground,
+    config: &'static mut QemuConfigStore,
+    shared: &'static SharedCell<AppShared>,
+) {
+    let mut link = Uart0Link;
+    let mut ctx = BackgroundCtx { shared, link: &mut link, config, counters: &COUNTERS };
+    let mut last_underruns = 0;
+    background_loop(app, &mut ctx, &EVENTS, |bits, counters| {
+        diag_write(qemu::DIAG_MODEL_REQUESTS, counters.model_requests.load(Ordering::Relaxed));
+        diag_write(qemu::DIAG_MODEL_RUNS, counters.model_runs.load(Ordering::Relaxed));
+        diag_write(qemu::DIAG_CONTROL_RX_DROPPED, hw::UART_RX.dropped() as u32);
+        if bits & EVENT_UNDERRUN != 0 {
+            let underruns = counters.underruns.load(Ordering::Relaxed);
+            defmt::warn!(
+                "underrun: the host's input for tick {=u32} is late ({=u32} underruns, {=u32} new)",
+                counters.ticks.load(Ordering::Relaxed),
+                underruns,
+                underruns.wrapping_sub(last_underruns)
+            );
+            last_underruns = underruns;
+        }
+        if bits & EVENT_CONTROL_RX != 0 {
+            defmt::debug!("control bytes handled");
+        }
+    })
+    .await
+}
+
+/// The servo tick.
+#[no_mangle]
+unsafe extern "C" fn TIMER0() {
+    // SAFETY: initialised before TIMER0 was unmasked; this handler is the only user.
+    let s = unsafe { SERVO.get() };
+    // SAFETY: initialised before; shared access only.
+    let shared = unsafe { SHARED.get() };
+    run_tick(&mut s.adc, &mut s.dac, &mut s.timer, &mut s.app, shared, &mut s.state, &COUNTERS, &EVENTS);
+    let t = &s.state.timing;
+    BUS.write_counters(COUNTERS.underruns.load(Ordering::Relaxed), COUNTERS.overruns.load(Ordering::Relaxed));
+    diag_write(qemu::DIAG_ENTRY_LAST, t.entry_last);
+    diag_write(qemu::DIAG_ENTRY_MAX, t.entry_max);
+    diag_write(qemu::DIAG_BUSY_LAST, t.busy_last);
+    diag_write(qemu::DIAG_BUSY_MAX, t.busy_max);
+    diag_write(qemu::DIAG_BUSY_SUM_LO, t.busy_sum as u32);
+    diag_write(qemu::DIAG_BUSY_SUM_HI, (t.busy_sum >> 32) as u32);
+    diag_write(qemu::DIAG_INPUT_FAULTS, COUNTERS.input_faults.load(Ordering::Relaxed));
+}
+
+/// Control link receive.
+#[no_mangle]
+unsafe extern "C" fn UART0RX() {
+    static mut RX_BYTES: u32 = 0;
+    let n = Uart0Link::on_rx_interrupt();
+    // SAFETY: only this handler touches RX_BYTES.
+    let total = unsafe {
+        RX_BYTES = RX_BYTES.wrapping_add(n);
+        RX_BYTES
+    };
+    diag_write(qemu::DIAG_CONTROL_RX_BYTES, total);
+    EVENTS.raise(EVENT_CONTROL_RX);
+}
+
+/// Control link transmit.
+#[no_mangle]
+unsafe extern "C" fn UART0TX() {
+    Uart0Link::on_tx_interrupt();
+}
+
+/// The model executor.
+#[no_mangle]
+unsafe extern "C" fn MODEL_EXECUTOR() {
+    // SAFETY: this is the executor's interrupt, as given to `start`.
+    unsafe { MODEL_EXEC.on_interrupt() }
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    cortex_m::interrupt::disable();
+    defmt::error!("panic: {}", defmt::Display2Format(info));
+    fail()
+}
+
+#[exception]
+unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
+    defmt::error!("HardFault: pc={=u32:#010x} lr={=u32:#010x}", frame.pc(), frame.lr());
+    fail()
+}
+
+#[exception]
+unsafe fn DefaultHandler(irqn: i16) {
+    defmt::error!("unexpected interrupt {=i16}", irqn);
+    fail()
+}

@@ -1,0 +1,203 @@
+//! Sharing between the servo interrupt, the control-link interrupts and the background
+//! context, without a heap and without blocking the servo for more than a few instructions.
+
+use core::cell::RefCell;
+use core::future::poll_fn;
+use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
+use core::task::Poll;
+
+use critical_section::Mutex;
+use embassy_sync::waitqueue::AtomicWaker;
+
+/// State shared between the servo tick and the background context. Access happens inside
+/// a critical section, so keep each access short (copy values in or out, don't compute).
+pub struct SharedCell<T> {
+    inner: Mutex<RefCell<T>>,
+}
+
+impl<T> SharedCell<T> {
+    /// A cell holding `value`.
+    pub const fn new(value: T) -> Self {
+        Self { inner: Mutex::new(RefCell::new(value)) }
+    }
+
+    /// Runs `f` on the shared value inside a critical section.
+    #[inline(always)]
+    pub fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
+        critical_section::with(|cs| f(&mut self.inner.borrow_ref_mut(cs)))
+    }
+}
+
+/// A bounded byte queue between an interrupt (one side) and the background (other side).
+/// Each operation is a short critical section.
+pub struct ByteQueue<const N: usize> {
+    inner: Mutex<RefCell<Ring<N>>>,
+    dropped: AtomicUsize,
+}
+
+struct Ring<const N: usize> {
+    buf: [u8; N],
+    head: usize,
+    len: usize,
+}
+
+impl<const N: usize> ByteQueue<N> {
+    /// An empty queue.
+    pub const fn new() -> Self {
+        Self { inner: Mutex::new(RefCell::new(Ring { buf: [0; N], head: 0, len: 0 })), dropped: AtomicUsize::new(0) }
+    }
+
+    /// Appends one byte; when full the byte is dropped and counted.
+    pub fn push(&self, byte: u8) -> bool {
+        let ok = critical_section::with(|cs| {
+            let mut r = self.inner.borrow_ref_mut(cs);
+            if r.len == N {
+                return false;
+            }
+            let at = (r.head + r.len) % N;
+            r.buf[at] = byte;
+            r.len += 1;
+            true
+        });
+        if !ok {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+        ok
+    }
+
+    /// Appends as many of `bytes` as fit, returning how many.
+    pub fn push_slice(&self, bytes: &[u8]) -> usize {
+        critical_section::with(|cs| {
+            let mut r = self.inner.borrow_ref_mut(cs);
+            let n = bytes.len().min(N - r.len);
+            for &b in &bytes[..n] {
+                let at = (r.head + r.len) % N;
+                r.buf[at] = b;
+                r.len += 1;
+            }
+            n
+        })
+    }
+
+    /// Removes the oldest byte.
+    pub fn pop(&self) -> Option<u8> {
+        critical_section::with(|cs| {
+            let mut r = self.inner.borrow_ref_mut(cs);
+            if r.len == 0 {
+                return None;
+            }
+            let b = r.buf[r.head];
+            r.head = (r.head + 1) % N;
+            r.len -= 1;
+            Some(b)
+        })
+    }
+
+    /// Moves up to `out.len()` of the oldest bytes into `out`, returning how many.
+    pub fn pop_slice(&self, out: &mut [u8]) -> usize {
+        critical_section::with(|cs| {
+            let mut r = self.inner.borrow_ref_mut(cs);
+            let n = out.len().min(r.len);
+            for o in &mut out[..n] {
+                *o = r.buf[r.head];
+                r.head = (r.head + 1) % N;
+            }
+            r.len -= n;
+            n
+        })
+    }
+
+    /// True when nothing is queued.
+    pub fn is_empty(&self) -> bool {
+        critical_section::with(|cs| self.inner.borrow_ref(cs).len == 0)
+    }
+
+    /// Bytes dropped because the queue was full.
+    pub fn dropped(&self) -> usize {
+        self.dropped.load(Ordering::Relaxed)
+    }
+}
+
+impl<const N: usize> Default for ByteQueue<N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Event bits raised from interrupts and awaited by one background task.
+pub struct Events {
+    bits: AtomicU32,
+    waker: AtomicWaker,
+}
+
+impl Events {
+    /// No event pending.
+    pub const fn new() -> Self {
+        Self { bits: AtomicU32::new(0), waker: AtomicWaker::new() }
+    }
+
+    /// Raises `bits` and wakes the waiting task. Callable from any interrupt.
+    #[inline(always)]
+    pub fn raise(&self, bits: u32) {
+        self.bits.fetch_or(bits, Ordering::Release);
+        self.waker.wake();
+    }
+
+    /// Takes the pending bits without waiting (0 when none).
+    pub fn take(&self) -> u32 {
+        self.bits.swap(0, Ordering::Acquire)
+    }
+
+    /// Waits until some bit is raised, then takes all pending bits.
+    pub async fn wait(&self) -> u32 {
+        poll_fn(|cx| {
+            let bits = self.take();
+            if bits != 0 {
+                return Poll::Ready(bits);
+            }
+            self.waker.register(cx.waker());
+            let bits = self.take();
+            if bits != 0 {
+                Poll::Ready(bits)
+            } else {
+                Poll::Pending
+            }
+        })
+        .await
+    }
+}
+
+impl Default for Events {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn byte_queue_is_fifo_and_counts_drops() {
+        let q: ByteQueue<4> = ByteQueue::new();
+        assert_eq!(q.push_slice(b"abc"), 3);
+        assert!(q.push(b'd'));
+        assert!(!q.push(b'e'));
+        assert_eq!(q.dropped(), 1);
+        assert_eq!(q.pop(), Some(b'a'));
+        assert!(q.push(b'f'));
+        let mut out = [0u8; 8];
+        assert_eq!(q.pop_slice(&mut out), 4);
+        assert_eq!(&out[..4], b"bcdf");
+        assert!(q.is_empty());
+    }
+
+    #[test]
+    fn events_accumulate_until_taken() {
+        let e = Events::new();
+        e.raise(1);
+        e.raise(4);
+        assert_eq!(e.take(), 5);
+        assert_eq!(e.take(), 0);
+    }
+}

@@ -1,1 +1,191 @@
-//! f64 references (placeholder).
+//! f64 reference implementations (host only, `std`), written independently of the
+//! fixed-point code from the definitions in [`features`](crate::features): two-pass central
+//! moments, a plain complex radix-2 FFT of the full zero-padded length with exact twiddles,
+//! and natural logarithms. Tests compare the fixed-point features against these.
+
+use crate::features::{FeatureConfig, FeatureError, BLOCK_SAMPLES, FEATURE_COUNT, MAX_WINDOW_SAMPLES, NOISE_FLOOR_FACTOR};
+use std::f64::consts::PI;
+
+/// The reference features plus the intermediate spectrum, for diagnosing differences.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReferenceFeatures {
+    /// f1..f12 by index, as in [`Features::as_array`](crate::features::Features::as_array).
+    pub values: [f64; FEATURE_COUNT],
+    /// Power `|X_k|^2` for `k = 0 ..= M/2` of the windowed decimated signal (empty if the
+    /// spectrum was not computed); arbitrary common scale.
+    pub power: Vec<f64>,
+    /// The bin of the dominant-frequency peak (0 if none).
+    pub peak_bin: usize,
+    /// Width of one bin in Hz.
+    pub bin_hz: f64,
+}
+
+/// The 12 features, in f64, of the window that ends with the last of `codes` (the codes
+/// pushed since configuration, oldest first).
+pub fn features_f64(codes: &[i16], cfg: &FeatureConfig) -> Result<[f64; FEATURE_COUNT], FeatureError> {
+    Ok(features_f64_detail(codes, cfg)?.values)
+}
+
+/// As [`features_f64`], with the spectrum.
+pub fn features_f64_detail(codes: &[i16], cfg: &FeatureConfig) -> Result<ReferenceFeatures, FeatureError> {
+    cfg.validate(MAX_WINDOW_SAMPLES)?;
+    let scale = cfg.acc_mps2_per_lsb as f64;
+    let window = cfg.window_samples as usize;
+    let t = codes.len();
+    let n = t.min(window);
+    let win = &codes[t - n..];
+    let mut values = [0.0f64; FEATURE_COUNT];
+
+    // Blocks overlapping the window (complete ones) and the partial block.
+    let complete = t / BLOCK_SAMPLES;
+    let nd = complete.min(window / BLOCK_SAMPLES);
+    let block_start = (complete - nd) * BLOCK_SAMPLES;
+
+    if n >= 2 {
+        let mean = win.iter().map(|&x| x as i64).sum::<i64>() as f64 / n as f64;
+        let moment = |k: i32| win.iter().map(|&x| (x as f64 - mean).powi(k)).sum::<f64>() / n as f64;
+        let (m2, m3, m4) = (moment(2), moment(3), moment(4));
+        let rms = m2.sqrt();
+        let mean_abs = mean_abs_tracked(codes, window);
+        let peak = codes[block_start..].iter().map(|&x| (x as f64 - mean).abs()).fold(0.0, f64::max);
+        let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
+        values[1] = mean_abs * scale;
+        values[2] = m2 * scale * scale;
+        values[3] = peak * scale;
+        values[4] = rms * scale;
+        values[5] = ratio(m4, m2 * m2);
+        values[6] = ratio(m3, m2.powf(1.5));
+        values[7] = ratio(peak, rms);
+        values[8] = ratio(peak, mean_abs);
+        values[9] = ratio(rms, mean_abs);
+    }
+
+    let m = cfg.fft_len();
+    let bin_hz = cfg.sample_rate_hz as f64 / (BLOCK_SAMPLES * m) as f64;
+    let mut power = Vec::new();
+    let mut peak_bin = 0;
+    if nd >= 2 {
+        let y: Vec<f64> = codes[block_start..block_start + nd * BLOCK_SAMPLES]
+            .chunks(BLOCK_SAMPLES)
+            .map(|b| b.iter().map(|&x| x as f64).sum())
+            .collect();
+        let mean_y = y.iter().sum::<f64>() / nd as f64;
+        let var_y = y.iter().map(|v| (v - mean_y).powi(2)).sum::<f64>() / nd as f64;
+        values[11] = var_y / 256.0 * scale * scale;
+        if nd >= 4 && var_y > 0.0 {
+            let mut re = vec![0.0; m];
+            let mut im = vec![0.0; m];
+            for (j, v) in y.iter().enumerate() {
+                let w = 0.5 * (1.0 - (2.0 * PI * j as f64 / nd as f64).cos());
+                re[j] = (v - mean_y) * w;
+            }
+            fft_f64(&mut re, &mut im);
+            power = (0..=m / 2).map(|k| re[k] * re[k] + im[k] * im[k]).collect();
+            let (f1, k) = dominant_bins(&power);
+            peak_bin = k;
+            values[0] = f1 * bin_hz;
+            values[10] = centroid_bins(&power) * bin_hz;
+        }
+    }
+    Ok(ReferenceFeatures { values, power, peak_bin, bin_hz })
+}
+
+/// Mean of `|x_i - d_i|` over the window, `d_i` the DC reference of sample i's block: the
+/// window mean at the block's start, truncated toward zero to 1/256 LSB (the block's first
+/// code for the first block).
+fn mean_abs_tracked(codes: &[i16], window: usize) -> f64 {
+    let t = codes.len();
+    let n = t.min(window);
+    let mut prefix = vec![0i64; t + 1];
+    for (i, &x) in codes.iter().enumerate() {
+        prefix[i + 1] = prefix[i] + x as i64;
+    }
+    let mut sum_abs = 0.0;
+    let mut d = 0.0;
+    for (i, &x) in codes.iter().enumerate() {
+        if i % BLOCK_SAMPLES == 0 {
+            let filled = i.min(window);
+            let s1 = prefix[i] - prefix[i - filled];
+            d = if filled == 0 { x as f64 } else { (256 * s1 / filled as i64) as f64 / 256.0 };
+        }
+        if i >= t - n {
+            sum_abs += (x as f64 - d).abs();
+        }
+    }
+    sum_abs / n as f64
+}
+
+/// Dominant frequency in bins: first largest `P_k`, `k = 1 ..= M/2`, refined by a parabola
+/// through the log powers (floored at `2^-40` of the peak). Returns (bins, peak bin).
+fn dominant_bins(power: &[f64]) -> (f64, usize) {
+    let half = power.len() - 1;
+    let mut k = 1;
+    for i in 1..=half {
+        if power[i] > power[k] {
+            k = i;
+        }
+    }
+    let b = power[k];
+    let floor = b * 2f64.powi(-40);
+    let a = power[k - 1].max(floor);
+    let c = if k == half { power[half - 1] } else { power[k + 1] }.max(floor);
+    let (la, lb, lc) = (a.ln(), b.max(floor).ln(), c.ln());
+    let den = la - 2.0 * lb + lc;
+    let delta = if den < 0.0 { 0.5 * (la - lc) / den } else { 0.0 };
+    (k as f64 + delta.clamp(-0.5, 0.5), k)
+}
+
+/// Centroid in bins of `max(P_k - T, 0)` with one-sided weights, `T` = factor times the
+/// lower median of `P_1 ..= P_{M/2}`; `T = 0` if nothing exceeds it.
+fn centroid_bins(power: &[f64]) -> f64 {
+    let half = power.len() - 1;
+    let mut sorted: Vec<f64> = power[1..].to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let floor = NOISE_FLOOR_FACTOR as f64 * sorted[(half - 1) / 2];
+    let centroid = |floor: f64| {
+        let (mut num, mut den) = (0.0, 0.0);
+        for (k, &p) in power.iter().enumerate().skip(1) {
+            let w = if k == half { 1.0 } else { 2.0 };
+            let e = (p - floor).max(0.0);
+            num += w * k as f64 * e;
+            den += w * e;
+        }
+        (den > 0.0).then(|| num / den)
+    };
+    centroid(floor).or_else(|| centroid(0.0)).unwrap_or(0.0)
+}
+
+/// In-place forward complex FFT (`e^{-i...}`), length a power of two.
+pub fn fft_f64(re: &mut [f64], im: &mut [f64]) {
+    let n = re.len();
+    assert_eq!(n, im.len());
+    assert!(n.is_power_of_two());
+    let bits = n.trailing_zeros();
+    if n < 2 {
+        return;
+    }
+    for i in 0..n {
+        let j = i.reverse_bits() >> (usize::BITS - bits);
+        if j > i {
+            re.swap(i, j);
+            im.swap(i, j);
+        }
+    }
+    let mut half = 1;
+    while half < n {
+        for k in 0..half {
+            let angle = -PI * k as f64 / half as f64;
+            let (s, c) = angle.sin_cos();
+            for start in (0..n).step_by(2 * half) {
+                let (a, b) = (start + k, start + k + half);
+                let tr = re[b] * c - im[b] * s;
+                let ti = re[b] * s + im[b] * c;
+                re[b] = re[a] - tr;
+                im[b] = im[a] - ti;
+                re[a] += tr;
+                im[a] += ti;
+            }
+        }
+        half *= 2;
+    }
+}

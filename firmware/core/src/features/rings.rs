@@ -1,0 +1,240 @@
+//! The shared part: decimated and block-extreme rings of atomics, and the read-time `finish`.
+
+use super::moments::{time_domain, Extremes};
+use super::spectrum::{fft_bfp, hann_q30, real_bin_power, refine_peak, MAX_FFT_LEN};
+use super::{Capture, FeatureError, Features, FEATURE_COUNT, MEAN_FREQ_HZ, NOISE_FLOOR_FACTOR, SIGNAL_FREQ_HZ, TOTAL_POWER_M2PS4};
+use core::sync::atomic::{fence, AtomicI32, AtomicU32, Ordering};
+
+/// Rings shared between the interrupt (writer) and the feature reader, one slot per block:
+/// the block's sum of 16 codes (the decimated sample, times 16) and its packed min/max.
+///
+/// All fields are atomics, so the rings are `Sync`, need no `unsafe` and can live in a
+/// `static`. `RING_BLOCKS` must be at least the state's `WINDOW_BLOCKS + MARGIN_BLOCKS`
+/// (checked at compile time by `push`). Memory: `8 * RING_BLOCKS + 4` bytes.
+#[derive(Debug)]
+pub struct SpectralRings<const RING_BLOCKS: usize> {
+    /// Blocks whose write has started (wrapping); stored before the slot is written.
+    claimed: AtomicU32,
+    /// Sum of the block's 16 codes (|sum| <= 2^19).
+    block_sum: [AtomicI32; RING_BLOCKS],
+    /// Block maximum (high 16 bits) and minimum (low 16 bits) codes.
+    block_extremes: [AtomicU32; RING_BLOCKS],
+}
+
+impl<const RING_BLOCKS: usize> Default for SpectralRings<RING_BLOCKS> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Scratch memory for [`SpectralRings::finish`]: a complex FFT of up to `FFT_HALF` points
+/// (real FFT length `2 * FFT_HALF`, a power of two, at most 4,096). Memory: `16 * FFT_HALF`
+/// bytes. It holds no state between calls.
+#[derive(Clone, Debug)]
+pub struct Scratch<const FFT_HALF: usize> {
+    re: [i32; FFT_HALF],
+    im: [i32; FFT_HALF],
+    power: [u64; FFT_HALF],
+}
+
+impl<const FFT_HALF: usize> Default for Scratch<FFT_HALF> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const FFT_HALF: usize> Scratch<FFT_HALF> {
+    const SIZE_OK: () = assert!(
+        FFT_HALF.is_power_of_two() && FFT_HALF >= 4 && FFT_HALF <= MAX_FFT_LEN / 2,
+        "FFT_HALF must be a power of two within 4..=2048"
+    );
+
+    /// Zeroed scratch.
+    pub const fn new() -> Self {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::SIZE_OK;
+        Self { re: [0; FFT_HALF], im: [0; FFT_HALF], power: [0; FFT_HALF] }
+    }
+}
+
+impl<const RING_BLOCKS: usize> SpectralRings<RING_BLOCKS> {
+    /// Empty rings.
+    pub const fn new() -> Self {
+        Self {
+            claimed: AtomicU32::new(0),
+            block_sum: [const { AtomicI32::new(0) }; RING_BLOCKS],
+            block_extremes: [const { AtomicU32::new(0) }; RING_BLOCKS],
+        }
+    }
+
+    /// Writes block number `index` to `slot` (interrupt side).
+    #[inline]
+    pub(crate) fn publish(&self, slot: usize, index: u32, sum: i32, max: i16, min: i16) {
+        let (Some(sum_slot), Some(ext_slot)) = (self.block_sum.get(slot), self.block_extremes.get(slot)) else {
+            return;
+        };
+        // Claim first: a reader that sees the new slot contents after its acquire fence
+        // is then guaranteed to see the claim (fence-fence synchronisation).
+        self.claimed.store(index.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        sum_slot.store(sum, Ordering::Relaxed);
+        ext_slot.store(((max as u16 as u32) << 16) | min as u16 as u32, Ordering::Relaxed);
+    }
+
+    /// Computes the features of `capture`. Reads only the ring slots of the blocks the
+    /// capture covers, so `push` may continue meanwhile for up to
+    /// `RING_BLOCKS - window blocks` blocks (at least [`MARGIN_BLOCKS`](super::MARGIN_BLOCKS));
+    /// beyond that the result is [`FeatureError::Torn`]. Also fails with
+    /// [`FeatureError::ScratchTooSmall`] if `scratch` cannot hold the configured FFT.
+    pub fn finish<const FFT_HALF: usize>(
+        &self,
+        capture: &Capture,
+        scratch: &mut Scratch<FFT_HALF>,
+    ) -> Result<Features, FeatureError> {
+        let cfg = &capture.cfg;
+        let fft_len = cfg.fft_len();
+        let half = fft_len / 2;
+        if half > FFT_HALF || fft_len > MAX_FFT_LEN {
+            return Err(FeatureError::ScratchTooSmall { needed_half_len: half as u32 });
+        }
+        // A capture from a state with a larger window than these rings can hold.
+        let nd = (capture.blocks as usize).min(cfg.window_blocks());
+        if nd > RING_BLOCKS || capture.ring_slot as usize >= RING_BLOCKS.max(1) {
+            return Err(FeatureError::Torn);
+        }
+
+        // Gather the window's blocks, oldest first: extremes into max/min, block sums packed
+        // two per u64 into scratch.power (2 * FFT_HALF >= FFT length >= nd slots).
+        let mut max = if capture.partial_len > 0 { capture.partial_max } else { i16::MIN };
+        let mut min = if capture.partial_len > 0 { capture.partial_min } else { i16::MAX };
+        let first_slot = (capture.ring_slot as usize + RING_BLOCKS - nd) % RING_BLOCKS.max(1);
+        let mut slot = first_slot;
+        for j in 0..nd {
+            let sum = self.block_sum[slot].load(Ordering::Relaxed);
+            let ext = self.block_extremes[slot].load(Ordering::Relaxed);
+            let (bmax, bmin) = ((ext >> 16) as u16 as i16, ext as u16 as i16);
+            max = max.max(bmax);
+            min = min.min(bmin);
+            set_block_sum(&mut scratch.power, j, sum);
+            slot += 1;
+            if slot == RING_BLOCKS {
+                slot = 0;
+            }
+        }
+        fence(Ordering::Acquire);
+        let claimed = self.claimed.load(Ordering::Relaxed);
+        if nd > 0 && claimed.wrapping_sub(capture.blocks_written) > (RING_BLOCKS - nd) as u32 {
+            return Err(FeatureError::Torn);
+        }
+
+        let mut out = [0.0f32; FEATURE_COUNT];
+        let extremes = if nd > 0 || capture.partial_len > 0 { Some(Extremes { max, min }) } else { None };
+        time_domain(capture, extremes, &mut out);
+        spectral(capture, nd, scratch, &mut out);
+        Ok(Features::from_array(out, capture.samples))
+    }
+}
+
+/// Stores block sum `j` in the packed scratch (two i32 per u64).
+#[inline]
+fn set_block_sum(packed: &mut [u64], j: usize, sum: i32) {
+    if let Some(word) = packed.get_mut(j / 2) {
+        let shift = 32 * (j % 2);
+        *word = (*word & !(0xffff_ffffu64 << shift)) | ((sum as u32 as u64) << shift);
+    }
+}
+
+/// Block sum `j` from the packed scratch.
+#[inline]
+fn block_sum(packed: &[u64], j: usize) -> i64 {
+    packed.get(j / 2).map_or(0, |word| (word >> (32 * (j % 2))) as u32 as i32 as i64)
+}
+
+/// Spectral features (f1, f11, f12) from the `nd` block sums packed in `scratch.power`.
+fn spectral<const FFT_HALF: usize>(cap: &Capture, nd: usize, scratch: &mut Scratch<FFT_HALF>, out: &mut [f32; FEATURE_COUNT]) {
+    let cfg = &cap.cfg;
+    let nd = nd.min(FFT_HALF * 2);
+    if nd < 2 {
+        return;
+    }
+    let Scratch { re, im, power } = scratch;
+    // f12: variance of the decimated signal (block mean = sum / 16), exact in i128.
+    let mut sum = 0i64;
+    let mut sum_sq = 0i64; // <= 2^38 * 2^12
+    for j in 0..nd {
+        let v = block_sum(power, j);
+        sum += v;
+        sum_sq += v * v;
+    }
+    let c2 = nd as i128 * sum_sq as i128 - sum as i128 * sum as i128;
+    let scale = cfg.acc_mps2_per_lsb;
+    out[TOTAL_POWER_M2PS4] = (c2 as f32 / ((nd * nd) as f32) / 256.0) * (scale * scale);
+    if nd < 4 || c2 == 0 {
+        return;
+    }
+
+    // Mean removal, exact: z_j = nd * y_j - sum, |z| <= 2^32; Hann in Q30: |v| < 2^62.
+    let windowed = |power: &[u64], j: usize| (nd as i64 * block_sum(power, j) - sum) * hann_q30(j, nd);
+    let mut max_abs = 0u64;
+    for j in 0..nd {
+        max_abs = max_abs.max(windowed(power, j).unsigned_abs());
+    }
+    if max_abs == 0 {
+        return;
+    }
+    // Normalise so that the largest |v| lies in [2^28, 2^29); pack even/odd samples as a
+    // complex sequence and zero-pad.
+    let bits = 64 - max_abs.leading_zeros();
+    let (right, left) = if bits > 29 { (bits - 29, 0) } else { (0, 29 - bits) };
+    let fft_len = cfg.fft_len();
+    let half = fft_len / 2;
+    let (re, im) = (&mut re[..half], &mut im[..half]);
+    let normalised = |power: &[u64], j: usize| -> i32 {
+        if j >= nd {
+            return 0;
+        }
+        let v = windowed(power, j);
+        let v = if right > 0 { (v + (1i64 << (right - 1))) >> right } else { v << left };
+        v as i32
+    };
+    for m in 0..half {
+        re[m] = normalised(power, 2 * m);
+        im[m] = normalised(power, 2 * m + 1);
+    }
+    fft_bfp(re, im);
+
+    // Bin powers k = 1 ..= half into power[k - 1]; track the peak (first maximum).
+    let power = &mut power[..half];
+    let mut peak_k = 1;
+    let mut peak_p = 0u64;
+    for k in 1..=half {
+        let p = real_bin_power(re, im, k);
+        power[k - 1] = p;
+        if p > peak_p {
+            peak_p = p;
+            peak_k = k;
+        }
+    }
+    let below = if peak_k == 1 { real_bin_power(re, im, 0) } else { power[peak_k - 2] };
+    let above = if peak_k == half { power[half - 2] } else { power[peak_k] };
+    let bin_hz = cfg.bin_hz();
+    out[SIGNAL_FREQ_HZ] = refine_peak(peak_k, below, peak_p, above) * bin_hz;
+
+    // Noise floor: NOISE_FLOOR_FACTOR times the lower median bin power.
+    let (_, median, _) = power.select_nth_unstable((half - 1) / 2);
+    let floor = *median as u128 * NOISE_FLOOR_FACTOR as u128;
+    let centroid = |floor: u128| -> Option<f32> {
+        let mut num = 0u128;
+        let mut den = 0u128;
+        for k in 1..=half {
+            let p = real_bin_power(re, im, k) as u128;
+            let excess = p.saturating_sub(floor);
+            let w = if k == half { 1 } else { 2 };
+            num += w * k as u128 * excess;
+            den += w * excess;
+        }
+        (den > 0).then(|| num as f32 / den as f32)
+    };
+    let bins = centroid(floor).or_else(|| centroid(0)).unwrap_or(0.0);
+    out[MEAN_FREQ_HZ] = bins * bin_hz;
+}

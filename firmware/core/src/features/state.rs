@@ -1,0 +1,244 @@
+//! The interrupt-owned part: exact sliding sums, the raw ring and the block accumulator.
+
+use super::{FeatureConfig, FeatureError, SpectralRings, BLOCK_SAMPLES, MARGIN_BLOCKS, MAX_WINDOW_BLOCKS, MIN_WINDOW_BLOCKS};
+use fixed::types::I24F8;
+
+/// Interrupt-owned feature state for a window of up to `16 * WINDOW_BLOCKS` samples.
+///
+/// `WINDOW_BLOCKS` must be within [`MIN_WINDOW_BLOCKS`]..=[`MAX_WINDOW_BLOCKS`] (checked at
+/// compile time). Memory: `36 * WINDOW_BLOCKS` bytes plus about 120.
+#[derive(Clone, Debug)]
+pub struct FeatureState<const WINDOW_BLOCKS: usize> {
+    cfg: FeatureConfig,
+    /// Raw codes of the window, oldest overwritten first.
+    raw: [[i16; BLOCK_SAMPLES]; WINDOW_BLOCKS],
+    /// DC reference (Q24.8 codes) that each block of `raw` was accumulated with.
+    dc_ref: [I24F8; WINDOW_BLOCKS],
+    /// Block slot of `raw` / `dc_ref` being written (0 .. window blocks).
+    raw_block: u32,
+    /// Sample index within the block being written (0 .. 16).
+    in_block: u32,
+    /// Samples in the window so far, saturating at the window length.
+    filled: u32,
+    /// Complete blocks in the window so far, saturating at the window length in blocks.
+    blocks_filled: u32,
+    /// Exact sliding sums of x, x^2, x^3, x^4 over the window. S1 cannot overflow i32:
+    /// at most 65,536 * 32,768 = 2^31 in magnitude, and -2^31 is the only extreme reached.
+    s1: i32,
+    s2: i64,
+    s3: i64,
+    s4: i128,
+    /// Sliding sum of |256 x - d| (Q8 codes), at most 2^24 * 2^16 = 2^40.
+    sum_abs_q8: i64,
+    /// DC reference of the current block, and of the block leaving the window.
+    dc_new: I24F8,
+    dc_old: I24F8,
+    /// Complete blocks ever written to the rings (wrapping), and the ring slot of the next.
+    blocks_written: u32,
+    ring_slot: u32,
+}
+
+/// A snapshot of the interrupt-owned state, taken in O(1); [`SpectralRings::finish`] turns it
+/// into [`Features`](super::Features).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Capture {
+    /// The configuration in force.
+    pub cfg: FeatureConfig,
+    /// Samples in the moment window, `min(pushed, window_samples)`.
+    pub samples: u32,
+    /// Sum of the codes in the window.
+    pub s1: i32,
+    /// Sum of squared codes.
+    pub s2: i64,
+    /// Sum of cubed codes.
+    pub s3: i64,
+    /// Sum of codes to the fourth power.
+    pub s4: i128,
+    /// Sum of `|256 x - d|` (codes/256).
+    pub sum_abs_q8: i64,
+    /// Complete blocks ever written to the rings (wrapping counter).
+    pub blocks_written: u32,
+    /// Ring slot the next block will be written to.
+    pub ring_slot: u32,
+    /// Complete blocks in the window, `min(blocks since configure, window blocks)`.
+    pub blocks: u32,
+    /// Samples in the current, incomplete block.
+    pub partial_len: u32,
+    /// Largest code of the current block (`i16::MIN` if it is empty).
+    pub partial_max: i16,
+    /// Smallest code of the current block (`i16::MAX` if it is empty).
+    pub partial_min: i16,
+}
+
+impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
+    const CAPACITY_OK: () = assert!(
+        WINDOW_BLOCKS >= MIN_WINDOW_BLOCKS && WINDOW_BLOCKS <= MAX_WINDOW_BLOCKS,
+        "WINDOW_BLOCKS must be within MIN_WINDOW_BLOCKS..=MAX_WINDOW_BLOCKS"
+    );
+
+    /// Capacity in samples.
+    pub const CAPACITY_SAMPLES: usize = WINDOW_BLOCKS * BLOCK_SAMPLES;
+
+    /// A fresh state; fails if `cfg` does not validate against the capacity.
+    pub const fn new(cfg: FeatureConfig) -> Result<Self, FeatureError> {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::CAPACITY_OK;
+        if let Err(e) = cfg.validate(Self::CAPACITY_SAMPLES) {
+            return Err(e);
+        }
+        Ok(Self {
+            cfg,
+            raw: [[0; BLOCK_SAMPLES]; WINDOW_BLOCKS],
+            dc_ref: [I24F8::ZERO; WINDOW_BLOCKS],
+            raw_block: 0,
+            in_block: 0,
+            filled: 0,
+            blocks_filled: 0,
+            s1: 0,
+            s2: 0,
+            s3: 0,
+            s4: 0,
+            sum_abs_q8: 0,
+            dc_new: I24F8::ZERO,
+            dc_old: I24F8::ZERO,
+            blocks_written: 0,
+            ring_slot: 0,
+        })
+    }
+
+    /// The configuration in force.
+    pub const fn config(&self) -> &FeatureConfig {
+        &self.cfg
+    }
+
+    /// Switches to `cfg` and empties the window (O(capacity): not for the interrupt).
+    /// The ring write position continues, so the same [`SpectralRings`] stays valid. On
+    /// error the old configuration and window stay in force.
+    pub fn reconfigure(&mut self, cfg: FeatureConfig) -> Result<(), FeatureError> {
+        cfg.validate(Self::CAPACITY_SAMPLES)?;
+        self.cfg = cfg;
+        self.raw = [[0; BLOCK_SAMPLES]; WINDOW_BLOCKS];
+        self.dc_ref = [I24F8::ZERO; WINDOW_BLOCKS];
+        self.raw_block = 0;
+        self.in_block = 0;
+        self.filled = 0;
+        self.blocks_filled = 0;
+        self.s1 = 0;
+        self.s2 = 0;
+        self.s3 = 0;
+        self.s4 = 0;
+        self.sum_abs_q8 = 0;
+        self.dc_new = I24F8::ZERO;
+        self.dc_old = I24F8::ZERO;
+        Ok(())
+    }
+
+    /// Adds one ADC code: O(1), integer only, never panics or overflows.
+    ///
+    /// Every 16th call also writes one decimated sample and the block extremes to `rings`.
+    #[inline]
+    pub fn push<const RING_BLOCKS: usize>(&mut self, rings: &SpectralRings<RING_BLOCKS>, code: i16) {
+        const { assert!(RING_BLOCKS >= WINDOW_BLOCKS + MARGIN_BLOCKS, "RING_BLOCKS too small") };
+        let in_block = (self.in_block as usize) % BLOCK_SAMPLES;
+        let Some(block) = self.raw.get_mut(self.raw_block as usize) else {
+            return; // unreachable: raw_block < window blocks <= WINDOW_BLOCKS
+        };
+        let old = block[in_block];
+        block[in_block] = code;
+
+        let x = code as i32;
+        let o = old as i32;
+        if self.filled == 0 {
+            // No window mean yet: the first block is referenced to its first sample.
+            self.dc_new = I24F8::from_bits(x << 8);
+            if let Some(slot) = self.dc_ref.get_mut(self.raw_block as usize) {
+                *slot = self.dc_new;
+            }
+        }
+        let x2 = x * x; // <= 2^30
+        let o2 = o * o;
+        // True window sums always fit (see field docs), so the wrapping adds are exact.
+        self.s1 = self.s1.wrapping_add(x - o);
+        self.s2 += (x2 - o2) as i64;
+        self.s3 += x2 as i64 * x as i64 - o2 as i64 * o as i64;
+        let x4 = (x2 as u64) * (x2 as u64); // <= 2^60
+        let o4 = (o2 as u64) * (o2 as u64);
+        self.s4 += (x4 as i64 - o4 as i64) as i128;
+        let a_new = (I24F8::from_bits(x << 8) - self.dc_new).abs().to_bits();
+        let a_old = (I24F8::from_bits(o << 8) - self.dc_old).abs().to_bits();
+        self.sum_abs_q8 += (a_new - a_old) as i64;
+
+        if self.filled < self.cfg.window_samples {
+            self.filled += 1;
+        }
+        if in_block + 1 < BLOCK_SAMPLES {
+            self.in_block = in_block as u32 + 1;
+        } else {
+            self.end_block(rings);
+        }
+    }
+
+    /// Block end: publish the block, advance the ring positions, set the next DC reference.
+    #[inline(never)]
+    fn end_block<const RING_BLOCKS: usize>(&mut self, rings: &SpectralRings<RING_BLOCKS>) {
+        let block = self.raw.get(self.raw_block as usize).copied().unwrap_or([0; BLOCK_SAMPLES]);
+        let mut sum = 0i32;
+        let mut max = i16::MIN;
+        let mut min = i16::MAX;
+        for &c in &block {
+            sum += c as i32;
+            max = max.max(c);
+            min = min.min(c);
+        }
+        rings.publish(self.ring_slot as usize, self.blocks_written, sum, max, min);
+        self.blocks_written = self.blocks_written.wrapping_add(1);
+        self.ring_slot = if self.ring_slot as usize + 1 >= RING_BLOCKS { 0 } else { self.ring_slot + 1 };
+        let window_blocks = self.cfg.window_blocks() as u32;
+        if self.blocks_filled < window_blocks {
+            self.blocks_filled += 1;
+        }
+        self.in_block = 0;
+        self.raw_block = if self.raw_block + 1 >= window_blocks { 0 } else { self.raw_block + 1 };
+
+        // The next block overwrites the oldest one: remember its reference, set the new one
+        // to the window mean truncated to 1/256 LSB (two i32 divisions, no i64).
+        let n = self.filled.max(1) as i32;
+        let q = self.s1 / n;
+        let r = self.s1 % n; // |r| < n <= 2^16, so r << 8 fits
+        let dc = I24F8::from_bits((q << 8) + (r << 8) / n);
+        if let Some(slot) = self.dc_ref.get_mut(self.raw_block as usize) {
+            self.dc_old = *slot;
+            *slot = dc;
+        }
+        self.dc_new = dc;
+    }
+
+    /// Takes a snapshot for [`SpectralRings::finish`]: O(1) (scans the current block only).
+    pub fn capture<const RING_BLOCKS: usize>(&self, _rings: &SpectralRings<RING_BLOCKS>) -> Capture {
+        let partial_len = self.in_block.min(BLOCK_SAMPLES as u32);
+        let mut max = i16::MIN;
+        let mut min = i16::MAX;
+        if let Some(block) = self.raw.get(self.raw_block as usize) {
+            for &c in &block[..partial_len as usize] {
+                max = max.max(c);
+                min = min.min(c);
+            }
+        }
+        Capture {
+            cfg: self.cfg,
+            samples: self.filled,
+            s1: self.s1,
+            s2: self.s2,
+            s3: self.s3,
+            s4: self.s4,
+            sum_abs_q8: self.sum_abs_q8,
+            blocks_written: self.blocks_written,
+            ring_slot: self.ring_slot,
+            blocks: self.blocks_filled,
+            partial_len,
+            partial_max: max,
+            partial_min: min,
+        }
+    }
+}

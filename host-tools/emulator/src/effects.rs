@@ -8,7 +8,7 @@
 //! use sts_emulator::EffectSpec;
 //! let spec: EffectSpec = "coulomb-friction:coulomb_n=40".parse().unwrap();
 //! assert_eq!(spec.get("coulomb_n"), 40.0);
-//! assert_eq!(spec.get("static_n"), 90.0); // the default
+//! assert_eq!(spec.get("static_n"), 2.5); // the default
 //! assert!("coulomb-friction:force=3".parse::<EffectSpec>().is_err());
 //! ```
 
@@ -69,14 +69,14 @@ const fn p(key: &'static str, default: f64, min: f64, max: f64, doc: &'static st
 }
 
 const FRICTION: &[ParamDef] = &[
-    p("coulomb_n", 60.0, 0.0, 1000.0, "Coulomb (sliding) friction force, N"),
-    p("static_n", 90.0, 0.0, 1500.0, "static (breakaway) friction force at the Stribeck peak, N"),
+    p("coulomb_n", 1.5, 0.0, 200.0, "Coulomb (sliding) friction force, N"),
+    p("static_n", 2.5, 0.0, 300.0, "static (breakaway) friction force at the Stribeck peak, N"),
     p("stribeck_mps", 1e-4, 1e-7, 0.1, "Stribeck velocity, m/s"),
     p("smooth_mps", 1e-5, 1e-7, 1e-3, "velocity below which the sign function is smoothed, m/s"),
 ];
 const HYSTERESIS: &[ParamDef] = &[
-    p("force_n", 40.0, 0.0, 1000.0, "Dahl saturation force, N"),
-    p("stiffness_n_per_um", 20.0, 0.01, 1000.0, "presliding (rest) stiffness, N/um"),
+    p("force_n", 1.5, 0.0, 200.0, "Dahl saturation force, N"),
+    p("stiffness_n_per_um", 2.0, 0.01, 1000.0, "presliding (rest) stiffness, N/um"),
 ];
 const MODE: &[ParamDef] = &[
     p("freq_hz", 180.0, 5.0, 1500.0, "natural frequency, Hz"),
@@ -238,11 +238,11 @@ impl EffectSpec {
         let mut u = |lo: f64, hi: f64| lo + (hi - lo) * rng.random::<f64>();
         let draws: Vec<(&str, f64)> = match kind {
             EffectKind::CoulombFriction => {
-                let coulomb = u(30.0, 120.0);
+                let coulomb = u(0.8, 4.0);
                 vec![("coulomb_n", coulomb), ("static_n", coulomb * u(1.2, 1.8)), ("stribeck_mps", u(5e-5, 5e-4))]
             }
             EffectKind::PreslidingHysteresis => {
-                vec![("force_n", u(20.0, 80.0)), ("stiffness_n_per_um", u(8.0, 40.0))]
+                vec![("force_n", u(0.8, 4.0)), ("stiffness_n_per_um", u(1.0, 5.0))]
             }
             EffectKind::StructuralMode => vec![
                 ("freq_hz", u(120.0, 320.0)),

@@ -120,6 +120,11 @@ pub struct Machine {
     h_s: f64,
     phi: [[f64; NX]; NX],
     gamma: [[f64; NU]; NX],
+    // Linear-only fast path: the tick split where the delayed force command changes.
+    split_substep: usize,
+    seg: [([[f64; NX]; NX], [[f64; NU]; NX]); 2],
+    nonlinear: bool,
+    slow_temp: (u64, f64, f64),
     state: [f64; NX],
     // Modal accelerations: q'' = acc_row . state + acc_dist * F_dist.
     mode_acc_row: [[f64; NX]; 2],
@@ -144,6 +149,17 @@ pub struct Machine {
     wander_phase: [f64; 3],
     rng: ChaCha8Rng,
     spare_normal: Option<f64>,
+}
+
+/// Round to nearest (ties to even) without a libm call; exact for |x| < 2^51.
+#[inline]
+fn round_fast(x: f64) -> f64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 * 2^52
+    if x.abs() < 2_251_799_813_685_248.0 {
+        (x + MAGIC) - MAGIC
+    } else {
+        x.round()
+    }
 }
 
 fn splitmix(mut x: u64) -> u64 {
@@ -260,6 +276,13 @@ impl Machine {
 
         let total_delay_s = (p.servo.compute_delay_us + extra_delay_us) * 1e-6;
         let output_delay_substeps = (total_delay_s / h_s).round() as usize;
+        let split_substep = output_delay_substeps % substeps;
+        let first = if split_substep == 0 { substeps } else { split_substep };
+        let seg = [
+            discretize(&a, &b, first as f64 * h_s),
+            discretize(&a, &b, (substeps - split_substep) as f64 * h_s),
+        ];
+        let nonlinear = fx.friction.is_some() || fx.hysteresis.is_some();
 
         // Accelerometer filters at the 8 kHz sample rate (bilinear, low-pass prewarped).
         let hp_a = 1.0 / (1.0 + 2.0 * PI * p.accelerometer.highpass_hz * TICK_S);
@@ -283,6 +306,10 @@ impl Machine {
             h_s,
             phi,
             gamma,
+            split_substep,
+            seg,
+            nonlinear,
+            slow_temp: (u64::MAX, 0.0, 0.0),
             state: [0.0; NX],
             mode_acc_row,
             mode_acc_dist,
@@ -427,10 +454,16 @@ impl Machine {
             enc_pos_um += 1e-3 * (amp_nm * arg.sin() + h2_nm * (2.0 * arg).sin());
         }
         let res_um = p.encoder.resolution_nm * 1e-3;
-        let z_enc_um = (enc_pos_um / res_um).round() * res_um;
+        let z_enc_um = round_fast(enc_pos_um / res_um) * res_um;
 
         // TCP: slide + modes + tool-side effects; then the probe.
-        let (temp_true_c, rise_k) = self.temperature_c(time_s);
+        // Slow thermal processes: evaluated every 64 ticks (8 ms), held in between.
+        let block = self.tick / 64;
+        if self.slow_temp.0 != block {
+            let (temp, rise) = self.temperature_c(time_s);
+            self.slow_temp = (block, temp, rise);
+        }
+        let (temp_true_c, rise_k) = (self.slow_temp.1, self.slow_temp.2);
         let mut z_tcp_true_um = (x_m + modal_disp) * 1e6;
         if let Some((_, _, um_per_k)) = self.effects.thermal {
             z_tcp_true_um += um_per_k * rise_k;
@@ -452,7 +485,7 @@ impl Machine {
         let lp = b0 * hp + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2;
         self.acc_lp = [hp, x1, lp, y1];
         let lsb = p.acc_mps2_per_lsb();
-        let code_f = (lp / lsb).round();
+        let code_f = round_fast(lp / lsb);
         let acc_saturated = !(-32768.0..=32767.0).contains(&code_f);
         let acc_code = code_f.clamp(-32768.0, 32767.0) as i16;
         let acc_mps2 = acc_code as f64 * lsb;
@@ -463,8 +496,8 @@ impl Machine {
         let itf = &p.interface;
         let ain_lsb = 2.0 * itf.adc_range_v / (1u64 << itf.adc_bits) as f64;
         let ain_v = (input.analog_in_v + itf.offset_v).clamp(-itf.adc_range_v, itf.adc_range_v - ain_lsb);
-        let ain_read_v = (ain_v / ain_lsb).round() * ain_lsb;
-        let ain_pulses = (ain_read_v * itf.kvc_pulses_per_v).round() as i64;
+        let ain_read_v = round_fast(ain_v / ain_lsb) * ain_lsb;
+        let ain_pulses = round_fast(ain_read_v * itf.kvc_pulses_per_v) as i64;
         let slot = (self.tick as usize) % HISTORY;
         self.cmd_history[slot] = input.z_cmd_um;
         let delay = p.servo.command_delay_ticks as u64;
@@ -495,21 +528,38 @@ impl Machine {
         self.force_history[slot] = u;
         let force_n = self.state[2];
 
-        // Plant: sub-steps with the force command delayed by the computation (and loop) delay.
+        // Plant: the force command delayed by the computation (and loop) delay. Linear plant:
+        // exact in at most two segments; with nonlinear forces: sub-steps.
         let n = self.substeps as u64;
         let d = self.output_delay_substeps as u64;
-        for j in 0..n {
-            let i = self.tick * n + j;
-            let f_cmd = if i >= d {
+        let command_at = |i: u64, tick: u64, history: &[f64; HISTORY]| -> f64 {
+            if i >= d {
                 let m = (i - d) / n;
-                if self.tick - m < HISTORY as u64 {
-                    self.force_history[(m as usize) % HISTORY]
-                } else {
-                    0.0
+                if tick - m < HISTORY as u64 {
+                    return history[(m as usize) % HISTORY];
                 }
-            } else {
-                0.0
-            };
+            }
+            0.0
+        };
+        if !self.nonlinear {
+            let split = self.split_substep as u64;
+            let segments: &[(u64, usize)] = if split == 0 { &[(0, 0)] } else { &[(0, 0), (split, 1)] };
+            for &(j0, which) in segments {
+                let f_cmd = command_at(self.tick * n + j0, self.tick, &self.force_history);
+                let (phi, gamma) = &self.seg[which];
+                let mut next = [0.0; NX];
+                for (r, out) in next.iter_mut().enumerate() {
+                    let mut acc = gamma[r][0] * f_cmd;
+                    for c in 0..NX {
+                        acc += phi[r][c] * self.state[c];
+                    }
+                    *out = acc;
+                }
+                self.state = next;
+            }
+        }
+        for j in 0..if self.nonlinear { n } else { 0 } {
+            let f_cmd = command_at(self.tick * n + j, self.tick, &self.force_history);
             let x_before = self.state[0];
             let f_dist = self.disturbance_n(self.state[1]);
             let mut next = [0.0; NX];

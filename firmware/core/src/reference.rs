@@ -3,7 +3,7 @@
 //! moments, a plain complex radix-2 FFT of the full zero-padded length with exact twiddles,
 //! and natural logarithms. Tests compare the fixed-point features against these.
 
-use crate::features::{FeatureConfig, FeatureError, BLOCK_SAMPLES, FEATURE_COUNT, MAX_WINDOW_SAMPLES, NOISE_FLOOR_FACTOR};
+use crate::features::{FeatureConfig, FeatureError, BLOCK_SAMPLES, DISTINCT_POWER_GAIN, FEATURE_COUNT, MAX_WINDOW_SAMPLES, NOISE_FLOOR_FACTOR};
 use std::f64::consts::PI;
 
 /// The reference features plus the intermediate spectrum, for diagnosing differences.
@@ -135,24 +135,29 @@ fn dominant_bins(power: &[f64]) -> (f64, usize) {
     (k as f64 + delta.clamp(-0.5, 0.5), k)
 }
 
-/// Centroid in bins of `max(P_k - T, 0)` with one-sided weights, `T` = factor times the
-/// lower median of `P_1 ..= P_{M/2}`; `T = 0` if nothing exceeds it.
+/// Mean frequency in bins: blend of the centroid of `max(P_k - T, 0)` (`T` = factor times
+/// the lower median of `P_1 ..= P_{M/2}`) and the plain centroid, by the fraction of the
+/// power above `T`; one-sided weights.
 fn centroid_bins(power: &[f64]) -> f64 {
     let half = power.len() - 1;
     let mut sorted: Vec<f64> = power[1..].to_vec();
     sorted.sort_by(f64::total_cmp);
     let floor = NOISE_FLOOR_FACTOR as f64 * sorted[(half - 1) / 2];
-    let centroid = |floor: f64| {
-        let (mut num, mut den) = (0.0, 0.0);
-        for (k, &p) in power.iter().enumerate().skip(1) {
-            let w = if k == half { 1.0 } else { 2.0 };
-            let e = (p - floor).max(0.0);
-            num += w * k as f64 * e;
-            den += w * e;
-        }
-        (den > 0.0).then(|| num / den)
-    };
-    centroid(floor).or_else(|| centroid(0.0)).unwrap_or(0.0)
+    let (mut num_e, mut den_e, mut num_p, mut den_p) = (0.0, 0.0, 0.0, 0.0);
+    for (k, &p) in power.iter().enumerate().skip(1) {
+        let w = if k == half { 1.0 } else { 2.0 };
+        let e = (p - floor).max(0.0);
+        num_e += w * k as f64 * e;
+        den_e += w * e;
+        num_p += w * k as f64 * p;
+        den_p += w * p;
+    }
+    if den_p == 0.0 {
+        return 0.0;
+    }
+    let distinct = if den_e > 0.0 { num_e / den_e } else { 0.0 };
+    let alpha = (den_e / den_p * DISTINCT_POWER_GAIN as f64).min(1.0);
+    alpha * distinct + (1.0 - alpha) * num_p / den_p
 }
 
 /// In-place forward complex FFT (`e^{-i...}`), length a power of two.

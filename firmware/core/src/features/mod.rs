@@ -64,11 +64,16 @@
 //!   `k = 1 ..= M/2` (DC excluded). f1: first bin of largest `P_k`, refined by
 //!   `delta = 0.5 (a - c) / (a - 2b + c)` with `a, b, c = log2 P` at `k-1, k, k+1`
 //!   (`P_{M/2+1} = P_{M/2-1}`; powers floored at `2^-40` times the peak), `delta` clamped to
-//!   +-0.5. f11: `sum k w_k E_k / sum w_k E_k` times the bin width, where
-//!   `E_k = max(P_k - T, 0)`, `T = 8 * median(P_1 ..= P_{M/2})` (lower median), `w_k = 2`
-//!   except `w_{M/2} = 1`; if no bin exceeds `T`, `T = 0`. The floor subtraction removes
-//!   broadband noise that would otherwise pull the centroid toward fs/64 (for white noise it
-//!   leaves about 0.4% of the noise power).
+//!   +-0.5. f11: with one-sided weights `w_k = 2` (`w_{M/2} = 1`), the noise floor
+//!   `T = 8 * median(P_1 ..= P_{M/2})` (lower median) and the excess
+//!   `E_k = max(P_k - T, 0)`: the centroid of the excess `c_E = sum k w_k E_k / sum w_k E_k`,
+//!   the plain centroid `c_P = sum k w_k P_k / sum w_k P_k`, the distinct-power fraction
+//!   `rho = sum w_k E_k / sum w_k P_k`, `alpha = min(1, rho / 0.05)`, and
+//!   `f11 = (alpha c_E + (1 - alpha) c_P) * bin width`. Subtracting the floor keeps
+//!   broadband noise from pulling the centroid of a tone toward fs/64 (for white noise
+//!   about 0.4% of the noise power stays above `T`); the blend, continuous in the input,
+//!   makes a broadband spectrum (nothing distinct above the floor) report its plain
+//!   centroid instead of the centroid of a few random noise peaks.
 //! - **Degenerate windows** give defined, finite values: with `n < 2` all time-domain
 //!   features are 0; a ratio whose denominator is 0 (silence, constant signal) is 0;
 //!   skewness and kurtosis of a constant window are 0; with fewer than 4 decimated samples
@@ -140,6 +145,9 @@ pub const MIN_WINDOW_BLOCKS: usize = 8;
 pub const MIN_WINDOW_SAMPLES: usize = MIN_WINDOW_BLOCKS * BLOCK_SAMPLES;
 /// The mean-frequency noise floor is this many times the median bin power.
 pub const NOISE_FLOOR_FACTOR: u32 = 8;
+/// Mean frequency blend: `alpha = min(1, DISTINCT_POWER_GAIN * rho)`, `rho` the fraction of
+/// the power above the noise floor; full weight on the floor-subtracted centroid from 5%.
+pub const DISTINCT_POWER_GAIN: f32 = 20.0;
 
 /// Number of features.
 pub const FEATURE_COUNT: usize = 12;

@@ -2,7 +2,7 @@
 
 use super::moments::{time_domain, Extremes};
 use super::spectrum::{fft_bfp, hann_q30, real_bin_power, refine_peak, MAX_FFT_LEN};
-use super::{Capture, FeatureError, Features, FEATURE_COUNT, MEAN_FREQ_HZ, NOISE_FLOOR_FACTOR, SIGNAL_FREQ_HZ, TOTAL_POWER_M2PS4};
+use super::{Capture, FeatureError, Features, DISTINCT_POWER_GAIN, FEATURE_COUNT, MEAN_FREQ_HZ, NOISE_FLOOR_FACTOR, SIGNAL_FREQ_HZ, TOTAL_POWER_M2PS4};
 use core::sync::atomic::{fence, AtomicI32, AtomicU32, Ordering};
 
 /// Rings shared between the interrupt (writer) and the feature reader, one slot per block:
@@ -223,18 +223,24 @@ fn spectral<const FFT_HALF: usize>(cap: &Capture, nd: usize, scratch: &mut Scrat
     // Noise floor: NOISE_FLOOR_FACTOR times the lower median bin power.
     let (_, median, _) = power.select_nth_unstable((half - 1) / 2);
     let floor = *median as u128 * NOISE_FLOOR_FACTOR as u128;
-    let centroid = |floor: u128| -> Option<f32> {
-        let mut num = 0u128;
-        let mut den = 0u128;
-        for k in 1..=half {
-            let p = real_bin_power(re, im, k) as u128;
-            let excess = p.saturating_sub(floor);
-            let w = if k == half { 1 } else { 2 };
-            num += w * k as u128 * excess;
-            den += w * excess;
-        }
-        (den > 0).then(|| num as f32 / den as f32)
+    // One-sided weighted sums of the excess over the floor and of the plain power.
+    let (mut num_excess, mut den_excess, mut num_plain, mut den_plain) = (0u128, 0u128, 0u128, 0u128);
+    for k in 1..=half {
+        let p = real_bin_power(re, im, k) as u128;
+        let w = if k == half { 1 } else { 2 };
+        let excess = w * p.saturating_sub(floor);
+        num_excess += k as u128 * excess;
+        den_excess += excess;
+        num_plain += k as u128 * w * p;
+        den_plain += w * p;
+    }
+    let bins = if den_plain == 0 {
+        0.0
+    } else {
+        let plain = num_plain as f32 / den_plain as f32;
+        let distinct = if den_excess > 0 { num_excess as f32 / den_excess as f32 } else { 0.0 };
+        let alpha = ((den_excess as f32 / den_plain as f32) * DISTINCT_POWER_GAIN).min(1.0);
+        alpha * distinct + (1.0 - alpha) * plain
     };
-    let bins = centroid(floor).or_else(|| centroid(0)).unwrap_or(0.0);
     out[MEAN_FREQ_HZ] = bins * bin_hz;
 }

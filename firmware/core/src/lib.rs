@@ -21,11 +21,14 @@
 
 pub mod bus;
 pub mod config;
+pub mod control;
 pub mod counters;
 pub mod features;
 pub mod feedforward;
 pub mod program;
+pub mod servo;
 pub mod synth;
+pub mod twin;
 pub mod wire;
 
 #[cfg(feature = "std")]

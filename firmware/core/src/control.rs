@@ -1,0 +1,97 @@
+//! Carrying out control requests, shared by the firmware and the host simulation.
+
+use crate::config::{PersistentConfig, MAX_CONFIG_BYTES};
+use crate::servo::{Models, Servo};
+use crate::wire::{ConfigSource, Rejection, Request, Response, Status};
+
+/// Access to the [`Servo`], which in the firmware belongs to the servo interrupt: `with`
+/// runs `f` in a short critical section there, and directly on the host.
+pub trait ServoAccess {
+    /// Runs `f` on the servo.
+    fn with<R>(&mut self, f: impl FnOnce(&mut Servo) -> R) -> R;
+}
+
+impl ServoAccess for Servo {
+    fn with<R>(&mut self, f: impl FnOnce(&mut Servo) -> R) -> R {
+        f(self)
+    }
+}
+
+/// Where [`Request::SaveConfig`] writes the config record.
+pub trait ConfigWriter {
+    /// Writes `record`; false if the store failed.
+    fn write_config(&mut self, record: &[u8]) -> bool;
+}
+
+/// Carries out `request` and returns the answer. Program validation runs here, outside any
+/// critical section; only the short updates of the servo run inside [`ServoAccess::with`].
+pub fn handle_request(
+    request: Request,
+    models: &mut Models,
+    servo: &mut impl ServoAccess,
+    store: &mut impl ConfigWriter,
+    config_source: ConfigSource,
+) -> Response {
+    match request {
+        Request::Ping { nonce } => Response::Pong { nonce },
+        Request::GetStatus => Response::Status(status(models, servo, config_source)),
+        Request::UploadProgram { program, activate } => match models.upload(program, activate) {
+            Ok(()) => Response::Ack,
+            Err(err) => {
+                servo.with(|s| s.counters_mut().rejected_programs += 1);
+                Response::Rejected(Rejection::Program(err))
+            }
+        },
+        Request::ActivateStaged => {
+            if models.activate_staged() {
+                Response::Ack
+            } else {
+                Response::Rejected(Rejection::NoStagedProgram)
+            }
+        }
+        Request::ClearProgram => {
+            models.clear();
+            Response::Ack
+        }
+        Request::SetParams(params) => match servo.with(|s| s.set_params(params)) {
+            Ok(()) => Response::Ack,
+            Err(err) => Response::Rejected(Rejection::Params(err)),
+        },
+        Request::SetEnabled(enabled) => {
+            servo.with(|s| s.set_enabled(enabled));
+            Response::Ack
+        }
+        Request::SaveConfig => {
+            let config = PersistentConfig { params: servo.with(|s| s.params()) };
+            let mut record = [0u8; MAX_CONFIG_BYTES];
+            let written = config.encode(&mut record).ok().is_some_and(|len| store.write_config(&record[..len]));
+            if written {
+                Response::Ack
+            } else {
+                servo.with(|s| s.counters_mut().config_store_errors += 1);
+                Response::Rejected(Rejection::Store)
+            }
+        }
+        Request::ResetCounters => {
+            servo.with(|s| *s.counters_mut() = Default::default());
+            Response::Ack
+        }
+    }
+}
+
+/// The status report.
+pub fn status(models: &Models, servo: &mut impl ServoAccess, config_source: ConfigSource) -> Status {
+    servo.with(|s| Status {
+        counters: *s.counters(),
+        enabled: s.enabled(),
+        gain: s.gain(),
+        degraded: s.degraded(),
+        program_id: models.active_id(),
+        staged_program_id: models.staged_id(),
+        params: s.params(),
+        config_source,
+        amp_um: s.last_output().amp_um(),
+        phase_deg: s.last_output().phase_deg(),
+        features: *s.last_features(),
+    })
+}

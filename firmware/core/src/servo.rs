@@ -1,0 +1,467 @@
+//! The whole per-tick pipeline, as the firmware runs it and the host simulates it.
+//!
+//! Two contexts share the work:
+//! - [`Servo::tick`] runs in the servo-rate interrupt: input health, the feature update, the
+//!   error synthesis and the feedforward. Every [`ServoConfig::model_interval_ticks`] it
+//!   hands out a [`ModelRequest`] (a snapshot of the features' state).
+//! - [`Models::compute`] runs at a lower priority: it finishes the features and evaluates the
+//!   active twin program. Its [`ModelResult`] is handed back with [`Servo::deliver`] and takes
+//!   effect exactly [`ServoConfig::model_latency_ticks`] after the request, whenever it was
+//!   computed, so the output is a function of the input stream alone: the firmware and the
+//!   host produce the same DAC codes bit for bit. A result that comes later than that is
+//!   applied at once and counted as late.
+//!
+//! Faults never step the output and never stop the loop: a stuck or saturated accelerometer,
+//! or a missing host, marks the inputs untrusted ([`DEGRADED_STUCK`] ...) and the feedforward
+//! ramps to zero compensation until the inputs have been healthy for a whole feature window.
+
+use heapless::Vec;
+use serde::{Deserialize, Serialize};
+
+use crate::bus::{InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_ENABLED, OUT_FLAG_MODEL_ACTIVE, OUT_FLAG_SATURATED, OUT_FLAG_SLEWING};
+use crate::features::{Capture, DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, Features};
+use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
+use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS};
+use crate::synth::Synth;
+
+pub use crate::counters::Counters;
+
+/// Degraded: the accelerometer code has not changed for [`ServoConfig::stuck_limit_ticks`].
+pub const DEGRADED_STUCK: u16 = 1 << 0;
+/// Degraded: the accelerometer sat at full scale for [`ServoConfig::saturation_limit_ticks`].
+pub const DEGRADED_SATURATED: u16 = 1 << 1;
+/// Degraded: the host's samples did not arrive (bus underrun).
+pub const DEGRADED_NO_INPUT: u16 = 1 << 2;
+/// Degraded: the last model evaluation failed.
+pub const DEGRADED_MODEL: u16 = 1 << 3;
+/// Degraded: inputs are healthy again but the feature window still holds bad samples.
+pub const DEGRADED_RECOVERING: u16 = 1 << 4;
+
+/// Timing and fault-detection settings of the servo pipeline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ServoConfig {
+    /// Ticks between model updates (800 = 10 Hz at 8 kHz).
+    pub model_interval_ticks: u32,
+    /// Ticks from a model request to its result taking effect.
+    pub model_latency_ticks: u32,
+    /// Ticks over which the synthesiser moves to a new model output.
+    pub synth_ramp_ticks: u32,
+    /// Unchanged accelerometer codes before the sensor counts as stuck or dead.
+    pub stuck_limit_ticks: u32,
+    /// Consecutive full-scale codes before the sensor counts as saturated.
+    pub saturation_limit_ticks: u32,
+    /// Bus underruns in a row before the inputs count as missing.
+    pub underrun_limit_ticks: u32,
+}
+
+impl Default for ServoConfig {
+    fn default() -> Self {
+        Self {
+            model_interval_ticks: 800,
+            model_latency_ticks: 400,
+            synth_ramp_ticks: 80,
+            stuck_limit_ticks: 800,
+            saturation_limit_ticks: 16,
+            underrun_limit_ticks: 8,
+        }
+    }
+}
+
+/// Why the servo started on defaults.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum InitError {
+    /// The feedforward parameters were invalid.
+    Params(ParamError),
+    /// The feature settings were invalid.
+    Features(FeatureError),
+}
+
+/// A snapshot handed from the servo tick to the model update.
+#[derive(Clone, Copy, Debug)]
+pub struct ModelRequest {
+    /// The features' state at the request.
+    pub capture: Capture,
+    /// Tick of the request.
+    pub tick: u64,
+    /// Tick at which the result takes effect.
+    pub due_tick: u64,
+}
+
+/// Why a model update produced no output.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ModelFault {
+    /// No program is active.
+    NoProgram,
+    /// The feature snapshot was overwritten while it was read.
+    Features(FeatureError),
+    /// The program's evaluation failed.
+    Eval(EvalError),
+}
+
+/// What a model update computed.
+#[derive(Clone, Debug)]
+pub struct ModelResult {
+    /// Tick at which it takes effect.
+    pub due_tick: u64,
+    /// The features it used (zero where they could not be computed).
+    pub features: [f32; 12],
+    /// The program's outputs and its per-tick terms, or why there are none.
+    pub outcome: Result<(ModelOutput, Vec<TickTerm, MAX_TERMS>, u32), ModelFault>,
+}
+
+/// The twin programs (active and staged) and the model computation: the low-priority side.
+pub struct Models {
+    active: Option<Program>,
+    staged: Option<Program>,
+    scratch: DefaultScratch,
+}
+
+impl Default for Models {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Models {
+    /// No program.
+    pub const fn new() -> Self {
+        Self { active: None, staged: None, scratch: DefaultScratch::new() }
+    }
+
+    /// Validates `program`; stages it, and activates it if asked. A rejected program changes
+    /// nothing.
+    pub fn upload(&mut self, program: Program, activate: bool) -> Result<(), ProgramError> {
+        program.validate()?;
+        if activate {
+            self.active = Some(program);
+        } else {
+            self.staged = Some(program);
+        }
+        Ok(())
+    }
+
+    /// Activates the staged program. Returns false if none is staged.
+    pub fn activate_staged(&mut self) -> bool {
+        match self.staged.take() {
+            Some(program) => {
+                self.active = Some(program);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Removes the active program.
+    pub fn clear(&mut self) {
+        self.active = None;
+    }
+
+    /// Id of the active program.
+    pub fn active_id(&self) -> Option<u32> {
+        self.active.as_ref().map(|p| p.id)
+    }
+
+    /// Id of the staged program.
+    pub fn staged_id(&self) -> Option<u32> {
+        self.staged.as_ref().map(|p| p.id)
+    }
+
+    /// Finishes the features of `request` and evaluates the active program on them.
+    pub fn compute(&mut self, rings: &DefaultSpectralRings, request: &ModelRequest) -> ModelResult {
+        let mut result = ModelResult { due_tick: request.due_tick, features: [0.0; 12], outcome: Err(ModelFault::NoProgram) };
+        let features: Features = match rings.finish(&request.capture, &mut self.scratch) {
+            Ok(features) => features,
+            Err(err) => {
+                result.outcome = Err(ModelFault::Features(err));
+                return result;
+            }
+        };
+        result.features = features.as_array();
+        if let Some(program) = &self.active {
+            result.outcome = match program.evaluate(&result.features) {
+                Ok(output) => Ok((output, program.terms.clone(), program.id)),
+                Err(err) => Err(ModelFault::Eval(err)),
+            };
+        }
+        result
+    }
+}
+
+/// Input-health tracking of the accelerometer and the bus.
+#[derive(Clone, Copy, Debug, Default)]
+struct Health {
+    last_code: i16,
+    same_run: u32,
+    saturated_run: u32,
+    underrun_run: u32,
+    /// Healthy ticks still needed before the inputs are trusted again.
+    recovering_ticks: u32,
+    degraded: u16,
+}
+
+/// The servo-interrupt side of the twin. See the [module docs](self).
+pub struct Servo {
+    features: DefaultFeatureState,
+    feature_config: FeatureConfig,
+    synth: Synth,
+    feedforward: Feedforward,
+    config: ServoConfig,
+    counters: Counters,
+    health: Health,
+    pending: Option<ModelResult>,
+    awaiting_due: Option<u64>,
+    model_active: bool,
+    program_id: Option<u32>,
+    last_output: ModelOutput,
+    last_features: [f32; 12],
+    last_dac: i16,
+}
+
+impl Servo {
+    /// A servo pipeline with the given settings. Invalid feedforward parameters or feature
+    /// settings are replaced by the defaults, and the error is returned alongside, so that
+    /// the firmware always boots into a safe, working state.
+    pub fn new(feature_config: FeatureConfig, config: ServoConfig, params: FeedforwardParams) -> (Self, Result<(), InitError>) {
+        let (feedforward, params_check) = Feedforward::new(params);
+        let (features, feature_config, features_check) = match DefaultFeatureState::new(feature_config) {
+            Ok(state) => (state, feature_config, Ok(())),
+            Err(err) => match DefaultFeatureState::new(FeatureConfig::DEFAULT) {
+                Ok(state) => (state, FeatureConfig::DEFAULT, Err(InitError::Features(err))),
+                // The default configuration fits the default capacity (tested).
+                Err(_) => unreachable!("the default feature configuration is valid"),
+            },
+        };
+        let servo = Self {
+            features,
+            feature_config,
+            synth: Synth::new(config.synth_ramp_ticks),
+            feedforward,
+            config,
+            counters: Counters::default(),
+            health: Health::default(),
+            pending: None,
+            awaiting_due: None,
+            model_active: false,
+            program_id: None,
+            last_output: ModelOutput::default(),
+            last_features: [0.0; 12],
+            last_dac: 0,
+        };
+        let check = params_check.map_err(InitError::Params).and(features_check);
+        (servo, check)
+    }
+
+    /// The feature settings in force.
+    pub fn feature_config(&self) -> &FeatureConfig {
+        &self.feature_config
+    }
+
+    /// One servo tick on `input` (or `None` when the host's input did not arrive: the
+    /// output is held and the underrun counted).
+    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: Option<&InputSlot>) -> (OutputSlot, Option<ModelRequest>) {
+        let tick = self.counters.ticks;
+        self.counters.ticks += 1;
+        let Some(input) = input else {
+            return (self.underrun(tick), None);
+        };
+        self.health.underrun_run = 0;
+        self.check_input(input.acc_code);
+        self.features.push(rings, input.acc_code);
+
+        let mut request = None;
+        let interval = self.config.model_interval_ticks.max(1) as u64;
+        if tick % interval == interval - 1 {
+            let capture = self.features.capture(rings);
+            // Only a full window gives the features the model was trained on.
+            if capture.samples >= self.feature_config.window_samples {
+                let due_tick = tick + self.config.model_latency_ticks as u64;
+                request = Some(ModelRequest { capture, tick, due_tick });
+                self.awaiting_due = Some(due_tick);
+            }
+        }
+        self.apply_due(tick);
+
+        let de_pm = self.synth.next(input.cmd_phase_turns);
+        let trusted = self.health.degraded == 0;
+        let ff = self.feedforward.tick(de_pm, trusted && self.model_active);
+        self.counters.dac_saturations += ff.saturated as u32;
+        self.counters.slew_limited_ticks += ff.slewing as u32;
+        self.last_dac = ff.dac_code;
+        let flags = (self.feedforward.enabled() as u16 * OUT_FLAG_ENABLED)
+            | ((self.health.degraded != 0) as u16 * OUT_FLAG_DEGRADED)
+            | (ff.saturated as u16 * OUT_FLAG_SATURATED)
+            | (ff.slewing as u16 * OUT_FLAG_SLEWING)
+            | (self.model_active as u16 * OUT_FLAG_MODEL_ACTIVE);
+        let output = OutputSlot { tick: tick as u32, dac_code: ff.dac_code, flags, de_pred_pm: de_pm, fault_count: self.fault_count() };
+        (output, request)
+    }
+
+    /// A tick without input: hold the last output, count, and after a few in a row mark the
+    /// inputs missing so that compensation ramps out once they return (the window has a gap).
+    fn underrun(&mut self, tick: u64) -> OutputSlot {
+        self.counters.bus_underruns += 1;
+        self.health.underrun_run += 1;
+        if self.health.underrun_run >= self.config.underrun_limit_ticks {
+            self.degrade(DEGRADED_NO_INPUT);
+        }
+        OutputSlot { tick: tick as u32, dac_code: self.last_dac, flags: OUT_FLAG_DEGRADED, de_pred_pm: 0, fault_count: self.fault_count() }
+    }
+
+    fn degrade(&mut self, reason: u16) {
+        if self.health.degraded & !DEGRADED_RECOVERING == 0 {
+            self.counters.degraded_entries += 1;
+        }
+        self.health.degraded |= reason;
+        self.health.recovering_ticks = self.feature_config.window_samples;
+    }
+
+    fn check_input(&mut self, code: i16) {
+        let h = &mut self.health;
+        h.same_run = if code == h.last_code { h.same_run.saturating_add(1) } else { 0 };
+        h.last_code = code;
+        let full_scale = code == i16::MAX || code <= -i16::MAX;
+        h.saturated_run = if full_scale { h.saturated_run.saturating_add(1) } else { 0 };
+        if h.same_run == self.config.stuck_limit_ticks {
+            self.counters.input_stuck += 1;
+            self.degrade(DEGRADED_STUCK);
+        }
+        if self.health.saturated_run == self.config.saturation_limit_ticks {
+            self.counters.input_saturated += 1;
+            self.degrade(DEGRADED_SATURATED);
+        }
+        let h = &mut self.health;
+        let bad_now = h.same_run >= self.config.stuck_limit_ticks || h.saturated_run > 0;
+        if h.degraded != 0 {
+            if bad_now {
+                h.recovering_ticks = self.feature_config.window_samples;
+            } else {
+                // Inputs are healthy again: wait until the window has none of the bad samples.
+                h.degraded = (h.degraded & DEGRADED_MODEL) | DEGRADED_RECOVERING;
+                h.recovering_ticks = h.recovering_ticks.saturating_sub(1);
+                if h.recovering_ticks == 0 {
+                    h.degraded &= !DEGRADED_RECOVERING;
+                }
+            }
+        }
+    }
+
+    fn apply_due(&mut self, tick: u64) {
+        let Some(result) = self.pending.take() else {
+            if self.awaiting_due.is_some_and(|due| tick > due) {
+                // The result is late; it will be applied when it arrives.
+                self.counters.model_late += 1;
+                self.awaiting_due = None;
+            }
+            return;
+        };
+        if tick < result.due_tick {
+            self.pending = Some(result);
+            return;
+        }
+        self.awaiting_due = None;
+        self.last_features = result.features;
+        match result.outcome {
+            Ok((output, terms, id)) => {
+                self.counters.model_updates += 1;
+                self.health.degraded &= !DEGRADED_MODEL;
+                self.synth.update(&output, &terms);
+                self.last_output = output;
+                self.model_active = true;
+                self.program_id = Some(id);
+            }
+            Err(ModelFault::NoProgram) => {
+                self.synth.silence();
+                self.model_active = false;
+                self.program_id = None;
+            }
+            Err(_) => {
+                // A bad model or a torn snapshot: count, and ramp the prediction out.
+                self.counters.model_faults += 1;
+                self.health.degraded |= DEGRADED_MODEL;
+                self.synth.silence();
+            }
+        }
+    }
+
+    /// Hands back a model result computed for a request of this servo.
+    pub fn deliver(&mut self, result: ModelResult) {
+        self.pending = Some(result);
+    }
+
+    /// Sets the feedforward parameters (rejected ones are counted and change nothing).
+    pub fn set_params(&mut self, params: FeedforwardParams) -> Result<(), ParamError> {
+        let result = self.feedforward.set_params(params);
+        if result.is_err() {
+            self.counters.rejected_params += 1;
+        }
+        result
+    }
+
+    /// The feedforward parameters in force.
+    pub fn params(&self) -> FeedforwardParams {
+        *self.feedforward.params()
+    }
+
+    /// Switches compensation on or off.
+    pub fn set_enabled(&mut self, enabled: bool) {
+        self.feedforward.set_enabled(enabled);
+    }
+
+    /// Whether compensation is asked for.
+    pub fn enabled(&self) -> bool {
+        self.feedforward.enabled()
+    }
+
+    /// The gain in force, 0 to 1.
+    pub fn gain(&self) -> f32 {
+        self.feedforward.gain()
+    }
+
+    /// The counters.
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    /// The counters, for the board to add what it sees (overruns, frame errors, store errors).
+    pub fn counters_mut(&mut self) -> &mut Counters {
+        &mut self.counters
+    }
+
+    /// `DEGRADED_*` bits in force.
+    pub fn degraded(&self) -> u16 {
+        self.health.degraded
+    }
+
+    /// The last model output applied.
+    pub fn last_output(&self) -> &ModelOutput {
+        &self.last_output
+    }
+
+    /// The features of the last model update.
+    pub fn last_features(&self) -> &[f32; 12] {
+        &self.last_features
+    }
+
+    /// Id of the program whose output is in force.
+    pub fn program_id(&self) -> Option<u32> {
+        self.program_id
+    }
+
+    /// Sum of the fault counters, as reported in every output slot.
+    pub fn fault_count(&self) -> u32 {
+        let c = &self.counters;
+        c.bus_underruns
+            .wrapping_add(c.bus_overruns)
+            .wrapping_add(c.dac_saturations)
+            .wrapping_add(c.frame_errors)
+            .wrapping_add(c.rejected_programs)
+            .wrapping_add(c.rejected_params)
+            .wrapping_add(c.model_faults)
+            .wrapping_add(c.input_stuck)
+            .wrapping_add(c.input_saturated)
+            .wrapping_add(c.config_store_errors)
+    }
+}

@@ -1,0 +1,75 @@
+//! The whole twin in one context: what the host runs to simulate the firmware bit for bit.
+
+use crate::bus::{InputSlot, OutputSlot};
+use crate::config::{ConfigError, PersistentConfig};
+use crate::control::{handle_request, ConfigWriter};
+use crate::features::{DefaultSpectralRings, FeatureConfig};
+use crate::feedforward::FeedforwardParams;
+use crate::servo::{Models, Servo, ServoConfig};
+use crate::wire::{ConfigSource, Request, Response};
+
+/// The firmware's processing in one struct: servo tick, model update and control requests,
+/// run synchronously. Model results take effect at the same ticks as on the target, so a
+/// `Twin` fed the same inputs writes the same DAC codes as the firmware.
+pub struct Twin {
+    servo: Servo,
+    models: Models,
+    rings: DefaultSpectralRings,
+    config_source: ConfigSource,
+    store: MemoryStore,
+}
+
+/// An in-memory config store.
+#[derive(Clone, Debug, Default)]
+pub struct MemoryStore {
+    /// The last record written.
+    pub record: heapless::Vec<u8, { crate::config::MAX_CONFIG_BYTES }>,
+}
+
+impl ConfigWriter for MemoryStore {
+    fn write_config(&mut self, record: &[u8]) -> bool {
+        self.record.clear();
+        self.record.extend_from_slice(record).is_ok()
+    }
+}
+
+impl Twin {
+    /// A twin booted like the firmware: the config comes from `stored` (a config record as
+    /// the store holds it, or empty) and falls back to defaults when it is not valid.
+    pub fn boot(feature_config: FeatureConfig, servo_config: ServoConfig, stored: &[u8]) -> Self {
+        let (params, config_source) = match PersistentConfig::decode(stored) {
+            Ok(config) => (config.params, ConfigSource::Stored),
+            Err(ConfigError::Blank) => (FeedforwardParams::default(), ConfigSource::Defaults),
+            Err(_) => (FeedforwardParams::default(), ConfigSource::DefaultsAfterCorrupt),
+        };
+        let (servo, _) = Servo::new(feature_config, servo_config, params);
+        let mut store = MemoryStore::default();
+        let _ = store.record.extend_from_slice(stored);
+        Self { servo, models: Models::new(), rings: DefaultSpectralRings::new(), config_source, store }
+    }
+
+    /// One servo tick, with the model update done at once when one is requested.
+    pub fn tick(&mut self, input: Option<&InputSlot>) -> OutputSlot {
+        let (output, request) = self.servo.tick(&self.rings, input);
+        if let Some(request) = request {
+            let result = self.models.compute(&self.rings, &request);
+            self.servo.deliver(result);
+        }
+        output
+    }
+
+    /// Carries out a control request.
+    pub fn handle(&mut self, request: Request) -> Response {
+        handle_request(request, &mut self.models, &mut self.servo, &mut self.store, self.config_source)
+    }
+
+    /// The servo side, for inspection.
+    pub fn servo(&self) -> &Servo {
+        &self.servo
+    }
+
+    /// The config store's content.
+    pub fn stored_config(&self) -> &[u8] {
+        &self.store.record
+    }
+}

@@ -14,6 +14,14 @@ fn thread_cpu_s() -> f64 {
 use sts_emulator::measure::{run, run_to_dir, simulate_group};
 use sts_emulator::{EffectSpec, Machine, MeasureConfig, PlantParams, StepInput};
 
+/// CPU time of the whole process (all threads), s.
+fn process_cpu_s() -> f64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: clock_gettime writes into the timespec we own.
+    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
 fn single_core(effects: &[EffectSpec], label: &str) {
     let params = PlantParams::default();
     let mut machine = Machine::new(&params, effects, 1).expect("machine");
@@ -47,17 +55,19 @@ fn main() {
     }
 
     let config = MeasureConfig::default();
-    let start = Instant::now();
+    let cpu0 = thread_cpu_s();
     let group = simulate_group(&config, 50).expect("group");
-    let secs = start.elapsed().as_secs_f64();
-    println!("one core, one group with dataset columns: {:.2} M samples/s", group.len() as f64 / secs / 1e6);
+    let cpu = thread_cpu_s() - cpu0;
+    println!("one core, one group with all dataset columns: {:.2} M samples per CPU second", group.len() as f64 / cpu / 1e6);
 
     let threads = rayon::current_num_threads();
     let start = Instant::now();
+    let cpu0 = process_cpu_s();
     let dataset = run(&config, &|_| {}).expect("measure");
     let secs = start.elapsed().as_secs_f64();
+    let cpu = process_cpu_s() - cpu0;
     println!(
-        "full measurement test in memory ({} groups, {} samples, {threads} threads): {secs:.3} s",
+        "full measurement test in memory ({} groups, {} samples, {threads} threads): {secs:.3} s wall, {cpu:.3} s CPU",
         dataset.groups.len(),
         dataset.total_samples()
     );
@@ -65,17 +75,27 @@ fn main() {
 
     let dir = tempfile::tempdir().expect("tempdir");
     let start = Instant::now();
+    let cpu0 = process_cpu_s();
     run_to_dir(&config, dir.path(), &|_| {}).expect("measure to dir");
     let secs = start.elapsed().as_secs_f64();
+    let cpu = process_cpu_s() - cpu0;
     let bytes: u64 = std::fs::read_dir(dir.path())
         .expect("dir")
         .filter_map(|e| e.ok()?.metadata().ok())
         .map(|m| m.len())
         .sum();
-    println!("full measurement test written to disk ({threads} threads): {secs:.3} s, {:.0} MB", bytes as f64 / 1e6);
+    println!(
+        "full measurement test written to disk ({threads} threads): {secs:.3} s wall, {cpu:.3} s CPU, {:.0} MB",
+        bytes as f64 / 1e6
+    );
 
     let start = Instant::now();
+    let cpu0 = process_cpu_s();
     let back = sts_dataset::read(dir.path()).expect("read");
     let secs = start.elapsed().as_secs_f64();
-    println!("reading it back with sts_dataset::read: {secs:.3} s ({} samples)", back.total_samples());
+    let cpu = process_cpu_s() - cpu0;
+    println!(
+        "reading it back with sts_dataset::read: {secs:.3} s wall, {cpu:.3} s CPU ({} samples)",
+        back.total_samples()
+    );
 }

@@ -1,0 +1,73 @@
+//! Errors of the HIL harness.
+
+use std::path::PathBuf;
+use std::process::ExitStatus;
+
+/// Everything that can go wrong between the host and the firmware under QEMU.
+#[derive(Debug, thiserror::Error)]
+pub enum HilError {
+    /// `qemu-system-arm` is not installed (or not where `STS_TWIN_QEMU` points).
+    #[error("`{program}` not found: install QEMU for Arm (Debian/Ubuntu: `sudo apt-get install qemu-system-arm`) or point STS_TWIN_QEMU at it")]
+    QemuMissing {
+        /// The program that was looked for.
+        program: String,
+    },
+    /// The Rust target of the firmware is not installed.
+    #[error("the Rust target thumbv7em-none-eabihf is not installed: run `rustup target add thumbv7em-none-eabihf`")]
+    TargetMissing,
+    /// Building the firmware failed.
+    #[error("building the firmware failed (`{command}`):\n{stderr}")]
+    Build {
+        /// The command that was run.
+        command: String,
+        /// Its error output (last lines).
+        stderr: String,
+    },
+    /// The firmware ELF is not where it should be.
+    #[error("firmware ELF not found at {0}")]
+    ElfMissing(PathBuf),
+    /// An I/O error, with what was being done.
+    #[error("{what}: {source}")]
+    Io {
+        /// What the harness was doing.
+        what: String,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// QEMU ended while the harness still needed it.
+    #[error("QEMU exited ({status}) while {during}; last firmware log lines:\n{log_tail}")]
+    QemuExited {
+        /// QEMU's exit status.
+        status: ExitStatus,
+        /// What the harness was waiting for.
+        during: String,
+        /// The last decoded log lines and QEMU's stderr.
+        log_tail: String,
+    },
+    /// Something did not happen in time.
+    #[error("timed out after {seconds:.1} s waiting for {what}")]
+    Timeout {
+        /// What the harness waited for.
+        what: String,
+        /// How long it waited.
+        seconds: f64,
+    },
+    /// The firmware answered something unexpected.
+    #[error("protocol error: {0}")]
+    Protocol(String),
+    /// The defmt table of the ELF could not be read.
+    #[error("cannot read the defmt table of {path}: {reason}")]
+    Defmt {
+        /// The ELF.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+}
+
+impl HilError {
+    pub(crate) fn io(what: impl Into<String>, source: std::io::Error) -> Self {
+        Self::Io { what: what.into(), source }
+    }
+}

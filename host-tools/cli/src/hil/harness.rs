@@ -1,0 +1,417 @@
+//! [`Hil`]: one QEMU running the firmware, its bus, control link and logs.
+
+use std::net::{SocketAddr, TcpListener};
+use std::path::PathBuf;
+use std::process::{Command, ExitStatus, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use sts_twin_core::bus::{InputSlot, OutputSlot, RING_SLOTS};
+
+use super::bus::{BusCounters, BusFile, Diagnostics};
+use super::link::ControlPort;
+use super::log::{self, LogLine, LogSink, SharedLog};
+use super::process::{self, QemuProcess};
+use super::{firmware, HilError};
+
+/// How to start the firmware under QEMU.
+#[derive(Clone, Debug)]
+pub struct HilConfig {
+    /// The firmware ELF; `None`: [`firmware::firmware_elf`] (env override or build).
+    pub elf: Option<PathBuf>,
+    /// `-icount shift=N`: one guest instruction takes 2^N ns of guest time. 2 (250 MIPS,
+    /// 31,250 instructions per 125 us tick) resembles a mid-range Cortex-M.
+    pub icount_shift: u32,
+    /// How long to wait for the firmware to announce the bus after QEMU starts.
+    pub boot_timeout: Duration,
+    /// How long one tick (or one stall of a stream) may take before the harness gives up.
+    pub tick_timeout: Duration,
+    /// Install the SIGINT/SIGTERM/SIGHUP handler that kills QEMU ([`process::install_signal_cleanup`]).
+    pub handle_signals: bool,
+    /// Print decoded firmware logs to stderr as they arrive.
+    pub echo_logs: bool,
+    /// Use this named bus file (kept, with its config store) instead of an anonymous one.
+    pub bus_path: Option<PathBuf>,
+}
+
+impl Default for HilConfig {
+    fn default() -> Self {
+        Self {
+            elf: None,
+            icount_shift: 2,
+            boot_timeout: Duration::from_secs(20),
+            tick_timeout: Duration::from_secs(10),
+            handle_signals: true,
+            echo_logs: std::env::var_os("STS_TWIN_HIL_ECHO").is_some(),
+            bus_path: None,
+        }
+    }
+}
+
+/// The firmware running under QEMU, attached.
+///
+/// Ticks go through [`Hil::step`] (lockstep: one input, wait for its output) or
+/// [`Hil::run_open_loop`] (pipelined through the bus ring). The control link is
+/// [`Hil::link`]; while exchanging control bytes the bus should be paused
+/// ([`Hil::pause`] / [`Hil::resume`], or [`Hil::transact`]), because the servo tick, at the
+/// highest priority, would otherwise spin waiting for the next input while the control
+/// bytes wait behind it.
+#[derive(Debug)]
+pub struct Hil {
+    config: HilConfig,
+    elf: PathBuf,
+    bus: Arc<BusFile>,
+    qemu: QemuProcess,
+    link: ControlPort,
+    logs: SharedLog,
+    next_tick: u32,
+    serial_addr: SocketAddr,
+}
+
+impl Hil {
+    /// Starts QEMU with the firmware on a fresh bus and waits until it serves the bus.
+    pub fn start(config: HilConfig) -> Result<Self, HilError> {
+        let bus = match &config.bus_path {
+            Some(p) => BusFile::persistent(p)?,
+            None => BusFile::anonymous()?,
+        };
+        Self::start_on(config, Arc::new(bus))
+    }
+
+    /// Starts QEMU on an existing bus file (e.g. to reboot with the same config store).
+    pub fn start_on(config: HilConfig, bus: Arc<BusFile>) -> Result<Self, HilError> {
+        let program = process::qemu_program()?;
+        let elf = match &config.elf {
+            Some(p) if p.is_file() => p.clone(),
+            Some(p) => return Err(HilError::ElfMissing(p.clone())),
+            None => firmware::firmware_elf()?,
+        };
+        log::check_table(&elf)?;
+        if config.handle_signals {
+            process::install_signal_cleanup()?;
+        }
+        // The port comes from the OS; in the rare race where another process takes it
+        // first, QEMU fails to listen and the start is retried on a new port.
+        let mut last_err = None;
+        for _ in 0..3 {
+            match Self::try_start(&config, &program, &elf, &bus) {
+                Ok(hil) => return Ok(hil),
+                Err(e @ HilError::QemuExited { .. }) => last_err = Some(e),
+                Err(e) => return Err(e),
+            }
+        }
+        Err(last_err.expect("three attempts"))
+    }
+
+    fn try_start(config: &HilConfig, program: &str, elf: &PathBuf, bus: &Arc<BusFile>) -> Result<Self, HilError> {
+        let port = {
+            let l = TcpListener::bind("127.0.0.1:0").map_err(|e| HilError::io("finding a free port", e))?;
+            l.local_addr().map_err(|e| HilError::io("finding a free port", e))?.port()
+        };
+        let serial_addr = SocketAddr::from(([127, 0, 0, 1], port));
+        bus.reset_for_boot();
+        let mut cmd = Command::new(program);
+        cmd.args(qemu_args(config.icount_shift, &bus.qemu_mem_path(), port, elf))
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        let mut qemu = QemuProcess::spawn(cmd, bus.inherited_fds()).map_err(|e| HilError::io(format!("starting {program}"), e))?;
+        let logs: SharedLog = Arc::new(Mutex::new(LogSink::default()));
+        if let Some(out) = qemu.take_stdout() {
+            log::spawn_decoder(elf.clone(), out, logs.clone(), config.echo_logs);
+        }
+        if let Some(err) = qemu.take_stderr() {
+            log::spawn_stderr_reader(err, logs.clone());
+        }
+        let link = {
+            let mut alive = || check_alive(&mut qemu, &logs, "connecting the control link");
+            ControlPort::connect(serial_addr, config.boot_timeout, &mut alive)?
+        };
+        let mut hil = Self { config: config.clone(), elf: elf.clone(), bus: bus.clone(), qemu, link, logs, next_tick: 0, serial_addr };
+        let deadline = Instant::now() + hil.config.boot_timeout;
+        while !hil.bus.firmware_ready() {
+            hil.alive("waiting for the firmware to serve the bus")?;
+            if Instant::now() >= deadline {
+                return Err(HilError::Timeout { what: "the firmware to serve the bus (FW_READY)".into(), seconds: hil.config.boot_timeout.as_secs_f64() });
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        Ok(hil)
+    }
+
+    /// Kills this QEMU and boots the firmware again on the same bus file (the config store
+    /// is kept; the tick count restarts at 0).
+    pub fn reboot(mut self) -> Result<Self, HilError> {
+        self.qemu.kill();
+        let config = self.config.clone();
+        let bus = self.bus.clone();
+        drop(self);
+        Self::start_on(config, bus)
+    }
+
+    /// The ELF being run.
+    pub fn elf(&self) -> &std::path::Path {
+        &self.elf
+    }
+
+    /// QEMU's process id.
+    pub fn qemu_pid(&self) -> u32 {
+        self.qemu.pid()
+    }
+
+    /// The loopback address of the control link.
+    pub fn serial_addr(&self) -> SocketAddr {
+        self.serial_addr
+    }
+
+    /// The bus file (shared, e.g. for a reboot).
+    pub fn bus(&self) -> &Arc<BusFile> {
+        &self.bus
+    }
+
+    /// The next tick to be served (= outputs read so far).
+    pub fn next_tick(&self) -> u32 {
+        self.next_tick
+    }
+
+    /// The bus counters.
+    pub fn counters(&self) -> BusCounters {
+        self.bus.counters()
+    }
+
+    /// The firmware's diagnostics block.
+    pub fn diagnostics(&self) -> Diagnostics {
+        self.bus.diagnostics()
+    }
+
+    /// The `-icount` shift in use.
+    pub fn icount_shift(&self) -> u32 {
+        self.config.icount_shift
+    }
+
+    /// Errors out if QEMU has ended.
+    pub fn alive(&mut self, during: &str) -> Result<(), HilError> {
+        check_alive(&mut self.qemu, &self.logs, during)
+    }
+
+    /// One lockstep tick: writes input `k` (its `tick` field is set to `k`), waits for
+    /// output `k`.
+    pub fn step(&mut self, mut input: InputSlot) -> Result<OutputSlot, HilError> {
+        let k = self.next_tick;
+        input.tick = k;
+        self.bus.write_input(&input);
+        self.wait_fw_seq(k.wrapping_add(1), "the output of a lockstep tick")?;
+        self.next_tick = k.wrapping_add(1);
+        Ok(self.bus.read_output(k))
+    }
+
+    /// Streams `inputs` through the bus ring without waiting for each output (open loop:
+    /// no input depends on an output), keeping up to a ring's worth in flight. Returns the
+    /// outputs in tick order.
+    pub fn run_open_loop(&mut self, inputs: &[InputSlot]) -> Result<Vec<OutputSlot>, HilError> {
+        let mut outputs = Vec::with_capacity(inputs.len());
+        self.stream_open_loop(inputs.iter().copied(), |o| outputs.push(o))?;
+        Ok(outputs)
+    }
+
+    /// Like [`Hil::run_open_loop`] but hands each output to `sink` as it comes, for long
+    /// runs.
+    pub fn stream_open_loop(&mut self, inputs: impl IntoIterator<Item = InputSlot>, mut sink: impl FnMut(OutputSlot)) -> Result<u32, HilError> {
+        let mut inputs = inputs.into_iter().peekable();
+        let first = self.next_tick;
+        let mut written = first;
+        let mut read = first;
+        let mut waiter = Waiter::new(self.config.tick_timeout);
+        loop {
+            let fw = self.bus.fw_seq();
+            let mut progressed = false;
+            // Keep one slot of slack: the firmware reads slot k while the host may write k + RING - 1.
+            while inputs.peek().is_some() && written.wrapping_sub(fw) < (RING_SLOTS - 1) as u32 {
+                let mut input = inputs.next().expect("peeked");
+                input.tick = written;
+                self.bus.write_input(&input);
+                written = written.wrapping_add(1);
+                progressed = true;
+            }
+            while read != fw && (fw.wrapping_sub(read) as i32) > 0 {
+                sink(self.bus.read_output(read));
+                read = read.wrapping_add(1);
+                progressed = true;
+            }
+            self.next_tick = read;
+            if read == written && inputs.peek().is_none() {
+                return Ok(read.wrapping_sub(first));
+            }
+            if progressed {
+                waiter.reset();
+            } else {
+                waiter.wait(&mut self.qemu, &self.logs, "the firmware to consume a stream of ticks")?;
+            }
+        }
+    }
+
+    fn wait_fw_seq(&mut self, target: u32, what: &str) -> Result<(), HilError> {
+        let mut waiter = Waiter::new(self.config.tick_timeout);
+        while (self.bus.fw_seq().wrapping_sub(target) as i32) < 0 {
+            waiter.wait(&mut self.qemu, &self.logs, what)?;
+        }
+        Ok(())
+    }
+
+    /// Asks the firmware to stop waiting for inputs (it keeps ticking, serves nothing and
+    /// counts no underruns) until [`Hil::resume`].
+    pub fn pause(&mut self) {
+        self.bus.set_host_stop(true);
+    }
+
+    /// Ends a [`Hil::pause`].
+    pub fn resume(&mut self) {
+        self.bus.set_host_stop(false);
+    }
+
+    /// The control link.
+    pub fn link(&mut self) -> &mut ControlPort {
+        &mut self.link
+    }
+
+    /// With the bus paused: sends `request`, receives until `done(reply so far)`, resumes.
+    pub fn transact(&mut self, request: &[u8], timeout: Duration, done: impl FnMut(&[u8]) -> bool) -> Result<Vec<u8>, HilError> {
+        self.pause();
+        let result = self.link.send(request).and_then(|()| self.link.recv_until(timeout, done));
+        self.resume();
+        match result {
+            Err(HilError::Timeout { .. }) | Err(HilError::Protocol(_)) => {
+                self.alive("a control-link exchange")?;
+                result
+            }
+            other => other,
+        }
+    }
+
+    /// The decoded firmware log lines so far.
+    pub fn logs(&self) -> Vec<LogLine> {
+        self.logs.lock().unwrap_or_else(|e| e.into_inner()).lines.clone()
+    }
+
+    /// QEMU's own stderr so far.
+    pub fn qemu_stderr(&self) -> String {
+        self.logs.lock().unwrap_or_else(|e| e.into_inner()).stderr.clone()
+    }
+
+    /// Waits until a log line satisfies `pred`, up to `timeout`.
+    pub fn wait_for_log(&mut self, timeout: Duration, pred: impl Fn(&LogLine) -> bool) -> Result<LogLine, HilError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(line) = self.logs.lock().unwrap_or_else(|e| e.into_inner()).lines.iter().find(|l| pred(l)) {
+                return Ok(line.clone());
+            }
+            if Instant::now() >= deadline {
+                return Err(HilError::Timeout { what: "a matching firmware log line".into(), seconds: timeout.as_secs_f64() });
+            }
+            if let Some(status) = self.qemu.try_status() {
+                // One last look: the line may have been decoded just before the exit.
+                std::thread::sleep(Duration::from_millis(50));
+                if let Some(line) = self.logs.lock().unwrap_or_else(|e| e.into_inner()).lines.iter().find(|l| pred(l)) {
+                    return Ok(line.clone());
+                }
+                return Err(exited(status, &self.logs, "waiting for a log line"));
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    /// Waits up to `timeout` for QEMU to end by itself (e.g. after a firmware panic);
+    /// `None` if it is still running.
+    pub fn wait_exit(&mut self, timeout: Duration) -> Option<ExitStatus> {
+        let status = self.qemu.wait_timeout(timeout);
+        if status.is_some() {
+            // Let the decoder drain the last frames.
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        status
+    }
+
+    /// Kills QEMU and reaps it (also done on drop).
+    pub fn shutdown(mut self) -> Result<ExitStatus, HilError> {
+        Ok(self.qemu.kill())
+    }
+}
+
+/// The QEMU command line (without the program).
+pub(crate) fn qemu_args(icount_shift: u32, mem_path: &str, port: u16, elf: &std::path::Path) -> Vec<String> {
+    [
+        "-machine", "mps2-an386,memory-backend=psram",
+        "-object", &format!("memory-backend-file,id=psram,size=16M,mem-path={mem_path},share=on"),
+        "-display", "none",
+        "-monitor", "none",
+        "-serial", &format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"),
+        "-semihosting-config", "enable=on,target=native",
+        "-icount", &format!("shift={icount_shift},sleep=off"),
+        "-no-reboot",
+        "-kernel", &elf.display().to_string(),
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect()
+}
+
+fn exited(status: ExitStatus, logs: &SharedLog, during: &str) -> HilError {
+    let sink = logs.lock().unwrap_or_else(|e| e.into_inner());
+    let mut tail: Vec<String> = sink.lines.iter().rev().take(20).map(|l| l.to_string()).collect();
+    tail.reverse();
+    if !sink.stderr.trim().is_empty() {
+        tail.push(format!("qemu stderr: {}", sink.stderr.trim()));
+    }
+    HilError::QemuExited { status, during: during.into(), log_tail: tail.join("\n") }
+}
+
+fn check_alive(qemu: &mut QemuProcess, logs: &SharedLog, during: &str) -> Result<(), HilError> {
+    match qemu.try_status() {
+        Some(status) => {
+            std::thread::sleep(Duration::from_millis(50));
+            Err(exited(status, logs, during))
+        }
+        None => Ok(()),
+    }
+}
+
+/// Waiting for the firmware: spin briefly (a tick round trip is microseconds), then yield
+/// the core (QEMU needs both of a small machine's cores), then sleep; check QEMU is alive
+/// and enforce the timeout.
+struct Waiter {
+    start: Instant,
+    spins: u32,
+    timeout: Duration,
+}
+
+impl Waiter {
+    fn new(timeout: Duration) -> Self {
+        Self { start: Instant::now(), spins: 0, timeout }
+    }
+
+    fn reset(&mut self) {
+        self.spins = 0;
+        self.start = Instant::now();
+    }
+
+    fn wait(&mut self, qemu: &mut QemuProcess, logs: &SharedLog, what: &str) -> Result<(), HilError> {
+        self.spins += 1;
+        if self.spins < 64 {
+            std::hint::spin_loop();
+            return Ok(());
+        }
+        if self.spins % 256 == 0 {
+            check_alive(qemu, logs, what)?;
+            let waited = self.start.elapsed();
+            if waited >= self.timeout {
+                return Err(HilError::Timeout { what: what.into(), seconds: waited.as_secs_f64() });
+            }
+        }
+        if self.spins < 20_000 {
+            std::thread::yield_now();
+        } else {
+            std::thread::sleep(Duration::from_micros(100));
+        }
+        Ok(())
+    }
+}

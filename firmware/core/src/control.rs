@@ -72,6 +72,10 @@ pub fn handle_request(
                 Response::Rejected(Rejection::Store)
             }
         }
+        Request::SetFeatureConfig(config) => match servo.with(|s| s.set_feature_config(config)) {
+            Ok(()) => Response::Ack,
+            Err(_) => Response::Rejected(Rejection::FeatureConfig),
+        },
         Request::ResetCounters => {
             servo.with(|s| *s.counters_mut() = Default::default());
             Response::Ack
@@ -89,6 +93,7 @@ pub fn status(models: &Models, servo: &mut impl ServoAccess, config_source: Conf
         program_id: models.active_id(),
         staged_program_id: models.staged_id(),
         params: s.params(),
+        feature_config: *s.feature_config(),
         config_source,
         amp_um: s.last_output().amp_um(),
         phase_deg: s.last_output().phase_deg(),

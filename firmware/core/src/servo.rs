@@ -254,6 +254,16 @@ impl Servo {
         (servo, check)
     }
 
+    /// Replaces the feature settings; the window restarts empty and any model result in
+    /// flight is dropped (it was computed on the old settings). Invalid settings change nothing.
+    pub fn set_feature_config(&mut self, config: FeatureConfig) -> Result<(), FeatureError> {
+        self.features.reconfigure(config)?;
+        self.feature_config = config;
+        self.pending = None;
+        self.awaiting_due = None;
+        Ok(())
+    }
+
     /// The feature settings in force.
     pub fn feature_config(&self) -> &FeatureConfig {
         &self.feature_config

@@ -1,7 +1,7 @@
 //! The shared part: decimated and block-extreme rings of atomics, and the read-time `finish`.
 
 use super::moments::{time_domain, Extremes};
-use super::spectrum::{fft_bfp, hann_q30, real_bin_power, refine_peak, MAX_FFT_LEN};
+use super::spectrum::{fft_bfp, lower_median, real_bin_power, refine_peak, Hann, MAX_FFT_LEN};
 use super::{Capture, FeatureError, Features, DISTINCT_POWER_GAIN, FEATURE_COUNT, MEAN_FREQ_HZ, NOISE_FLOOR_FACTOR, SIGNAL_FREQ_HZ, TOTAL_POWER_M2PS4};
 use core::sync::atomic::{fence, AtomicI32, AtomicU32, Ordering};
 
@@ -161,10 +161,13 @@ fn spectral<const FFT_HALF: usize>(cap: &Capture, nd: usize, scratch: &mut Scrat
     // f12: variance of the decimated signal (block mean = sum / 16), exact in i128.
     let mut sum = 0i64;
     let mut sum_sq = 0i64; // <= 2^38 * 2^12
+    let (mut y_max, mut y_min) = (i64::MIN, i64::MAX);
     for j in 0..nd {
         let v = block_sum(power, j);
         sum += v;
         sum_sq += v * v;
+        y_max = y_max.max(v);
+        y_min = y_min.min(v);
     }
     let c2 = nd as i128 * sum_sq as i128 - sum as i128 * sum as i128;
     let scale = cfg.acc_mps2_per_lsb;
@@ -173,33 +176,25 @@ fn spectral<const FFT_HALF: usize>(cap: &Capture, nd: usize, scratch: &mut Scrat
         return;
     }
 
-    // Mean removal, exact: z_j = nd * y_j - sum, |z| <= 2^32; Hann in Q30: |v| < 2^62.
-    let windowed = |power: &[u64], j: usize| (nd as i64 * block_sum(power, j) - sum) * hann_q30(j, nd);
-    let mut max_abs = 0u64;
-    for j in 0..nd {
-        max_abs = max_abs.max(windowed(power, j).unsigned_abs());
-    }
-    if max_abs == 0 {
-        return;
-    }
-    // Normalise so that the largest |v| lies in [2^28, 2^29); pack even/odd samples as a
-    // complex sequence and zero-pad.
-    let bits = 64 - max_abs.leading_zeros();
-    let (right, left) = if bits > 29 { (bits - 29, 0) } else { (0, 29 - bits) };
-    let fft_len = cfg.fft_len();
-    let half = fft_len / 2;
-    let (re, im) = (&mut re[..half], &mut im[..half]);
-    let normalised = |power: &[u64], j: usize| -> i32 {
+    // Mean removal, exact: z_j = nd * y_j - sum, |z| <= 2^32. Times the Q30 Hann weight and
+    // scaled by 2^-(bits(max |z|) + 1), every value is below 2^29 and keeps the full
+    // precision of z. Even/odd samples are packed as one complex sequence, zero-padded.
+    let z_max = (nd as i64 * y_max - sum).max(sum - nd as i64 * y_min) as u64;
+    let shift = 64 - z_max.leading_zeros() + 1;
+    let hann = Hann::new(nd);
+    let value = |power: &[u64], j: usize| -> i32 {
         if j >= nd {
             return 0;
         }
-        let v = windowed(power, j);
-        let v = if right > 0 { (v + (1i64 << (right - 1))) >> right } else { v << left };
-        v as i32
+        let v = (nd as i64 * block_sum(power, j) - sum) * hann.weight_q30(j);
+        ((v + (1i64 << (shift - 1))) >> shift) as i32
     };
+    let fft_len = cfg.fft_len();
+    let half = fft_len / 2;
+    let (re, im) = (&mut re[..half], &mut im[..half]);
     for m in 0..half {
-        re[m] = normalised(power, 2 * m);
-        im[m] = normalised(power, 2 * m + 1);
+        re[m] = value(power, 2 * m);
+        im[m] = value(power, 2 * m + 1);
     }
     fft_bfp(re, im);
 
@@ -220,18 +215,25 @@ fn spectral<const FFT_HALF: usize>(cap: &Capture, nd: usize, scratch: &mut Scrat
     let bin_hz = cfg.bin_hz();
     out[SIGNAL_FREQ_HZ] = refine_peak(peak_k, below, peak_p, above) * bin_hz;
 
-    // Noise floor: NOISE_FLOOR_FACTOR times the lower median bin power.
-    let (_, median, _) = power.select_nth_unstable((half - 1) / 2);
-    let floor = *median as u128 * NOISE_FLOOR_FACTOR as u128;
-    // One-sided weighted sums of the excess over the floor and of the plain power.
-    let (mut num_excess, mut den_excess, mut num_plain, mut den_plain) = (0u128, 0u128, 0u128, 0u128);
-    for k in 1..=half {
-        let p = real_bin_power(re, im, k) as u128;
-        let w = if k == half { 1 } else { 2 };
+    // The FFT buffers are free now: keep the powers in order there (low and high halves)
+    // while selecting the median in place.
+    for ((p, lo), hi) in power.iter().zip(re.iter_mut()).zip(im.iter_mut()) {
+        *lo = *p as u32 as i32;
+        *hi = (*p >> 32) as u32 as i32;
+    }
+    let median = lower_median(power);
+    // Sums in u64: powers reduced to 40 bits relative to the peak (weights k w <= 2^12,
+    // at most 2^11 bins: < 2^63).
+    let reduce = (64 - peak_p.leading_zeros()).saturating_sub(40);
+    let floor = ((median as u128 * NOISE_FLOOR_FACTOR as u128) >> reduce).min(u64::MAX as u128) as u64;
+    let (mut num_excess, mut den_excess, mut num_plain, mut den_plain) = (0u64, 0u64, 0u64, 0u64);
+    for (k, (lo, hi)) in (1..=half as u64).zip(re.iter().zip(im.iter())) {
+        let p = ((*hi as u32 as u64) << 32 | *lo as u32 as u64) >> reduce;
+        let w = if k == half as u64 { 1 } else { 2 };
         let excess = w * p.saturating_sub(floor);
-        num_excess += k as u128 * excess;
+        num_excess += k * excess;
         den_excess += excess;
-        num_plain += k as u128 * w * p;
+        num_plain += k * w * p;
         den_plain += w * p;
     }
     let bins = if den_plain == 0 {

@@ -72,20 +72,32 @@ pub(crate) fn sin_q30(a: usize) -> I2F30 {
     I2F30::from_bits(sin_idx(a))
 }
 
-/// Periodic Hann weight `0.5 (1 - cos(2 pi j / len)) = sin^2(pi j / len)` in Q30, with the
-/// sine linearly interpolated in the table (error < 3e-7).
-pub(crate) fn hann_q30(j: usize, len: usize) -> i64 {
-    if len == 0 {
-        return 0;
+/// Periodic Hann window `w_j = 0.5 (1 - cos(2 pi j / len)) = sin^2(pi j / len)` in Q30,
+/// the sine linearly interpolated in the table (error < 3e-7). One division per window,
+/// none per weight.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Hann {
+    /// Table position step per sample, `2^31 / len` with 20 extra fraction bits.
+    step: u64,
+}
+
+impl Hann {
+    pub(crate) fn new(len: usize) -> Self {
+        Self { step: (1u64 << 51) / len.max(1) as u64 }
     }
-    // Position on the 4096-step circle of the angle pi j / len, with 20 fraction bits.
-    let pos = ((j as u64) << (CIRCLE_LOG2 - 1 + 20)) / len as u64;
-    let idx = (pos >> 20) as usize;
-    let frac = (pos & 0xf_ffff) as i64;
-    let s0 = sin_idx(idx) as i64;
-    let s1 = sin_idx(idx + 1) as i64;
-    let s = s0 + (((s1 - s0) * frac) >> 20);
-    (s * s) >> 30
+
+    /// The weight of sample `j < len`.
+    #[inline]
+    pub(crate) fn weight_q30(&self, j: usize) -> i64 {
+        // Position of the angle pi j / len on the 4096-step circle, 20 fraction bits.
+        let pos = (j as u64 * self.step) >> 20;
+        let idx = (pos >> 20) as usize;
+        let frac = (pos & 0xf_ffff) as i64;
+        let s0 = sin_idx(idx) as i64;
+        let s1 = sin_idx(idx + 1) as i64;
+        let s = s0 + (((s1 - s0) * frac) >> 20);
+        (s * s) >> 30
+    }
 }
 
 /// Shift right by `sh` with rounding half up (`sh` may be 0).
@@ -98,12 +110,14 @@ fn round_shr(v: i64, sh: u32) -> i64 {
     }
 }
 
-/// In-place forward complex FFT (`e^{-i...}`) of `re`/`im` (length a power of two, at most
-/// `MAX_FFT_LEN / 2`), inputs below 2^29 in magnitude. Each stage scales by 1, 1/2 or 1/4
-/// so that no component reaches 2^31 (butterfly growth is at most 1 + sqrt 2); returns the
-/// total right shift. Deterministic integer arithmetic with rounding shifts.
+/// In-place forward complex FFT (`e^{-i...}`) of `re`/`im` (same length, a power of two,
+/// at most `MAX_FFT_LEN / 2`). Block floating point: before each stage whose inputs reach
+/// 2^29 in magnitude, all values are halved (or quartered from 2^30) with rounding, so that
+/// the butterfly outputs stay below 2^29 (1 + sqrt 2) < 2^31 and fit i32. Returns the total
+/// right shift. Deterministic integer arithmetic.
 pub(crate) fn fft_bfp(re: &mut [i32], im: &mut [i32]) -> u32 {
     let n = re.len().min(im.len());
+    let (re, im) = (&mut re[..n], &mut im[..n]);
     if n < 2 {
         return 0;
     }
@@ -117,54 +131,100 @@ pub(crate) fn fft_bfp(re: &mut [i32], im: &mut [i32]) -> u32 {
         }
     }
     let mut total_shift = 0;
-    let mut max_abs = max_abs2(re, im);
+    // OR of all magnitudes: its top bit is the top bit of the largest one.
+    let mut magnitude_bits = re.iter().chain(im.iter()).fold(0u32, |acc, v| acc | v.unsigned_abs());
     let mut half = 1;
     while half < n {
-        let span = half * 2;
-        let shift = if max_abs >= 1 << 30 {
+        let shift = if magnitude_bits >= 1 << 30 {
             2
-        } else if max_abs >= 1 << 29 {
+        } else if magnitude_bits >= 1 << 29 {
             1
         } else {
             0
         };
-        total_shift += shift;
+        if shift > 0 {
+            for v in re.iter_mut().chain(im.iter_mut()) {
+                *v = (*v + (1 << (shift - 1))) >> shift;
+            }
+            total_shift += shift;
+        }
+        let span = half * 2;
         let step = CIRCLE / span;
-        let mut new_max = 0u32;
-        let mut start = 0;
-        while start < n {
-            for k in 0..half {
-                let c = cos_idx(k * step) as i64;
-                let s = sin_idx(k * step) as i64;
-                let a = start + k;
+        let mut bits = 0u32;
+        for k in 0..half {
+            let c = cos_idx(k * step) as i64;
+            let s = sin_idx(k * step) as i64;
+            let mut a = k;
+            while a + half < n {
                 let b = a + half;
                 let (br, bi) = (re[b] as i64, im[b] as i64);
-                // (br + i bi)(c - i s)
-                let tr = round_shr(br * c + bi * s, 30);
-                let ti = round_shr(bi * c - br * s, 30);
-                let (ar, ai) = (re[a] as i64, im[a] as i64);
-                let (xr, xi) = (round_shr(ar + tr, shift), round_shr(ai + ti, shift));
-                let (yr, yi) = (round_shr(ar - tr, shift), round_shr(ai - ti, shift));
-                re[a] = xr as i32;
-                im[a] = xi as i32;
-                re[b] = yr as i32;
-                im[b] = yi as i32;
-                new_max = new_max
-                    .max(xr.unsigned_abs() as u32)
-                    .max(xi.unsigned_abs() as u32)
-                    .max(yr.unsigned_abs() as u32)
-                    .max(yi.unsigned_abs() as u32);
+                // (br + i bi)(c - i s): |t| < 2^29 sqrt 2, so the sums below fit i32.
+                let tr = ((br * c + bi * s + (1 << 29)) >> 30) as i32;
+                let ti = ((bi * c - br * s + (1 << 29)) >> 30) as i32;
+                let (ar, ai) = (re[a], im[a]);
+                let (xr, xi, yr, yi) = (ar + tr, ai + ti, ar - tr, ai - ti);
+                re[a] = xr;
+                im[a] = xi;
+                re[b] = yr;
+                im[b] = yi;
+                bits |= xr.unsigned_abs() | xi.unsigned_abs() | yr.unsigned_abs() | yi.unsigned_abs();
+                a += span;
             }
-            start += span;
         }
-        max_abs = new_max;
+        magnitude_bits = bits;
         half = span;
     }
     total_shift
 }
 
-fn max_abs2(re: &[i32], im: &[i32]) -> u32 {
-    re.iter().chain(im.iter()).map(|v| v.unsigned_abs()).max().unwrap_or(0)
+/// The lower median (`(len - 1) / 2`-th smallest) of `values`, reordering them. Quickselect
+/// with a median-of-three pivot; after 2 log2(len) rounds (adversarial orders only) it
+/// hands over to `core`'s worst-case linear selection. The value does not depend on the
+/// algorithm, so results stay deterministic.
+pub(crate) fn lower_median(values: &mut [u64]) -> u64 {
+    if values.is_empty() {
+        return 0;
+    }
+    let rank = (values.len() - 1) / 2;
+    let (mut lo, mut hi) = (0, values.len() - 1); // inclusive range holding `rank`
+    let mut rounds = 2 * (usize::BITS - values.len().leading_zeros());
+    while lo < hi {
+        if rounds == 0 {
+            let (_, m, _) = values[lo..=hi].select_nth_unstable(rank - lo);
+            return *m;
+        }
+        rounds -= 1;
+        let mid = lo + (hi - lo) / 2;
+        // Median of three as pivot, moved to `hi`.
+        let (x, y, z) = (values[lo], values[mid], values[hi]);
+        let p = if (x <= y) == (y <= z) {
+            mid
+        } else if (y <= x) == (x <= z) {
+            lo
+        } else {
+            hi
+        };
+        values.swap(p, hi);
+        let pivot = values[hi];
+        // Lomuto partition: [lo, store) < pivot <= [store, hi).
+        let mut store = lo;
+        for i in lo..hi {
+            if values[i] < pivot {
+                values.swap(i, store);
+                store += 1;
+            }
+        }
+        values.swap(store, hi);
+        if rank == store {
+            return pivot;
+        }
+        if rank < store {
+            hi = store - 1;
+        } else {
+            lo = store + 1;
+        }
+    }
+    values[rank]
 }
 
 /// Power of real-FFT bin `k` (0 ..= h) of a length-2h real signal from the length-h complex

@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::features::FeatureConfig;
 use crate::feedforward::{FeedforwardParams, ParamError};
 use crate::program::{Program, ProgramError};
 use crate::counters::Counters;
@@ -45,6 +46,9 @@ pub enum Request {
     SaveConfig,
     /// Sets every counter to zero.
     ResetCounters,
+    /// Sets the feature extraction (window, accelerometer scale, sample rate). The window
+    /// restarts empty, so no model update happens until it is full again.
+    SetFeatureConfig(FeatureConfig),
 }
 
 /// Firmware to host.
@@ -75,6 +79,8 @@ pub enum Rejection {
     NoStagedProgram,
     /// The config store could not be written.
     Store,
+    /// The feature configuration is invalid (see `FeatureConfig::validate`).
+    FeatureConfig,
 }
 
 /// Where the configuration in force came from at boot.
@@ -106,6 +112,8 @@ pub struct Status {
     pub staged_program_id: Option<u32>,
     /// Feedforward parameters in force.
     pub params: FeedforwardParams,
+    /// Feature extraction settings in force.
+    pub feature_config: FeatureConfig,
     /// Where the boot configuration came from.
     pub config_source: ConfigSource,
     /// Amplitude of the last model output, micrometres.

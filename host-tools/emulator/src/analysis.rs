@@ -34,6 +34,7 @@ pub fn fit_sine(t_s: &[f64], y: &[f64], freq_hz: f64) -> SineFit {
     SineFit { amp: x[0].hypot(x[1]), phase_rad: x[1].atan2(x[0]), offset: x[2] }
 }
 
+#[allow(clippy::needless_range_loop)]
 fn solve3(mut m: [[f64; 3]; 3], mut r: [f64; 3]) -> [f64; 3] {
     for col in 0..3 {
         let pivot = (col..3).max_by(|&a, &b| m[a][col].abs().total_cmp(&m[b][col].abs())).unwrap_or(col);

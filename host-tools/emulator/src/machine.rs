@@ -6,6 +6,9 @@
 //! sub-steps (the nonlinear effect forces held over each sub-step). The returned
 //! [`StepOutput`] holds the sensor readings at `t_k`, the same instant as the step's command.
 
+// Small dense matrix-vector products read clearest with indices.
+#![allow(clippy::needless_range_loop)]
+
 use crate::effects::{check_unique, EffectError, EffectKind, EffectSpec};
 use crate::linalg::{discretize, NU, NX};
 use crate::params::{ParamsError, PlantParams, SERVO_RATE_HZ};
@@ -18,6 +21,9 @@ use std::f64::consts::PI;
 pub const TICK_S: f64 = 1.0 / SERVO_RATE_HZ;
 
 const HISTORY: usize = 128;
+
+/// A discretised linear step: state transition and input matrices.
+type Discrete = ([[f64; NX]; NX], [[f64; NU]; NX]);
 
 /// Why a machine could not be built.
 #[derive(Debug, thiserror::Error)]
@@ -122,7 +128,7 @@ pub struct Machine {
     gamma: [[f64; NU]; NX],
     // Linear-only fast path: the tick split where the delayed force command changes.
     split_substep: usize,
-    seg: [([[f64; NX]; NX], [[f64; NU]; NX]); 2],
+    seg: [Discrete; 2],
     nonlinear: bool,
     slow_temp: (u64, f64, f64),
     state: [f64; NX],

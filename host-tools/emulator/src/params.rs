@@ -149,7 +149,7 @@ pub struct ThermalParams {
 }
 
 /// Every parameter of the emulated machine (one TOML section per field).
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlantParams {
     /// `[slide]`
@@ -230,21 +230,6 @@ impl Default for InterfaceParams {
 impl Default for ThermalParams {
     fn default() -> Self {
         Self { ambient_c: 20.0, wander_mk: 5.0, sensor_noise_mk: 1.0 }
-    }
-}
-
-impl Default for PlantParams {
-    fn default() -> Self {
-        Self {
-            slide: SlideParams::default(),
-            servo: ServoParams::default(),
-            structure: StructureParams::default(),
-            accelerometer: AccelerometerParams::default(),
-            probe: ProbeParams::default(),
-            encoder: EncoderParams::default(),
-            interface: InterfaceParams::default(),
-            thermal: ThermalParams::default(),
-        }
     }
 }
 

@@ -31,7 +31,7 @@ fn single_core(effects: &[EffectSpec], label: &str) {
     let cpu0 = thread_cpu_s();
     let mut sink = 0.0;
     for k in 0..n {
-        let out = machine.step(&StepInput { z_cmd_um: 5.0 * (w * k as f64).sin(), x_mm: 5.0, spindle_deg: 0.0, analog_in_v: 0.0 });
+        let out = machine.step(&StepInput { z_cmd_um: 5.0 * (w * k as f64).sin(), x_mm: 5.0, spindle_deg: 0.0, analog_in_v: 0.0, analog_enabled: false });
         sink += out.z_tcp_um;
     }
     let secs = start.elapsed().as_secs_f64();

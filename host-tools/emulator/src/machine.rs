@@ -47,6 +47,9 @@ pub struct StepInput {
     pub spindle_deg: f64,
     /// Voltage at the controller's analogue input (from the co-processor's DAC), V.
     pub analog_in_v: f64,
+    /// Whether the controller adds the analogue input's motion pulses to the position command
+    /// (the A3200's analogue feedforward switched on). The input is read either way.
+    pub analog_enabled: bool,
 }
 
 /// The sensor readings at the step's instant and what the controller sees.
@@ -68,7 +71,8 @@ pub struct StepOutput {
     pub acc_saturated: bool,
     /// The controller's reading of its analogue input (offset included, quantised), V.
     pub ain_read_v: f64,
-    /// Motion pulses the controller makes of it (`round(ain_read_v * K_vc)`).
+    /// Motion pulses the controller makes of it (`round(ain_read_v * K_vc)`), added to the
+    /// command only when `analog_enabled`.
     pub ain_pulses: i64,
     /// Position command the servo loop used (delayed trajectory plus pulses), um.
     pub z_servo_cmd_um: f64,
@@ -512,7 +516,8 @@ impl Machine {
         } else {
             0.0
         };
-        let r_um = delayed_cmd + ain_pulses as f64 * itf.pulse_nm * 1e-3;
+        let added_pulses = if input.analog_enabled { ain_pulses } else { 0 };
+        let r_um = delayed_cmd + added_pulses as f64 * itf.pulse_nm * 1e-3;
         let s = &p.servo;
         let e_um = r_um - z_enc_um;
         self.integral_um_s += e_um * TICK_S;

@@ -173,6 +173,7 @@ pub fn simulate_group(config: &MeasureConfig, index: usize) -> Result<GroupData,
             x_mm: x_at(t_machine),
             spindle_deg: (config.spindle_rpm / 60.0 * 360.0 * t_machine).rem_euclid(360.0),
             analog_in_v: 0.0,
+            analog_enabled: false,
         };
         let out = machine.step(&input);
         g.t_s[k] = t;

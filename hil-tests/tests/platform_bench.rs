@@ -1,0 +1,22 @@
+//! Platform benchmarks (ignored by default; they print figures for BENCHMARKS.md):
+//!
+//! ```text
+//! cargo test -p sts-hil-tests --release --test platform_bench -- --ignored --nocapture --test-threads=1
+//! ```
+
+use sts_twin::hil::{bench_instructions, bench_throughput, HilConfig};
+
+#[test]
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn bench_servo_tick_instructions() {
+    let report = bench_instructions(HilConfig::default(), 20_000).expect("instruction benchmark");
+    println!("{report}");
+    assert_eq!(report.underruns + report.overruns, 0);
+}
+
+#[test]
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn bench_hil_throughput() {
+    let report = bench_throughput(HilConfig::default(), 80_000).expect("throughput benchmark");
+    println!("{report}");
+}

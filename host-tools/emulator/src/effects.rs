@@ -91,7 +91,7 @@ const THERMAL: &[ParamDef] = &[
     p("um_per_k", 1.0, -50.0, 50.0, "TCP growth per kelvin, um/K"),
 ];
 const RIPPLE: &[ParamDef] = &[
-    p("amp_nm", 20.0, 0.0, 2000.0, "first-harmonic amplitude of the interpolation error, nm"),
+    p("amp_nm", 30.0, 0.0, 2000.0, "first-harmonic amplitude of the interpolation error, nm"),
     p("period_um", 4.0, 0.05, 1000.0, "signal period of the encoder, um"),
     p("harmonic2_nm", 0.0, 0.0, 2000.0, "second-harmonic amplitude, nm"),
     p("phase_deg", 0.0, -360.0, 360.0, "phase of the error at position zero, degrees"),
@@ -256,7 +256,7 @@ impl EffectSpec {
                 vec![("rise_k", u(0.5, 1.5)), ("tau_s", u(300.0, 1800.0)), ("um_per_k", sign * u(0.6, 1.5))]
             }
             EffectKind::ForceRipple => vec![
-                ("amp_nm", u(15.0, 60.0)),
+                ("amp_nm", u(25.0, 80.0)),
                 ("period_um", u(2.0, 8.0)),
                 ("harmonic2_nm", u(0.0, 15.0)),
                 ("phase_deg", u(-180.0, 180.0)),

@@ -2,7 +2,8 @@
 //!
 //! Sinusoidal Z commands `A sin(2 pi f t)` at f = 1, 5, 10, ..., 40 Hz and A = 1..11 um
 //! (99 groups, frequency-major order), 6 s each at 8 kHz, back to back on machine time
-//! (group i starts at `i * duration_s`). Each group starts from rest at position zero; the
+//! (group i starts at `i * duration_s`, plus lead-ins if configured). Each group starts from
+//! rest at position zero (optionally with a lead-in of motion before recording); the
 //! slow processes (ambient wander, thermal drift) follow machine time. Groups are simulated
 //! in parallel, each with its own noise stream derived from the seed and the group index,
 //! so the output is the same bit for bit whatever the number of threads.
@@ -64,6 +65,11 @@ pub struct MeasureConfig {
     pub x_motion: XMotion,
     /// Spindle speed, rpm.
     pub spindle_rpm: f64,
+    /// Motion before the recording starts, s (rounded up to whole command periods so the
+    /// command still starts at zero). 0 (the default, the paper's Eq. 1): each group starts
+    /// from rest at `t_s = 0`, so its first instants hold the start transient. A lead-in
+    /// records the steady motion only, as a continuously running machine shows it.
+    pub lead_in_s: f64,
 }
 
 impl Default for MeasureConfig {
@@ -78,6 +84,7 @@ impl Default for MeasureConfig {
             duration_s: 6.0,
             x_motion: XMotion { center_mm: 5.0, amp_mm: 1.0, freq_hz: 2.25 },
             spindle_rpm: 90.0,
+            lead_in_s: 0.0,
         }
     }
 }
@@ -98,7 +105,7 @@ impl MeasureConfig {
                     file: format!("g{i:03}.csv"),
                     freq_hz,
                     amp_um,
-                    start_s: i as f64 * self.duration_s,
+                    start_s: i as f64 * (self.duration_s + self.lead_in_s) + self.lead_in_s,
                 });
             }
         }
@@ -141,6 +148,9 @@ impl MeasureConfig {
         if !(self.duration_s.is_finite() && self.duration_s >= 2.0 * TICK_S && self.duration_s <= 3600.0) {
             return bad("duration_s must be in [0.00025, 3600] s");
         }
+        if !(self.lead_in_s.is_finite() && (0.0..=60.0).contains(&self.lead_in_s)) {
+            return bad("lead_in_s must be in [0, 60] s");
+        }
         Ok(())
     }
 }
@@ -153,11 +163,15 @@ pub fn simulate_group(config: &MeasureConfig, index: usize) -> Result<GroupData,
         .into_iter()
         .nth(index)
         .ok_or_else(|| MeasureError::Config(format!("no group {index}")))?;
-    let options = MachineOptions { seed: config.seed, start_s: info.start_s, stream: index as u64 };
+    // Lead-in: whole command periods, so the command is zero when the motion starts.
+    let lead_s = (config.lead_in_s * info.freq_hz).ceil() / info.freq_hz;
+    let lead_ticks = (lead_s / TICK_S).round() as usize;
+    let machine_start_s = info.start_s - lead_ticks as f64 * TICK_S;
+    let options = MachineOptions { seed: config.seed, start_s: machine_start_s, stream: index as u64 };
     let mut machine = Machine::with_options(&config.plant, &config.effects, options)?;
     let xm = config.x_motion;
     let x_at = |t: f64| xm.center_mm + xm.amp_mm * (2.0 * PI * xm.freq_hz * t).sin();
-    machine.prime_x(x_at(info.start_s - 2.0 * TICK_S), x_at(info.start_s - TICK_S));
+    machine.prime_x(x_at(machine_start_s - 2.0 * TICK_S), x_at(machine_start_s - TICK_S));
     let n = config.samples_per_group();
     let mut g = GroupData::with_len(n);
     let mut x_mm = vec![0.0; n];
@@ -165,8 +179,9 @@ pub fn simulate_group(config: &MeasureConfig, index: usize) -> Result<GroupData,
     let mut spindle = vec![0.0; n];
     let mut temp = vec![0.0; n];
     let w = 2.0 * PI * info.freq_hz;
-    for k in 0..n {
-        let t = k as f64 * TICK_S;
+    for k in 0..lead_ticks + n {
+        // Time since the recording's start (negative during the lead-in).
+        let t = (k as f64 - lead_ticks as f64) * TICK_S;
         let t_machine = info.start_s + t;
         let input = StepInput {
             z_cmd_um: info.amp_um * (w * t).sin(),
@@ -176,15 +191,16 @@ pub fn simulate_group(config: &MeasureConfig, index: usize) -> Result<GroupData,
             analog_enabled: false,
         };
         let out = machine.step(&input);
-        g.t_s[k] = t;
-        g.z_cmd_um[k] = input.z_cmd_um;
-        g.z_enc_um[k] = out.z_enc_um;
-        g.z_tcp_um[k] = out.z_tcp_um;
-        g.acc_mps2[k] = out.acc_mps2;
-        x_mm[k] = input.x_mm;
-        x_acc[k] = out.x_acc_mps2;
-        spindle[k] = input.spindle_deg;
-        temp[k] = out.temp_c;
+        let Some(r) = k.checked_sub(lead_ticks) else { continue };
+        g.t_s[r] = r as f64 * TICK_S;
+        g.z_cmd_um[r] = input.z_cmd_um;
+        g.z_enc_um[r] = out.z_enc_um;
+        g.z_tcp_um[r] = out.z_tcp_um;
+        g.acc_mps2[r] = out.acc_mps2;
+        x_mm[r] = input.x_mm;
+        x_acc[r] = out.x_acc_mps2;
+        spindle[r] = input.spindle_deg;
+        temp[r] = out.temp_c;
     }
     g.x_mm = Some(x_mm);
     g.x_acc_mps2 = Some(x_acc);

@@ -105,3 +105,26 @@ fn accelerometer_range_resolves_small_and_holds_large_signals() {
     let a5 = (2.0 * std::f64::consts::PI * 5.0_f64).powi(2) * 1e-6;
     assert!(p.acc_mps2_per_lsb() < 2.0 * a5);
 }
+
+#[test]
+fn lead_in_records_steady_motion_only() {
+    let peak = |v: &[f64]| v.iter().fold(0.0f64, |m, a| m.max(a.abs()));
+    let make = |lead_in_s: f64| MeasureConfig {
+        freqs_hz: vec![40.0],
+        amps_um: vec![11.0],
+        duration_s: 2.0,
+        lead_in_s,
+        ..MeasureConfig::default()
+    };
+    let from_rest = sts_emulator::measure::simulate_group(&make(0.0), 0).unwrap();
+    let running = sts_emulator::measure::simulate_group(&make(1.0), 0).unwrap();
+    let (head, tail) = (0..800, 8000..16000);
+    // From rest, the start (a velocity step) gives an acceleration spike well above the
+    // steady peak; with a lead-in the first samples look like the rest.
+    assert!(peak(&from_rest.acc_mps2[head.clone()]) > 1.5 * peak(&from_rest.acc_mps2[tail.clone()]));
+    assert!(peak(&running.acc_mps2[head]) < 1.1 * peak(&running.acc_mps2[tail]));
+    // Same command either way: starts at zero phase at t_s = 0.
+    assert_eq!(from_rest.z_cmd_um, running.z_cmd_um);
+    let groups = make(1.0).groups();
+    assert_eq!(groups[0].start_s, 1.0);
+}

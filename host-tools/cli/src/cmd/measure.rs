@@ -24,6 +24,11 @@ pub struct Args {
     /// Seed of all noise (same seed, same bytes).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Seconds of motion before each group's recording starts (rounded up to whole command
+    /// periods). 0, the default, records each group from rest as the paper's Eq. 1 (with the
+    /// start transient); a lead-in records steady motion only.
+    #[arg(long, default_value_t = 0.0)]
+    pub lead_in_s: f64,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -40,7 +45,7 @@ pub fn config(args: &Args) -> anyhow::Result<MeasureConfig> {
         .iter()
         .map(|text| text.parse::<EffectSpec>().with_context(|| format!("--effect {text}")))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok(MeasureConfig { plant, effects, seed: args.seed, ..MeasureConfig::default() })
+    Ok(MeasureConfig { plant, effects, seed: args.seed, lead_in_s: args.lead_in_s, ..MeasureConfig::default() })
 }
 
 /// Runs `sts-twin measure`.

@@ -1,7 +1,7 @@
 //! The shared part: decimated and block-extreme rings of atomics, and the read-time `finish`.
 
 use super::moments::{time_domain, Extremes};
-use super::spectrum::{fft_bfp, lower_median, real_bin_power, refine_peak, Hann, MAX_FFT_LEN};
+use super::spectrum::{fft_bfp, lower_median, real_spectrum_powers, refine_peak, Hann, MAX_FFT_LEN};
 use super::{Capture, FeatureError, Features, DISTINCT_POWER_GAIN, FEATURE_COUNT, MEAN_FREQ_HZ, NOISE_FLOOR_FACTOR, SIGNAL_FREQ_HZ, TOTAL_POWER_M2PS4};
 use core::sync::atomic::{fence, AtomicI32, AtomicU32, Ordering};
 
@@ -32,8 +32,9 @@ impl<const RING_BLOCKS: usize> Default for SpectralRings<RING_BLOCKS> {
 /// bytes. It holds no state between calls.
 #[derive(Clone, Debug)]
 pub struct Scratch<const FFT_HALF: usize> {
-    re: [i32; FFT_HALF],
-    im: [i32; FFT_HALF],
+    /// Complex FFT buffer, `[re, im]` pairs.
+    z: [[i32; 2]; FFT_HALF],
+    /// Block sums (two per word) before the FFT, bin powers after it.
     power: [u64; FFT_HALF],
 }
 
@@ -53,7 +54,7 @@ impl<const FFT_HALF: usize> Scratch<FFT_HALF> {
     pub const fn new() -> Self {
         #[allow(clippy::let_unit_value)]
         let () = Self::SIZE_OK;
-        Self { re: [0; FFT_HALF], im: [0; FFT_HALF], power: [0; FFT_HALF] }
+        Self { z: [[0; 2]; FFT_HALF], power: [0; FFT_HALF] }
     }
 }
 
@@ -157,7 +158,7 @@ fn spectral<const FFT_HALF: usize>(cap: &Capture, nd: usize, scratch: &mut Scrat
     if nd < 2 {
         return;
     }
-    let Scratch { re, im, power } = scratch;
+    let Scratch { z, power } = scratch;
     // f12: variance of the decimated signal (block mean = sum / 16), exact in i128.
     let mut sum = 0i64;
     let mut sum_sq = 0i64; // <= 2^38 * 2^12
@@ -176,50 +177,56 @@ fn spectral<const FFT_HALF: usize>(cap: &Capture, nd: usize, scratch: &mut Scrat
         return;
     }
 
-    // Mean removal, exact: z_j = nd * y_j - sum, |z| <= 2^32. Times the Q30 Hann weight and
-    // scaled by 2^-(bits(max |z|) + 1), every value is below 2^29 and keeps the full
-    // precision of z. Even/odd samples are packed as one complex sequence, zero-padded.
+    // Mean removal, exact: z_j = nd * y_j - sum, |z| <= 2^32; normalised to 30 bits (exact
+    // for small signals, rounded for large ones), times the Q30 Hann weight, rounded to 29
+    // bits. Even/odd samples are packed as one complex sequence, zero-padded.
     let z_max = (nd as i64 * y_max - sum).max(sum - nd as i64 * y_min) as u64;
-    let shift = 64 - z_max.leading_zeros() + 1;
-    let hann = Hann::new(nd);
-    let value = |power: &[u64], j: usize| -> i32 {
-        if j >= nd {
-            return 0;
+    let bits = 64 - z_max.leading_zeros();
+    let (right, left) = if bits > 30 { (bits - 30, 0) } else { (0, 30 - bits) };
+    let normalised = |j: usize| -> i32 {
+        let z = nd as i64 * block_sum(power, j) - sum;
+        if right > 0 {
+            ((z + (1 << (right - 1))) >> right) as i32
+        } else {
+            (z as i32) << left
         }
-        let v = (nd as i64 * block_sum(power, j) - sum) * hann.weight_q30(j);
-        ((v + (1i64 << (shift - 1))) >> shift) as i32
     };
     let fft_len = cfg.fft_len();
     let half = fft_len / 2;
-    let (re, im) = (&mut re[..half], &mut im[..half]);
-    for m in 0..half {
-        re[m] = value(power, 2 * m);
-        im[m] = value(power, 2 * m + 1);
+    let mut hann = Hann::new(nd);
+    let mut windowed = |j: usize| -> i32 {
+        match hann.next() {
+            Some(w) if j < nd => ((normalised(j) as i64 * w as i64 + (1 << 30)) >> 31) as i32,
+            _ => 0,
+        }
+    };
+    let z = &mut z[..half];
+    for (m, zm) in z.iter_mut().enumerate() {
+        let even = windowed(2 * m);
+        *zm = [even, windowed(2 * m + 1)];
     }
-    fft_bfp(re, im);
+    fft_bfp(z);
 
-    // Bin powers k = 1 ..= half into power[k - 1]; track the peak (first maximum).
+    // Bin powers k = 1 ..= half into power[k - 1]; the peak is the first maximum.
     let power = &mut power[..half];
+    let p0 = real_spectrum_powers(z, power);
     let mut peak_k = 1;
     let mut peak_p = 0u64;
-    for k in 1..=half {
-        let p = real_bin_power(re, im, k);
-        power[k - 1] = p;
+    for (i, &p) in power.iter().enumerate() {
         if p > peak_p {
             peak_p = p;
-            peak_k = k;
+            peak_k = i + 1;
         }
     }
-    let below = if peak_k == 1 { real_bin_power(re, im, 0) } else { power[peak_k - 2] };
+    let below = if peak_k == 1 { p0 } else { power[peak_k - 2] };
     let above = if peak_k == half { power[half - 2] } else { power[peak_k] };
     let bin_hz = cfg.bin_hz();
     out[SIGNAL_FREQ_HZ] = refine_peak(peak_k, below, peak_p, above) * bin_hz;
 
-    // The FFT buffers are free now: keep the powers in order there (low and high halves)
+    // The FFT buffer is free now: keep the powers in order there (low and high halves)
     // while selecting the median in place.
-    for ((p, lo), hi) in power.iter().zip(re.iter_mut()).zip(im.iter_mut()) {
-        *lo = *p as u32 as i32;
-        *hi = (*p >> 32) as u32 as i32;
+    for (p, zk) in power.iter().zip(z.iter_mut()) {
+        *zk = [*p as u32 as i32, (*p >> 32) as u32 as i32];
     }
     let median = lower_median(power);
     // Sums in u64: powers reduced to 40 bits relative to the peak (weights k w <= 2^12,
@@ -227,8 +234,10 @@ fn spectral<const FFT_HALF: usize>(cap: &Capture, nd: usize, scratch: &mut Scrat
     let reduce = (64 - peak_p.leading_zeros()).saturating_sub(40);
     let floor = ((median as u128 * NOISE_FLOOR_FACTOR as u128) >> reduce).min(u64::MAX as u128) as u64;
     let (mut num_excess, mut den_excess, mut num_plain, mut den_plain) = (0u64, 0u64, 0u64, 0u64);
-    for (k, (lo, hi)) in (1..=half as u64).zip(re.iter().zip(im.iter())) {
-        let p = ((*hi as u32 as u64) << 32 | *lo as u32 as u64) >> reduce;
+    let mut k = 0u64;
+    for zk in z.iter() {
+        k += 1;
+        let p = ((zk[1] as u32 as u64) << 32 | zk[0] as u32 as u64) >> reduce;
         let w = if k == half as u64 { 1 } else { 2 };
         let excess = w * p.saturating_sub(floor);
         num_excess += k * excess;

@@ -73,31 +73,45 @@ pub(crate) fn sin_q30(a: usize) -> I2F30 {
 }
 
 /// Periodic Hann window `w_j = 0.5 (1 - cos(2 pi j / len)) = sin^2(pi j / len)` in Q30,
-/// the sine linearly interpolated in the table (error < 3e-7). One division per window,
-/// none per weight.
+/// generated in order: the sine is linearly interpolated in the table at a phase that
+/// advances by `2048 / len` table steps (Q40) per sample (one division per window, error
+/// of the weights below 1e-6).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Hann {
-    /// Table position step per sample, `2^31 / len` with 20 extra fraction bits.
+    /// Table position of the next weight, Q40 steps of the 4096-step circle.
+    phase: u64,
+    /// Position step per sample.
     step: u64,
 }
 
 impl Hann {
     pub(crate) fn new(len: usize) -> Self {
-        Self { step: (1u64 << 51) / len.max(1) as u64 }
+        Self { phase: 0, step: (1u64 << 51) / len.max(1) as u64 }
     }
+}
 
-    /// The weight of sample `j < len`.
+impl Iterator for Hann {
+    type Item = i32;
+
+    /// The next weight (Q30, at most 2^30); the sequence does not end.
     #[inline]
-    pub(crate) fn weight_q30(&self, j: usize) -> i64 {
-        // Position of the angle pi j / len on the 4096-step circle, 20 fraction bits.
-        let pos = (j as u64 * self.step) >> 20;
-        let idx = (pos >> 20) as usize;
-        let frac = (pos & 0xf_ffff) as i64;
-        let s0 = sin_idx(idx) as i64;
-        let s1 = sin_idx(idx + 1) as i64;
-        let s = s0 + (((s1 - s0) * frac) >> 20);
-        (s * s) >> 30
+    fn next(&mut self) -> Option<i32> {
+        // Angle pi j / len is within [0, pi): table index 0 ..= 2048, sin >= 0.
+        let idx = (self.phase >> 40) as usize;
+        let frac = ((self.phase >> 30) & 0x3ff) as i32; // 10 bits: (s1 - s0) frac < 2^31
+        self.phase += self.step;
+        let s0 = half_sin(idx);
+        let s1 = half_sin(idx + 1);
+        let s = s0 + (((s1 - s0) * frac) >> 10);
+        Some(((s as i64 * s as i64) >> 30) as i32)
     }
+}
+
+/// sin(2 pi a / 4096) in Q30 for a in 0 ..= 2048 (the upper half circle), 0 beyond.
+#[inline]
+fn half_sin(a: usize) -> i32 {
+    let r = if a <= QUARTER { a } else { (2 * QUARTER).saturating_sub(a) };
+    SIN_Q30[r]
 }
 
 /// Shift right by `sh` with rounding half up (`sh` may be 0).
@@ -110,15 +124,14 @@ fn round_shr(v: i64, sh: u32) -> i64 {
     }
 }
 
-/// In-place forward complex FFT (`e^{-i...}`) of `re`/`im` (same length, a power of two,
-/// at most `MAX_FFT_LEN / 2`). Block floating point: before each stage whose inputs reach
-/// 2^29 in magnitude, all values are halved (or quartered from 2^30) with rounding, so that
-/// the butterfly outputs stay below 2^29 (1 + sqrt 2) < 2^31 and fit i32. Returns the total
-/// right shift. Deterministic integer arithmetic.
-pub(crate) fn fft_bfp(re: &mut [i32], im: &mut [i32]) -> u32 {
-    let n = re.len().min(im.len());
-    let (re, im) = (&mut re[..n], &mut im[..n]);
-    if n < 2 {
+/// In-place forward complex FFT (`e^{-i...}`) of `z` (`[re, im]` pairs; length a power of
+/// two, at most `MAX_FFT_LEN / 2`). Block floating point: before each stage whose inputs
+/// reach 2^29 in magnitude, all values are halved (or quartered from 2^30) with rounding,
+/// so that the butterfly outputs stay below 2^29 (1 + sqrt 2) < 2^31 and fit i32. Returns
+/// the total right shift. Deterministic integer arithmetic.
+pub(crate) fn fft_bfp(z: &mut [[i32; 2]]) -> u32 {
+    let n = z.len();
+    if n < 2 || !n.is_power_of_two() {
         return 0;
     }
     let log2n = n.trailing_zeros();
@@ -126,13 +139,15 @@ pub(crate) fn fft_bfp(re: &mut [i32], im: &mut [i32]) -> u32 {
     for i in 0..n {
         let j = i.reverse_bits() >> (usize::BITS - log2n);
         if j > i {
-            re.swap(i, j);
-            im.swap(i, j);
+            z.swap(i, j);
         }
     }
     let mut total_shift = 0;
-    // OR of all magnitudes: its top bit is the top bit of the largest one.
-    let mut magnitude_bits = re.iter().chain(im.iter()).fold(0u32, |acc, v| acc | v.unsigned_abs());
+    // OR of all magnitudes (as v ^ (v >> 31), |v| - 1 for negative v: one instruction); its
+    // top bit is that of the largest magnitude, except that -2^29 passes as below 2^29,
+    // which the bound below allows for.
+    let mag = |v: i32| (v ^ (v >> 31)) as u32;
+    let mut magnitude_bits = z.iter().fold(0u32, |acc, [r, i]| acc | mag(*r) | mag(*i));
     let mut half = 1;
     while half < n {
         let shift = if magnitude_bits >= 1 << 30 {
@@ -143,11 +158,14 @@ pub(crate) fn fft_bfp(re: &mut [i32], im: &mut [i32]) -> u32 {
             0
         };
         if shift > 0 {
-            for v in re.iter_mut().chain(im.iter_mut()) {
-                *v = (*v + (1 << (shift - 1))) >> shift;
+            let round = 1 << (shift - 1);
+            for v in z.iter_mut() {
+                *v = [(v[0] + round) >> shift, (v[1] + round) >> shift];
             }
             total_shift += shift;
         }
+        // Inputs are now at most 2^29 in magnitude: |t| <= 2^29 sqrt 2 + 1 and the sums
+        // stay below 2^30.3.
         let span = half * 2;
         let step = CIRCLE / span;
         let mut bits = 0u32;
@@ -157,17 +175,15 @@ pub(crate) fn fft_bfp(re: &mut [i32], im: &mut [i32]) -> u32 {
             let mut a = k;
             while a + half < n {
                 let b = a + half;
-                let (br, bi) = (re[b] as i64, im[b] as i64);
-                // (br + i bi)(c - i s): |t| < 2^29 sqrt 2, so the sums below fit i32.
+                let (br, bi) = (z[b][0] as i64, z[b][1] as i64);
+                // (br + i bi)(c - i s), rounded from Q30.
                 let tr = ((br * c + bi * s + (1 << 29)) >> 30) as i32;
                 let ti = ((bi * c - br * s + (1 << 29)) >> 30) as i32;
-                let (ar, ai) = (re[a], im[a]);
+                let [ar, ai] = z[a];
                 let (xr, xi, yr, yi) = (ar + tr, ai + ti, ar - tr, ai - ti);
-                re[a] = xr;
-                im[a] = xi;
-                re[b] = yr;
-                im[b] = yi;
-                bits |= xr.unsigned_abs() | xi.unsigned_abs() | yr.unsigned_abs() | yi.unsigned_abs();
+                z[a] = [xr, xi];
+                z[b] = [yr, yi];
+                bits |= mag(xr) | mag(xi) | mag(yr) | mag(yi);
                 a += span;
             }
         }
@@ -227,25 +243,47 @@ pub(crate) fn lower_median(values: &mut [u64]) -> u64 {
     values[rank]
 }
 
-/// Power of real-FFT bin `k` (0 ..= h) of a length-2h real signal from the length-h complex
-/// FFT `z` of its even/odd packing, scaled by 1/64 (so that it fits u64).
-#[inline]
-pub(crate) fn real_bin_power(re: &[i32], im: &[i32], k: usize) -> u64 {
-    let h = re.len();
-    let kk = k % h;
-    let mk = (h - kk) % h;
-    let (zr, zi) = (re[kk] as i64, im[kk] as i64);
-    let (wr, wi) = (re[mk] as i64, im[mk] as i64);
-    // 2 E = Z_k + conj(Z_{h-k}), 2 O = (Z_k - conj(Z_{h-k})) / i, X_k = E + W^k O.
-    let (ar, ai) = (zr + wr, zi - wi);
-    let (br, bi) = (zi + wi, wr - zr);
-    // W^k = e^{-i 2 pi k / 2h}: the table angle index is k * 4096 / 2h.
-    let a = k * (CIRCLE / (2 * h));
-    let (c, s) = (cos_idx(a) as i64, sin_idx(a) as i64);
-    // |Z| < 2^30.8, so |2X| < 2^32.8; shift 2 keeps |2X / 4|^2 < 2^61.6.
-    let xr = round_shr(ar + round_shr(br * c + bi * s, 30), 2);
-    let xi = round_shr(ai + round_shr(bi * c - br * s, 30), 2);
-    (xr * xr) as u64 + (xi * xi) as u64
+/// Powers of the real-FFT bins 1 ..= h of a length-2h real signal, from the length-h
+/// complex FFT `z` of its even/odd packing, into `out[0 .. h]`; returns the power of bin 0.
+/// All scaled by 1/64 so that they fit u64. Bins k and h - k are computed together:
+/// with `E = (Z_k + conj Z_{h-k}) / 2`, `O = (Z_k - conj Z_{h-k}) / 2i` and `W = e^{-i pi k/h}`,
+/// `X_k = E + W O` and `X_{h-k} = conj(E - W O)`.
+pub(crate) fn real_spectrum_powers(z: &[[i32; 2]], out: &mut [u64]) -> u64 {
+    let h = z.len().min(out.len());
+    if h < 2 {
+        return 0;
+    }
+    let step = CIRCLE / (2 * h); // table steps per bin
+    let mut p0 = 0;
+    for k in 0..=h / 2 {
+        let mk = (h - k) % h;
+        let (zr, zi) = (z[k][0] as i64, z[k][1] as i64);
+        let (wr, wi) = (z[mk][0] as i64, z[mk][1] as i64);
+        // 2E and 2O.
+        let (er, ei) = (zr + wr, zi - wi);
+        let (or, oi) = (zi + wi, wr - zr);
+        let (c, s) = (cos_idx(k * step) as i64, sin_idx(k * step) as i64);
+        // 2 W O = (c - i s)(or + i oi), rounded from Q30.
+        let tr = round_shr(or * c + oi * s, 30);
+        let ti = round_shr(oi * c - or * s, 30);
+        // |Z| < 2^30.8, so |2X| < 2^32.8; shift 2 keeps |2X / 4|^2 < 2^61.6.
+        let power = |r: i64, i: i64| {
+            let (r, i) = (round_shr(r, 2), round_shr(i, 2));
+            (r * r) as u64 + (i * i) as u64
+        };
+        let plus = power(er + tr, ei + ti);
+        let minus = power(er - tr, ei - ti);
+        if k == 0 {
+            p0 = plus;
+            out[h - 1] = minus;
+        } else {
+            out[k - 1] = plus;
+            if mk != k {
+                out[mk - 1] = minus;
+            }
+        }
+    }
+    p0
 }
 
 /// log2(p) in Q40.24 for p > 0 (p = 0 is treated as 1), by bit-wise squaring of the

@@ -193,7 +193,7 @@ impl Default for ServoParams {
 
 impl Default for StructureParams {
     fn default() -> Self {
-        Self { mode_freq_hz: 89.554, mode_damping: 0.25, mode_tcp_gain: 2.3662, acc_mode_shape: 0.8 }
+        Self { mode_freq_hz: 89.554, mode_damping: 0.28, mode_tcp_gain: 2.3662, acc_mode_shape: 0.8 }
     }
 }
 

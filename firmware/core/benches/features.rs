@@ -1,8 +1,10 @@
-//! Host benchmarks of the feature extraction: `push` per sample and `finish` per read.
+//! Host benchmarks of the feature extraction: `push` per sample (8,000 pushes per
+//! iteration, window full) and `capture` + `finish` per read of the default 40,000-sample
+//! window.
 //!
 //! `cargo bench -p sts-twin-core --bench features`
 
-use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::hint::black_box;
 use sts_twin_core::features::{
     DefaultFeatureExtractor, DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig,
@@ -54,14 +56,10 @@ fn bench_finish(c: &mut Criterion) {
     let mut scratch = Box::new(DefaultScratch::new());
     let mut group = c.benchmark_group("features_finish");
     group.bench_function("capture_and_finish_40000_window", |b| {
-        b.iter_batched_ref(
-            || (),
-            |_| {
-                let cap = state.capture(&rings);
-                black_box(rings.finish(black_box(&cap), &mut scratch).unwrap())
-            },
-            BatchSize::SmallInput,
-        )
+        b.iter(|| {
+            let cap = state.capture(&rings);
+            black_box(rings.finish(black_box(&cap), &mut scratch).unwrap())
+        })
     });
     group.bench_function("extractor_features_40000_window", |b| {
         let mut fx = Box::new(DefaultFeatureExtractor::new(cfg).unwrap());

@@ -229,3 +229,42 @@ const GOLDEN: [u32; FEATURE_COUNT] = [
     1115291658, 1050262630, 1039544568, 1059071223, 1051821183, 1072116554, 3122510914, 1072099883, 1074091502,
     1066650861, 1115459293, 1038513455,
 ];
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { cases: 256, ..Default::default() })]
+
+    /// Hand-made captures with arbitrary fields: `finish` returns an error or finite values,
+    /// never panics (debug builds would panic on overflow).
+    #[test]
+    fn arbitrary_captures_never_panic(
+        window_blocks in 0u32..300,
+        scale in proptest::prop_oneof![proptest::prelude::any::<f32>(), 1e-9f32..1e3],
+        samples in proptest::prop_oneof![proptest::prelude::any::<u32>(), 0u32..5000],
+        s1 in proptest::prelude::any::<i32>(),
+        s2 in proptest::prelude::any::<i64>(),
+        s3 in proptest::prelude::any::<i64>(),
+        s4 in proptest::prelude::any::<i128>(),
+        sum_abs_q8 in proptest::prelude::any::<i64>(),
+        blocks_written in proptest::prelude::any::<u32>(),
+        ring_slot in 0u32..500,
+        blocks in 0u32..300,
+        partial_len in 0u32..20,
+        partial_max in proptest::prelude::any::<i16>(),
+        partial_min in proptest::prelude::any::<i16>(),
+        pushed in 0usize..3000,
+    ) {
+        let rings = SpectralRings::<384>::new();
+        let mut state = FeatureState::<128>::new(FeatureConfig { window_samples: 2048, ..FeatureConfig::DEFAULT }).unwrap();
+        for i in 0..pushed {
+            state.push(&rings, (i as i16).wrapping_mul(977));
+        }
+        let cfg = FeatureConfig { window_samples: window_blocks * 16, acc_mps2_per_lsb: scale, sample_rate_hz: 8000.0 };
+        let cap = Capture {
+            cfg, samples, s1, s2, s3, s4, sum_abs_q8, blocks_written, ring_slot, blocks, partial_len, partial_max, partial_min,
+        };
+        match rings.finish(&cap, &mut Scratch::<2048>::new()) {
+            Ok(f) => proptest::prop_assert!(f.as_array().iter().all(|v| v.is_finite()), "{:?}", f),
+            Err(e) => proptest::prop_assert!(!e.to_string().is_empty()),
+        }
+    }
+}

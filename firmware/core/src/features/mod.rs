@@ -317,6 +317,9 @@ pub enum FeatureError {
         /// Complex FFT points needed (half the real FFT length).
         needed_half_len: u32,
     },
+    /// A capture whose counts are inconsistent with its configuration (only possible for
+    /// a hand-made [`Capture`]).
+    InvalidCapture,
     /// `push` overwrote ring slots that `finish` was reading (the reader took longer than
     /// the margin); take a new capture and retry.
     Torn,
@@ -340,6 +343,7 @@ impl fmt::Display for FeatureError {
             Self::ScratchTooSmall { needed_half_len } => {
                 write!(f, "feature scratch too small: {needed_half_len} complex FFT points needed")
             }
+            Self::InvalidCapture => write!(f, "feature capture is inconsistent with its configuration"),
             Self::Torn => write!(f, "feature rings were overwritten during the read; retry"),
         }
     }

@@ -91,7 +91,7 @@ pub(crate) fn time_domain(cap: &Capture, ext: Option<Extremes>, out: &mut [f32; 
     }
     let scale = cap.cfg.acc_mps2_per_lsb;
     let nf = n as f32; // exact: n <= 65,536
-    let (c2, c3, c4) = central_numerators(n as i128, cap.s1 as i128, cap.s2 as i128, cap.s3 as i128, cap.s4 as i128);
+    let (c2, c3, c4) = central_numerators(n as i128, cap.s1 as i128, cap.s2 as i128, cap.s3 as i128, cap.s4);
 
     // Mean |x - d| in codes; n * 256 <= 2^24 is exact in f32.
     let mean_abs = cap.sum_abs_q8 as f32 / (n * 256) as f32;

@@ -2,7 +2,7 @@
 
 use super::moments::{time_domain, Extremes};
 use super::spectrum::{fft_bfp, lower_median, real_spectrum_powers, refine_peak, Hann, MAX_FFT_LEN};
-use super::{Capture, FeatureError, Features, DISTINCT_POWER_GAIN, FEATURE_COUNT, MEAN_FREQ_HZ, NOISE_FLOOR_FACTOR, SIGNAL_FREQ_HZ, TOTAL_POWER_M2PS4};
+use super::{Capture, FeatureError, BLOCK_SAMPLES, MAX_WINDOW_SAMPLES, Features, DISTINCT_POWER_GAIN, FEATURE_COUNT, MEAN_FREQ_HZ, NOISE_FLOOR_FACTOR, SIGNAL_FREQ_HZ, TOTAL_POWER_M2PS4};
 use core::sync::atomic::{fence, AtomicI32, AtomicU32, Ordering};
 
 /// Rings shared between the interrupt (writer) and the feature reader, one slot per block:
@@ -86,22 +86,33 @@ impl<const RING_BLOCKS: usize> SpectralRings<RING_BLOCKS> {
     /// capture covers, so `push` may continue meanwhile for up to
     /// `RING_BLOCKS - window blocks` blocks (at least [`MARGIN_BLOCKS`](super::MARGIN_BLOCKS));
     /// beyond that the result is [`FeatureError::Torn`]. Also fails with
-    /// [`FeatureError::ScratchTooSmall`] if `scratch` cannot hold the configured FFT.
+    /// [`FeatureError::ScratchTooSmall`] if `scratch` cannot hold the configured FFT, and
+    /// with a configuration error or [`FeatureError::InvalidCapture`] for a hand-made,
+    /// inconsistent capture. Never panics.
     pub fn finish<const FFT_HALF: usize>(
         &self,
         capture: &Capture,
         scratch: &mut Scratch<FFT_HALF>,
     ) -> Result<Features, FeatureError> {
         let cfg = &capture.cfg;
+        // Captures made by `FeatureState::capture` always pass; hand-made ones must not
+        // make the arithmetic below overflow or produce non-finite values.
+        cfg.validate(MAX_WINDOW_SAMPLES)?;
+        if capture.samples > cfg.window_samples
+            || capture.blocks as usize > cfg.window_blocks()
+            || capture.partial_len as usize >= BLOCK_SAMPLES
+        {
+            return Err(FeatureError::InvalidCapture);
+        }
         let fft_len = cfg.fft_len();
         let half = fft_len / 2;
         if half > FFT_HALF || fft_len > MAX_FFT_LEN {
             return Err(FeatureError::ScratchTooSmall { needed_half_len: half as u32 });
         }
-        // A capture from a state with a larger window than these rings can hold.
+        // A capture from a state paired with larger rings.
         let nd = (capture.blocks as usize).min(cfg.window_blocks());
         if nd > RING_BLOCKS || capture.ring_slot as usize >= RING_BLOCKS.max(1) {
-            return Err(FeatureError::Torn);
+            return Err(FeatureError::InvalidCapture);
         }
 
         // Gather the window's blocks, oldest first: extremes into max/min, block sums packed

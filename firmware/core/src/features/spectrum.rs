@@ -75,7 +75,7 @@ pub(crate) fn sin_q30(a: usize) -> I2F30 {
 /// Periodic Hann window `w_j = 0.5 (1 - cos(2 pi j / len)) = sin^2(pi j / len)` in Q30,
 /// generated in order: the sine is linearly interpolated in the table at a phase that
 /// advances by `2048 / len` table steps (Q40) per sample (one division per window, error
-/// of the weights below 1e-6).
+/// of the weights below 6e-7).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Hann {
     /// Table position of the next weight, Q40 steps of the 4096-step circle.
@@ -98,12 +98,12 @@ impl Iterator for Hann {
     fn next(&mut self) -> Option<i32> {
         // Angle pi j / len is within [0, pi): table index 0 ..= 2048, sin >= 0.
         let idx = (self.phase >> 40) as usize;
-        let frac = ((self.phase >> 30) & 0x3ff) as i32; // 10 bits: (s1 - s0) frac < 2^31
+        let frac = ((self.phase >> 20) & 0xf_ffff) as i64;
         self.phase += self.step;
         let s0 = half_sin(idx);
         let s1 = half_sin(idx + 1);
-        let s = s0 + (((s1 - s0) * frac) >> 10);
-        Some(((s as i64 * s as i64) >> 30) as i32)
+        let s = s0 as i64 + (((s1 - s0) as i64 * frac) >> 20);
+        Some(((s * s) >> 30) as i32)
     }
 }
 
@@ -245,7 +245,7 @@ pub(crate) fn lower_median(values: &mut [u64]) -> u64 {
 
 /// Powers of the real-FFT bins 1 ..= h of a length-2h real signal, from the length-h
 /// complex FFT `z` of its even/odd packing, into `out[0 .. h]`; returns the power of bin 0.
-/// All scaled by 1/64 so that they fit u64. Bins k and h - k are computed together:
+/// All are `|X_k|^2 / 4` in the units of `z` (so that they fit u64). Bins k and h - k are computed together:
 /// with `E = (Z_k + conj Z_{h-k}) / 2`, `O = (Z_k - conj Z_{h-k}) / 2i` and `W = e^{-i pi k/h}`,
 /// `X_k = E + W O` and `X_{h-k} = conj(E - W O)`.
 pub(crate) fn real_spectrum_powers(z: &[[i32; 2]], out: &mut [u64]) -> u64 {
@@ -318,4 +318,153 @@ pub(crate) fn refine_peak(k: usize, a: u64, b: u64, c: u64) -> f32 {
     let den = la - 2 * lb + lc;
     let delta = if den < 0 { (la - lc) as f32 / (2 * den) as f32 } else { 0.0 };
     k as f32 + delta.clamp(-0.5, 0.5)
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::vec::Vec;
+
+    fn rng(seed: &mut u64) -> u64 {
+        *seed ^= *seed << 13;
+        *seed ^= *seed >> 7;
+        *seed ^= *seed << 17;
+        *seed
+    }
+
+    #[test]
+    fn sine_table_is_correctly_rounded_q30() {
+        for a in 0..CIRCLE {
+            let exact = (2.0 * core::f64::consts::PI * a as f64 / CIRCLE as f64).sin() * (1u64 << 30) as f64;
+            let err = (sin_idx(a) as f64 - exact).abs();
+            assert!(err <= 0.5 + 1e-6, "a {a}: {} vs {exact}", sin_idx(a));
+            assert_eq!(cos_idx(a), sin_idx(a + QUARTER));
+        }
+        assert_eq!(sin_q30(QUARTER), I2F30::ONE);
+        assert_eq!(sin_idx(0), 0);
+    }
+
+    #[test]
+    fn hann_weights_match_the_formula() {
+        for len in [4usize, 7, 64, 1000, 2500, 4096] {
+            let mut hann = Hann::new(len);
+            for j in 0..len {
+                let w = hann.next().unwrap() as f64 / (1u64 << 30) as f64;
+                let exact = 0.5 * (1.0 - (2.0 * core::f64::consts::PI * j as f64 / len as f64).cos());
+                assert!((w - exact).abs() < 6e-7, "len {len} j {j}: {w} vs {exact}");
+            }
+        }
+    }
+
+    /// Naive DFT in f64.
+    fn dft(re: &[f64], im: &[f64]) -> Vec<(f64, f64)> {
+        let n = re.len();
+        (0..n)
+            .map(|k| {
+                let (mut sr, mut si) = (0.0, 0.0);
+                for j in 0..n {
+                    let a = -2.0 * core::f64::consts::PI * (j * k % n) as f64 / n as f64;
+                    sr += re[j] * a.cos() - im[j] * a.sin();
+                    si += re[j] * a.sin() + im[j] * a.cos();
+                }
+                (sr, si)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn block_floating_point_fft_matches_dft() {
+        let mut seed = 0x1234_5678_9abc_def1u64;
+        for n in [2usize, 4, 16, 128, 512] {
+            for amplitude_bits in [29u32, 20, 3] {
+                let mut z: Vec<[i32; 2]> = (0..n)
+                    .map(|_| {
+                        let m = (1i64 << amplitude_bits) - 1;
+                        let r = (rng(&mut seed) % (2 * m as u64 + 1)) as i64 - m;
+                        let i = (rng(&mut seed) % (2 * m as u64 + 1)) as i64 - m;
+                        [r as i32, i as i32]
+                    })
+                    .collect();
+                let re: Vec<f64> = z.iter().map(|v| v[0] as f64).collect();
+                let im: Vec<f64> = z.iter().map(|v| v[1] as f64).collect();
+                let expect = dft(&re, &im);
+                let shift = fft_bfp(&mut z);
+                let scale = (1u64 << shift) as f64;
+                let peak = expect.iter().map(|(r, i)| r.hypot(*i)).fold(0.0, f64::max);
+                for (k, ((r, i), got)) in expect.iter().zip(&z).enumerate() {
+                    let err = (got[0] as f64 * scale - r).hypot(got[1] as f64 * scale - i);
+                    // A few rounding steps per stage, each at most half a unit of the scale.
+                    let bound = (n.trailing_zeros() as f64 + 1.0) * 2.0 * scale + 1e-9 * peak;
+                    assert!(err <= bound, "n {n} bits {amplitude_bits} k {k}: error {err} > {bound}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn real_split_matches_dft_of_real_signal() {
+        let mut seed = 77u64;
+        let h = 64;
+        let x: Vec<f64> = (0..2 * h).map(|_| ((rng(&mut seed) % 2_000_001) as i64 - 1_000_000) as f64 * 256.0).collect();
+        let mut z: Vec<[i32; 2]> = (0..h).map(|m| [x[2 * m] as i32, x[2 * m + 1] as i32]).collect();
+        let shift = fft_bfp(&mut z);
+        let mut out = [0u64; 64];
+        let p0 = real_spectrum_powers(&z, &mut out);
+        let expect = dft(&x, &vec![0.0; 2 * h]);
+        // Powers are |X|^2 / 4 in units of 2^(2 shift).
+        let unit = (1u64 << (2 * shift)) as f64 * 4.0;
+        let peak = expect.iter().map(|(r, i)| r * r + i * i).fold(0.0, f64::max);
+        for k in 0..=h {
+            let got = if k == 0 { p0 } else { out[k - 1] } as f64 * unit;
+            let (r, i) = expect[k];
+            let want = r * r + i * i;
+            assert!((got - want).abs() <= 1e-7 * peak + 1e-6 * want, "k {k}: {got:e} vs {want:e}");
+        }
+    }
+
+    #[test]
+    fn log2_is_accurate() {
+        let mut seed = 5u64;
+        for _ in 0..20_000 {
+            let p = rng(&mut seed) >> (rng(&mut seed) % 64);
+            let got = log2_q24(p).to_num::<f64>();
+            let want = (p.max(1) as f64).log2();
+            assert!((got - want).abs() < 2.0 / (1 << 24) as f64, "{p}: {got} vs {want}");
+        }
+        assert_eq!(log2_q24(1).to_bits(), 0);
+        assert_eq!(log2_q24(1 << 40).to_bits(), 40 << 24);
+    }
+
+    #[test]
+    fn peak_refinement_is_exact_for_a_log_parabola() {
+        // log2 P = 40 - 3 (x - 10.3)^2 at x = 9, 10, 11.
+        let p = |x: f64| 2f64.powf(40.0 - 3.0 * (x - 10.3) * (x - 10.3)) as u64;
+        let k = refine_peak(10, p(9.0), p(10.0), p(11.0));
+        assert!((k - 10.3).abs() < 1e-4, "{k}");
+        assert_eq!(refine_peak(10, 5, 7, 5), 10.0);
+        assert_eq!(refine_peak(10, 0, 0, 0), 10.0);
+    }
+
+    #[test]
+    fn lower_median_matches_sorting() {
+        let mut seed = 99u64;
+        let mut cases: Vec<Vec<u64>> = Vec::new();
+        for len in [1usize, 2, 3, 4, 5, 16, 17, 1000, 2048] {
+            cases.push((0..len).map(|_| rng(&mut seed) % 1000).collect());
+            cases.push((0..len as u64).collect());
+            cases.push((0..len as u64).rev().collect());
+            cases.push(std::vec![42; len]);
+            // Organ pipe and alternating: bad orders for simple pivots.
+            cases.push((0..len as u64).map(|i| i.min(len as u64 - i)).collect());
+            cases.push((0..len as u64).map(|i| if i % 2 == 0 { i } else { u64::MAX - i }).collect());
+        }
+        for mut v in cases {
+            let mut sorted = v.clone();
+            sorted.sort_unstable();
+            let want = sorted[(v.len() - 1) / 2];
+            assert_eq!(lower_median(&mut v), want);
+        }
+        assert_eq!(lower_median(&mut []), 0);
+    }
 }

@@ -75,10 +75,11 @@ fn main() {
             recovered += ok as usize;
             let exact_on_front = result.front.iter().any(|m| is_exact_recovery(p, &m.expr));
             println!(
-                "{} seed {seed:>3}: {:>6.2} s  epochs {:>4}  {:?}  recovered {}  (exact on front {})  c={} r2={:.12}  {}",
+                "{} seed {seed:>3}: {:>6.2} s  epochs {:>4}  evals {:>9}  {:?}  recovered {}  (exact on front {})  c={} r2={:.12}  {}",
                 p.name(),
                 dt,
                 result.epochs,
+                result.evaluations,
                 result.stop_reason,
                 if ok { "yes" } else { "NO " },
                 exact_on_front,

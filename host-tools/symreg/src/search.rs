@@ -550,7 +550,7 @@ where
     pool.install(|| islands.par_iter_mut().for_each(|isl| isl.initialize(&problem)));
 
     let mut global: Vec<Option<Member>> = vec![None; cfg.max_complexity + 1];
-    let mut polish_ws = Workspace::new(&columns, y);
+    let mut polish_evaluations = 0u64;
     let mut epochs = 0;
     let mut stop_reason = StopReason::MaxEpochs;
     let mut last_exact: Option<usize> = None;
@@ -576,13 +576,27 @@ where
             }
         }
         changed.sort_unstable();
-        for c in changed {
-            let Some(m) = global[c].clone() else { continue };
-            let Some(p) = polish(&mut polish_ws, &mut master, &problem, &m) else {
-                continue;
-            };
-            let pruned = prune(&mut polish_ws, &problem, &p);
-            for q in std::iter::once(p).chain(pruned) {
+        // Polish and prune the new entries in parallel; each gets its own random stream
+        // (seed, epoch, complexity) and results are merged in complexity order.
+        let jobs: Vec<(usize, Member)> = changed.iter().filter_map(|&c| global[c].clone().map(|m| (c, m))).collect();
+        let polished: Vec<(Vec<Member>, u64)> = pool.install(|| {
+            jobs.par_iter()
+                .map(|(c, m)| {
+                    let mut ws = Workspace::new(&columns, y);
+                    let mut rng = Rand::new(cfg.seed, (1u64 << 40) + (epochs as u64) * 4096 + *c as u64);
+                    let mut out = Vec::new();
+                    if let Some(p) = polish(&mut ws, &mut rng, &problem, m) {
+                        let pruned = prune(&mut ws, &problem, &p);
+                        out.push(p);
+                        out.extend(pruned);
+                    }
+                    (out, ws.evaluations)
+                })
+                .collect()
+        });
+        for (members, evals) in polished {
+            polish_evaluations += evals;
+            for q in members {
                 let slot = &mut global[q.complexity];
                 if slot.as_ref().is_none_or(|g| q.mse < g.mse) {
                     *slot = Some(q);
@@ -591,7 +605,7 @@ where
         }
         let front = pareto(&global);
         (front_members, selected) = scored_front(&front, var_y, &cfg.selection);
-        let evaluations = islands.iter().map(|i| i.evaluations).sum::<u64>() + polish_ws.evaluations;
+        let evaluations = islands.iter().map(|i| i.evaluations).sum::<u64>() + polish_evaluations;
         progress(&Progress {
             epoch: epochs,
             max_epochs: cfg.max_epochs,
@@ -624,7 +638,7 @@ where
         }
         migrate(&mut islands, &front, &mut master, cfg);
     }
-    let evaluations = islands.iter().map(|i| i.evaluations).sum::<u64>() + polish_ws.evaluations;
+    let evaluations = islands.iter().map(|i| i.evaluations).sum::<u64>() + polish_evaluations;
     let pairs: Vec<(usize, f64)> = front_members.iter().map(|m| (m.complexity, m.loss / var_y)).collect();
     let explanation = match select_model(&pairs, &cfg.selection) {
         Some(sel) => {

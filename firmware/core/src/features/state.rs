@@ -6,7 +6,7 @@ use fixed::types::I24F8;
 /// Interrupt-owned feature state for a window of up to `16 * WINDOW_BLOCKS` samples.
 ///
 /// `WINDOW_BLOCKS` must be within [`MIN_WINDOW_BLOCKS`]..=[`MAX_WINDOW_BLOCKS`] (checked at
-/// compile time). Memory: `36 * WINDOW_BLOCKS` bytes plus about 120.
+/// compile time). Memory: `36 * WINDOW_BLOCKS + 96` bytes.
 #[derive(Clone, Debug)]
 pub struct FeatureState<const WINDOW_BLOCKS: usize> {
     cfg: FeatureConfig,

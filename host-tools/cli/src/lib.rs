@@ -4,5 +4,8 @@
 //! here, so that tests and other programs drive the same code the user runs.
 #![deny(missing_docs)]
 
+pub mod analysis;
 pub mod cmd;
+pub mod fit;
 pub mod hil;
+pub mod model;

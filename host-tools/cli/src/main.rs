@@ -12,8 +12,12 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Train the explainable twin (amplitude and phase formulas) on a dataset.
+    Fit(cmd::fit::Args),
     /// Run the offline dynamic-error measurement test on the emulated machine.
     Measure(cmd::measure::Args),
+    /// The emulated machine's measurement test against the paper's figures.
+    PaperTable(cmd::paper_table::Args),
     /// Symbolic regression on any numeric CSV table.
     Regress(cmd::regress::Args),
 }
@@ -21,7 +25,9 @@ enum Command {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
+        Command::Fit(args) => cmd::fit::run(args),
         Command::Measure(args) => cmd::measure::run(args),
+        Command::PaperTable(args) => cmd::paper_table::run(args),
         Command::Regress(args) => cmd::regress::run(args),
     };
     match result {

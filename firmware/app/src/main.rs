@@ -33,12 +33,13 @@ use sts_twin_board::bus::{BusAdc, BusDac, BusView};
 use sts_twin_board::config::{AbStore, MemoryMedium};
 use sts_twin_board::qemu::{self, DIAG_WORDS};
 use sts_twin_board::servo::{
-    background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickState,
+    background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickResult, TickState,
     EVENT_CONTROL_RX, EVENT_UNDERRUN,
 };
 use sts_twin_board::sync::{Events, SharedCell};
 
 use hw::{Irq, Timer0, Uart0Link};
+use sts_twin_board::TickSource;
 
 /// The servo half of the application.
 pub type App = BringUpServo;
@@ -86,6 +87,8 @@ struct ServoContext {
     dac: BusDac,
     timer: Timer0,
     state: TickState,
+    handler_last: u32,
+    handler_max: u32,
 }
 
 type QemuConfigStore = AbStore<MemoryMedium>;
@@ -149,6 +152,8 @@ fn main() -> ! {
             dac: BusDac::new(BUS),
             timer: Timer0,
             state: TickState::default(),
+            handler_last: 0,
+            handler_max: 0,
         });
         (shared, BACKGROUND.init((background, config_store())))
     };
@@ -208,8 +213,10 @@ unsafe extern "C" fn TIMER0() {
     let s = unsafe { SERVO.get() };
     // SAFETY: initialised before; shared access only.
     let shared = unsafe { SHARED.get() };
-    run_tick(&mut s.adc, &mut s.dac, &mut s.timer, &mut s.app, shared, &mut s.state, &COUNTERS, &EVENTS);
+    let result = run_tick(&mut s.adc, &mut s.dac, &mut s.timer, &mut s.app, shared, &mut s.state, &COUNTERS, &EVENTS);
     let t = &s.state.timing;
+    diag_write(qemu::DIAG_HANDLER_LAST, s.handler_last);
+    diag_write(qemu::DIAG_HANDLER_MAX, s.handler_max);
     BUS.write_counters(COUNTERS.underruns.load(Ordering::Relaxed), COUNTERS.overruns.load(Ordering::Relaxed));
     diag_write(qemu::DIAG_ENTRY_LAST, t.entry_last);
     diag_write(qemu::DIAG_ENTRY_MAX, t.entry_max);
@@ -218,6 +225,12 @@ unsafe extern "C" fn TIMER0() {
     diag_write(qemu::DIAG_BUSY_SUM_LO, t.busy_sum as u32);
     diag_write(qemu::DIAG_BUSY_SUM_HI, (t.busy_sum >> 32) as u32);
     diag_write(qemu::DIAG_INPUT_FAULTS, COUNTERS.input_faults.load(Ordering::Relaxed));
+    if result == TickResult::Served {
+        // The whole handler after the input arrived, publication included; published with
+        // the next tick.
+        s.handler_last = s.timer.elapsed_counts();
+        s.handler_max = s.handler_max.max(s.handler_last);
+    }
 }
 
 /// Control link receive.

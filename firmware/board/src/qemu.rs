@@ -46,6 +46,11 @@ pub const DIAG_CONTROL_RX_BYTES: usize = 10;
 pub const DIAG_CONTROL_RX_DROPPED: usize = 11;
 /// Diagnostics word: input faults.
 pub const DIAG_INPUT_FAULTS: usize = 12;
+/// Diagnostics word: timer counts from input arrival to the very end of the servo handler
+/// (after publishing the counters), of the previous served tick (published one tick late).
+pub const DIAG_HANDLER_LAST: usize = 13;
+/// Diagnostics word: largest `DIAG_HANDLER_LAST`.
+pub const DIAG_HANDLER_MAX: usize = 14;
 /// Value of [`DIAG_MAGIC`]: "DIAG".
 pub const DIAG_MAGIC_VALUE: u32 = 0x4741_4944;
 

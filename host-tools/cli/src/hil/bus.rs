@@ -187,6 +187,8 @@ impl BusFile {
             control_rx_bytes: d(map::DIAG_CONTROL_RX_BYTES),
             control_rx_dropped: d(map::DIAG_CONTROL_RX_DROPPED),
             input_faults: d(map::DIAG_INPUT_FAULTS),
+            handler_last_counts: d(map::DIAG_HANDLER_LAST),
+            handler_max_counts: d(map::DIAG_HANDLER_MAX),
         }
     }
 }
@@ -232,4 +234,8 @@ pub struct Diagnostics {
     pub control_rx_dropped: u32,
     /// Input faults.
     pub input_faults: u32,
+    /// Input arrival to the very end of the handler, previous served tick.
+    pub handler_last_counts: u32,
+    /// Largest `handler_last_counts`.
+    pub handler_max_counts: u32,
 }

@@ -9,3 +9,4 @@ pub mod cmd;
 pub mod fit;
 pub mod hil;
 pub mod model;
+pub mod rig;

@@ -1,0 +1,85 @@
+//! The closed loop: the emulated machine and a co-processor (the firmware in QEMU, or the
+//! same core simulated on the host) stepped together at the servo rate.
+//!
+//! Tick `k`: the machine steps with the command of tick `k` and the analogue input the
+//! co-processor wrote at tick `k - 1`; its accelerometer code and the command phase go to the
+//! co-processor, whose DAC code for tick `k` reaches the machine at tick `k + 1`.
+
+mod sim;
+mod trajectory;
+
+pub use sim::SimCoprocessor;
+pub use trajectory::{Bicuspid, Sinusoid, Trajectory, TrajectoryPoint};
+
+use sts_emulator::{Machine, StepInput, StepOutput};
+use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
+use sts_twin_core::wire::{Request, Response};
+
+/// A co-processor running the twin: the firmware under QEMU or its host simulation.
+pub trait Coprocessor {
+    /// One servo tick.
+    fn tick(&mut self, input: &InputSlot) -> anyhow::Result<OutputSlot>;
+    /// One control request and its answer.
+    fn request(&mut self, request: Request) -> anyhow::Result<Response>;
+    /// A short name for reports ("hil" or "sim").
+    fn kind(&self) -> &'static str;
+}
+
+/// Fails unless `response` is `Ack`, naming what was asked.
+pub fn expect_ack(what: &str, response: Response) -> anyhow::Result<()> {
+    match response {
+        Response::Ack => Ok(()),
+        other => anyhow::bail!("the co-processor refused {what}: {other:?}"),
+    }
+}
+
+/// One tick of the loop as recorded.
+#[derive(Clone, Copy, Debug)]
+pub struct LoopSample {
+    /// The trajectory point.
+    pub point: TrajectoryPoint,
+    /// What the machine measured.
+    pub machine: StepOutput,
+    /// What the co-processor answered.
+    pub output: OutputSlot,
+}
+
+/// Runs `ticks` ticks of the closed loop from `first_tick` and hands every tick to `record`.
+/// The DAC code is converted to volts with `dac_full_scale_v` (code 32767).
+pub fn run_loop(
+    machine: &mut Machine,
+    coprocessor: &mut dyn Coprocessor,
+    trajectory: &dyn Trajectory,
+    first_tick: u64,
+    ticks: u64,
+    dac_full_scale_v: f64,
+    analog_enabled: bool,
+    mut record: impl FnMut(&LoopSample),
+) -> anyhow::Result<()> {
+    let sample_rate_hz = trajectory.sample_rate_hz();
+    let mut analog_in_v = 0.0;
+    for k in first_tick..first_tick + ticks {
+        let t_s = k as f64 / sample_rate_hz;
+        let point = trajectory.at(t_s);
+        let machine_out = machine.step(&StepInput {
+            z_cmd_um: point.z_cmd_um,
+            x_mm: point.x_mm,
+            spindle_deg: point.spindle_deg,
+            analog_in_v,
+            analog_enabled,
+        });
+        // The output of this tick acts at the next one: hand over the command phase there.
+        let next = trajectory.at((k + 1) as f64 / sample_rate_hz);
+        let input = InputSlot {
+            tick: k as u32,
+            acc_code: machine_out.acc_code,
+            flags: IN_FLAG_PHASE_VALID,
+            cmd_phase_turns: next.phase_turns,
+            cmd_pos_nm: (next.z_cmd_um * 1e3).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32,
+        };
+        let output = coprocessor.tick(&input)?;
+        analog_in_v = f64::from(output.dac_code) * dac_full_scale_v / 32767.0;
+        record(&LoopSample { point, machine: machine_out, output });
+    }
+    Ok(())
+}

@@ -39,6 +39,13 @@ pub trait ServoApp {
     type Shared;
     /// Processes input `input.tick` and returns the output of the same tick.
     fn tick(&mut self, input: &InputSlot, shared: &SharedCell<Self::Shared>) -> TickOutcome;
+
+    /// A tick period passed without the input (an underrun; the same tick is retried next
+    /// period and the DAC holds its value). For counting and for degrading after several in
+    /// a row. The default does nothing.
+    fn on_underrun(&mut self, shared: &SharedCell<Self::Shared>) {
+        let _ = shared;
+    }
 }
 
 /// What the background half may use.
@@ -183,6 +190,7 @@ pub fn run_tick<S: ServoApp>(
         Err(SampleError::Late) => {
             timer.resync();
             ServoCounters::bump(&counters.underruns);
+            app.on_underrun(shared);
             events.raise(EVENT_UNDERRUN);
             TickResult::Underrun
         }

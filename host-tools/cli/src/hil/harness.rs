@@ -103,7 +103,7 @@ impl Hil {
         Err(last_err.expect("three attempts"))
     }
 
-    fn try_start(config: &HilConfig, program: &str, elf: &PathBuf, bus: &Arc<BusFile>) -> Result<Self, HilError> {
+    fn try_start(config: &HilConfig, program: &str, elf: &std::path::Path, bus: &Arc<BusFile>) -> Result<Self, HilError> {
         let port = {
             let l = TcpListener::bind("127.0.0.1:0").map_err(|e| HilError::io("finding a free port", e))?;
             l.local_addr().map_err(|e| HilError::io("finding a free port", e))?.port()
@@ -118,7 +118,7 @@ impl Hil {
         let mut qemu = QemuProcess::spawn(cmd, bus.inherited_fds()).map_err(|e| HilError::io(format!("starting {program}"), e))?;
         let logs: SharedLog = Arc::new(Mutex::new(LogSink::default()));
         if let Some(out) = qemu.take_stdout() {
-            log::spawn_decoder(elf.clone(), out, logs.clone(), config.echo_logs);
+            log::spawn_decoder(elf.to_path_buf(), out, logs.clone(), config.echo_logs);
         }
         if let Some(err) = qemu.take_stderr() {
             log::spawn_stderr_reader(err, logs.clone());
@@ -127,7 +127,7 @@ impl Hil {
             let mut alive = || check_alive(&mut qemu, &logs, "connecting the control link");
             ControlPort::connect(serial_addr, config.boot_timeout, &mut alive)?
         };
-        let mut hil = Self { config: config.clone(), elf: elf.clone(), bus: bus.clone(), qemu, link, logs, next_tick: 0, serial_addr };
+        let mut hil = Self { config: config.clone(), elf: elf.to_path_buf(), bus: bus.clone(), qemu, link, logs, next_tick: 0, serial_addr };
         let deadline = Instant::now() + hil.config.boot_timeout;
         while !hil.bus.firmware_ready() {
             hil.alive("waiting for the firmware to serve the bus")?;

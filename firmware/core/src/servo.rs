@@ -269,14 +269,10 @@ impl Servo {
         &self.feature_config
     }
 
-    /// One servo tick on `input` (or `None` when the host's input did not arrive: the
-    /// output is held and the underrun counted).
-    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: Option<&InputSlot>) -> (OutputSlot, Option<ModelRequest>) {
+    /// One servo tick on `input`.
+    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: &InputSlot) -> (OutputSlot, Option<ModelRequest>) {
         let tick = self.counters.ticks;
         self.counters.ticks += 1;
-        let Some(input) = input else {
-            return (self.underrun(tick), None);
-        };
         self.health.underrun_run = 0;
         self.check_input(input.acc_code);
         self.features.push(rings, input.acc_code);
@@ -309,15 +305,17 @@ impl Servo {
         (output, request)
     }
 
-    /// A tick without input: hold the last output, count, and after a few in a row mark the
-    /// inputs missing so that compensation ramps out once they return (the window has a gap).
-    fn underrun(&mut self, tick: u64) -> OutputSlot {
+    /// A tick period without input (the host's sample did not arrive): the output holds,
+    /// the underrun is counted, and after a few in a row the inputs count as missing, so that
+    /// compensation ramps out once they return (the feature window has a gap). The tick
+    /// itself is not consumed: the next input is still tick `counters().ticks`.
+    pub fn underrun(&mut self) -> OutputSlot {
         self.counters.bus_underruns += 1;
         self.health.underrun_run += 1;
         if self.health.underrun_run >= self.config.underrun_limit_ticks {
             self.degrade(DEGRADED_NO_INPUT);
         }
-        OutputSlot { tick: tick as u32, dac_code: self.last_dac, flags: OUT_FLAG_DEGRADED, de_pred_pm: 0, fault_count: self.fault_count() }
+        OutputSlot { tick: self.counters.ticks as u32, dac_code: self.last_dac, flags: OUT_FLAG_DEGRADED, de_pred_pm: 0, fault_count: self.fault_count() }
     }
 
     fn degrade(&mut self, reason: u16) {

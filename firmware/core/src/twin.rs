@@ -48,8 +48,12 @@ impl Twin {
         Self { servo, models: Models::new(), rings: DefaultSpectralRings::new(), config_source, store }
     }
 
-    /// One servo tick, with the model update done at once when one is requested.
+    /// One servo tick, with the model update done at once when one is requested; `None`
+    /// is a tick period whose input did not arrive (see [`Servo::underrun`]).
     pub fn tick(&mut self, input: Option<&InputSlot>) -> OutputSlot {
+        let Some(input) = input else {
+            return self.servo.underrun();
+        };
         let (output, request) = self.servo.tick(&self.rings, input);
         if let Some(request) = request {
             let result = self.models.compute(&self.rings, &request);

@@ -91,7 +91,7 @@ fn a_late_computed_model_gives_bit_identical_output() {
     servo.set_enabled(true);
     let mut queue = Vec::new();
     for k in 0..6000u32 {
-        let (output, request) = servo.tick(&rings, Some(&input(k)));
+        let (output, request) = servo.tick(&rings, &input(k));
         assert_eq!(output, expected[k as usize], "tick {k}");
         if let Some(request) = request {
             // Computed 1..=150 ticks later, while the servo keeps pushing samples.

@@ -124,17 +124,25 @@ fn margin_is_honoured_and_torn_reads_are_detected() {
 
 static SHARED_RINGS: SpectralRings<384> = SpectralRings::new();
 
+/// The interrupt-owned state can be built in a `static` too (`FeatureState::new` is const).
+static SHARED_STATE: Mutex<FeatureState<128>> = Mutex::new(
+    match FeatureState::new(FeatureConfig { window_samples: 1024, ..FeatureConfig::DEFAULT }) {
+        Ok(state) => state,
+        Err(_) => panic!("invalid feature configuration"),
+    },
+);
+
 #[test]
 fn rings_live_in_a_static_and_are_sync() {
     fn assert_sync<T: Sync>(_: &T) {}
     assert_sync(&SHARED_RINGS);
     let cfg = FeatureConfig { window_samples: 1024, ..FeatureConfig::DEFAULT };
-    let mut state = FeatureState::<128>::new(cfg).unwrap();
     let codes: Vec<i16> = (0..3000).map(|i| ((i * 31) % 4000) as i16 - 2000).collect();
     for &c in &codes {
-        state.push(&SHARED_RINGS, c);
+        SHARED_STATE.lock().unwrap().push(&SHARED_RINGS, c);
     }
-    let f = SHARED_RINGS.finish(&state.capture(&SHARED_RINGS), &mut Scratch::<64>::new()).unwrap();
+    let capture = SHARED_STATE.lock().unwrap().capture(&SHARED_RINGS);
+    let f = SHARED_RINGS.finish(&capture, &mut Scratch::<64>::new()).unwrap();
     assert_eq!(f, util::run::<128, 384, 64>(&codes, cfg));
 }
 

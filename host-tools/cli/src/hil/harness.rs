@@ -375,10 +375,11 @@ fn check_alive(qemu: &mut QemuProcess, logs: &SharedLog, during: &str) -> Result
     }
 }
 
-/// Waiting for the firmware: spin briefly (a tick round trip is microseconds), then yield
-/// the core (QEMU needs both of a small machine's cores), then sleep; check QEMU is alive
-/// and enforce the timeout.
+/// Waiting for the firmware: spin briefly (a tick round trip is some 20 us), then yield,
+/// then sleep in short steps (QEMU needs both of a small machine's cores); check QEMU is
+/// alive and enforce the timeout.
 const SPIN_BEFORE_YIELD: u32 = 64;
+const YIELDS_BEFORE_SLEEP: u32 = 64;
 
 struct Waiter {
     start: Instant,
@@ -411,10 +412,13 @@ impl Waiter {
                 return Err(HilError::Timeout { what: what.into(), seconds: waited.as_secs_f64() });
             }
         }
-        if self.spins < SPIN_BEFORE_YIELD + 20_000 {
+        // Then yield a little (free on a quiet machine), then block in short sleeps: a host
+        // that stays runnable takes CPU share from QEMU's threads, which on a shared
+        // machine costs milliseconds per tick (measured, BENCHMARKS.md).
+        if self.spins < SPIN_BEFORE_YIELD + YIELDS_BEFORE_SLEEP {
             std::thread::yield_now();
         } else {
-            std::thread::sleep(Duration::from_micros(100));
+            std::thread::sleep(Duration::from_micros(5));
         }
         Ok(())
     }

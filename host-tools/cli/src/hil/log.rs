@@ -67,7 +67,9 @@ pub(crate) fn spawn_decoder(elf: PathBuf, mut stdout: impl Read + Send + 'static
                     Ok(n) => n,
                 };
                 decoder.received(&buf[..n]);
-                loop {
+                // A malformed frame is dropped by the decoder; the bound only guards against
+                // a decoder that would not make progress.
+                for _ in 0..100_000 {
                     match decoder.decode() {
                         Ok(frame) => {
                             let location = locations

@@ -18,10 +18,10 @@ pub fn acc_code(acc_mps2: f64, acc_mps2_per_lsb: f64) -> i16 {
 /// Why features could not be computed.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FeatureExtractionError {
-    /// The group is shorter than the feature window.
-    #[error("the group has {samples} samples, fewer than the feature window of {window} samples")]
+    /// The group (after the skipped start) is shorter than the feature window.
+    #[error("the group has {samples} samples after the skipped start, fewer than the feature window of {window} samples")]
     TooShort {
-        /// Samples in the group.
+        /// Samples in the group after the skipped start.
         samples: usize,
         /// The window.
         window: usize,
@@ -33,13 +33,20 @@ pub enum FeatureExtractionError {
 
 /// Features over the group's first `config.window_samples` samples (the paper's t0..tn).
 pub fn group_features(group: &GroupData, config: &FeatureConfig) -> Result<[f32; FEATURE_COUNT], FeatureExtractionError> {
+    group_features_from(group, config, 0)
+}
+
+/// Features over the `config.window_samples` samples starting at sample `start`. The
+/// extractor is fed from the group's first sample on, so its sliding state (block alignment,
+/// DC references) is the one the firmware has after running through the same signal.
+pub fn group_features_from(group: &GroupData, config: &FeatureConfig, start: usize) -> Result<[f32; FEATURE_COUNT], FeatureExtractionError> {
     let window = config.window_samples as usize;
-    if group.acc_mps2.len() < window {
-        return Err(FeatureExtractionError::TooShort { samples: group.acc_mps2.len(), window });
+    if group.acc_mps2.len() < start.saturating_add(window) {
+        return Err(FeatureExtractionError::TooShort { samples: group.acc_mps2.len().saturating_sub(start), window });
     }
     let mut extractor = Box::new(DefaultFeatureExtractor::new(*config).map_err(FeatureExtractionError::Config)?);
     let scale = f64::from(config.acc_mps2_per_lsb);
-    for &acc in &group.acc_mps2[..window] {
+    for &acc in &group.acc_mps2[..start + window] {
         extractor.push(acc_code(acc, scale));
     }
     Ok(extractor.features().as_array())

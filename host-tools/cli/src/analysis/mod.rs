@@ -11,6 +11,14 @@ use sts_twin_core::features::{FeatureConfig, FEATURE_COUNT};
 
 use targets::GroupTargets;
 
+/// Length of the feature window, s (the paper's t0..tn; the firmware's default window).
+pub const FEATURE_WINDOW_S: f64 = 5.0;
+
+/// Seconds at the start of each group left out of the feature window by default: each group
+/// of the measurement test starts from rest, and its start transient would dominate the peak
+/// and shape features, which the firmware never sees in steady motion (docs/model-format.md).
+pub const DEFAULT_SKIP_S: f64 = 0.5;
+
 /// One group's inputs and targets.
 #[derive(Clone, Debug)]
 pub struct GroupSample {
@@ -18,8 +26,10 @@ pub struct GroupSample {
     pub index: usize,
     /// The manifest entry.
     pub info: GroupInfo,
-    /// Features f1..f12 over the group's first window.
+    /// Features f1..f12 over the feature window.
     pub features: [f32; FEATURE_COUNT],
+    /// First sample of the feature window.
+    pub feature_start: usize,
     /// The measured dynamic error over the group's last second.
     pub targets: GroupTargets,
 }
@@ -30,16 +40,30 @@ pub fn feature_config_for(dataset: &Dataset, acc_scale_override: Option<f64>) ->
     let mut config = FeatureConfig::DEFAULT;
     config.sample_rate_hz = dataset.manifest.sample_rate_hz as f32;
     // 5 s, rounded down to whole 16-sample blocks.
-    config.window_samples = ((5.0 * dataset.manifest.sample_rate_hz) as u32 / 16) * 16;
+    config.window_samples = ((FEATURE_WINDOW_S * dataset.manifest.sample_rate_hz) as u32 / 16) * 16;
     if let Some(scale) = acc_scale_override.or(dataset.manifest.acc_mps2_per_lsb) {
         config.acc_mps2_per_lsb = scale as f32;
     }
     config
 }
 
-/// Features and targets of every group, in dataset order (computed in parallel; the result
-/// does not depend on the thread count). Errors name the group's file.
+/// First sample of a group's feature window: `skip_s` into the group, moved earlier when the
+/// group is too short for the skip and the window (never before the group's start).
+pub fn feature_start(group_len: usize, config: &FeatureConfig, sample_rate_hz: f64, skip_s: f64) -> usize {
+    let skip = (skip_s.max(0.0) * sample_rate_hz).round() as usize;
+    skip.min(group_len.saturating_sub(config.window_samples as usize))
+}
+
+/// Features and targets of every group with the default skip [`DEFAULT_SKIP_S`] (see
+/// [`group_samples_skipping`]).
 pub fn group_samples(dataset: &Dataset, config: &FeatureConfig) -> anyhow::Result<Vec<GroupSample>> {
+    group_samples_skipping(dataset, config, DEFAULT_SKIP_S)
+}
+
+/// Features (over the window starting `skip_s` into each group, see [`feature_start`]) and
+/// targets (over each group's last second) of every group, in dataset order, computed in
+/// parallel; the result does not depend on the thread count. Errors name the group's file.
+pub fn group_samples_skipping(dataset: &Dataset, config: &FeatureConfig, skip_s: f64) -> anyhow::Result<Vec<GroupSample>> {
     let fs = dataset.manifest.sample_rate_hz;
     dataset
         .manifest
@@ -48,9 +72,30 @@ pub fn group_samples(dataset: &Dataset, config: &FeatureConfig) -> anyhow::Resul
         .zip(dataset.groups.par_iter())
         .enumerate()
         .map(|(index, (info, group))| {
-            let features = features::group_features(group, config).map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
+            let start = feature_start(group.len(), config, fs, skip_s);
+            let features = features::group_features_from(group, config, start).map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
             let targets = targets::group_targets(group, fs, info.freq_hz).map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
-            Ok(GroupSample { index, info: info.clone(), features, targets })
+            Ok(GroupSample { index, info: info.clone(), features, feature_start: start, targets })
         })
         .collect()
+}
+
+/// The training table as CSV: one row per group with its file, command, features f1..f12
+/// (labels as in the formulas) and targets, for inspection or `sts-twin regress`.
+pub fn training_table_csv(samples: &[GroupSample]) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::from("file,freq_hz,amp_um");
+    for label in sts_twin_core::features::FEATURE_LABELS {
+        out.push(',');
+        out.push_str(label);
+    }
+    out.push_str(",de_amp_um,de_phase_deg\n");
+    for s in samples {
+        let _ = write!(out, "{},{},{}", s.info.file, s.info.freq_hz, s.info.amp_um);
+        for f in s.features {
+            let _ = write!(out, ",{f}");
+        }
+        let _ = writeln!(out, ",{},{}", s.targets.de_amp_um, s.targets.de_phase_deg);
+    }
+    out
 }

@@ -1,79 +1,157 @@
 //! `sts-twin fit DATA --out MODEL`: train the twin on a dataset.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use sts_symreg::FloatType;
-use sts_twin_core::features::FEATURE_LABELS;
+use sts_symreg::OperatorSet;
 
-use crate::fit::{fit, FitConfig, FitProgress};
+use crate::analysis;
+use crate::fit::{fit_samples, FitConfig, FitProgress, Target, DEFAULT_OPERATORS};
+use crate::model::ModelFile;
 
 /// Arguments of `sts-twin fit`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Dataset directory (sts-twin-dataset/1).
     pub data: PathBuf,
-    /// Where to write the model file (JSON).
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Seed of the searches: the same data, seed and settings give the same model.
+    /// Where to write the model file (JSON, sts-twin-model/1).
+    #[arg(long, required_unless_present = "table")]
+    pub out: Option<PathBuf>,
+    /// Seed of the searches: the same data, seed and settings give the same model file.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Epochs per search (the deterministic budget).
-    #[arg(long, default_value_t = 60)]
+    /// Epoch limit per search (the deterministic budget; searches stop earlier once a
+    /// formula meets the goal).
+    #[arg(long, default_value_t = FitConfig::default().max_epochs)]
     pub epochs: usize,
     /// Optional wall-time cap per search, seconds (results then depend on machine speed).
     #[arg(long)]
     pub time_budget: Option<f64>,
-    /// Cross-validation folds.
-    #[arg(long, default_value_t = 5)]
+    /// Cross-validation folds (groups assigned round robin).
+    #[arg(long, default_value_t = FitConfig::default().folds)]
     pub folds: usize,
-    /// Worker threads (the result does not depend on it).
+    /// Worker threads; searches run in parallel (the result does not depend on it).
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
+    /// Operators of the formulas, comma-separated, from: + - * / pow abs sqrt exp log tanh sin.
+    #[arg(long, default_value = DEFAULT_OPERATORS)]
+    pub operators: String,
+    /// Largest formula complexity (node count).
+    #[arg(long, default_value_t = FitConfig::default().max_complexity)]
+    pub max_complexity: usize,
+    /// Good-enough NMSE (1 - R^2) of the amplitude formula: the simplest formula reaching it
+    /// held out is selected, and searches stop early once they reach it.
+    #[arg(long, default_value_t = FitConfig::default().amplitude_goal_nmse)]
+    pub amplitude_goal: f64,
+    /// Good-enough NMSE (1 - R^2) of the phase formula.
+    #[arg(long, default_value_t = FitConfig::default().phase_goal_nmse)]
+    pub phase_goal: f64,
     /// Accelerometer scale, m/s^2 per LSB, when the manifest does not state it.
     #[arg(long)]
     pub acc_scale: Option<f64>,
+    /// Seconds at each group's start left out of the feature window (the start transient
+    /// of a group recorded from rest).
+    #[arg(long, default_value_t = analysis::DEFAULT_SKIP_S)]
+    pub skip_s: f64,
+    /// Also write the training table (features and targets per group) as CSV; without
+    /// --out, only the table is written.
+    #[arg(long)]
+    pub table: Option<PathBuf>,
     /// Also write the formulas as Rust source.
     #[arg(long)]
     pub export_rust: Option<PathBuf>,
     /// Also write the formulas as C source.
     #[arg(long)]
     pub export_c: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
 }
 
 /// Runs `sts-twin fit`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let dataset = sts_dataset::read(&args.data)?;
+    let started = Instant::now();
+    let operators = OperatorSet::parse(&args.operators).with_context(|| format!("--operators {:?}", args.operators))?;
+    if !(args.amplitude_goal >= 0.0 && args.phase_goal >= 0.0) {
+        anyhow::bail!("--amplitude-goal and --phase-goal must be zero or positive");
+    }
+    if !(args.skip_s.is_finite() && args.skip_s >= 0.0) {
+        anyhow::bail!("--skip-s must be zero or positive");
+    }
     let config = FitConfig {
         seed: args.seed,
-        threads: args.threads,
+        threads: args.threads.max(1),
         max_epochs: args.epochs,
         time_budget_s: args.time_budget,
         folds: args.folds,
         acc_scale_override: args.acc_scale,
+        skip_s: args.skip_s,
+        operators,
+        max_complexity: args.max_complexity,
+        amplitude_goal_nmse: args.amplitude_goal,
+        phase_goal_nmse: args.phase_goal,
+        ..FitConfig::default()
     };
-    let bar = ProgressBar::with_draw_target(Some(2 * config.folds as u64 + 2), ProgressDrawTarget::stderr());
-    bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} searches  {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()));
+    let dataset = sts_dataset::read(&args.data)?;
+    let feature_config = analysis::feature_config_for(&dataset, args.acc_scale);
+    let samples = analysis::group_samples_skipping(&dataset, &feature_config, args.skip_s)?;
+    if let Some(path) = &args.table {
+        std::fs::write(path, analysis::training_table_csv(&samples)).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    let Some(out) = &args.out else {
+        return Ok(());
+    };
+    let read_s = started.elapsed().as_secs_f64();
+
+    let folds = config.folds.max(2);
+    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::with_draw_target(Some(2 * folds as u64 + 2), ProgressDrawTarget::stderr()) };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:20} {pos}/{len} searches  {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    // The bar shows the current best formulas of the final (all-group) searches.
+    let mut finals = [String::new(), String::new()];
     let mut on_progress = |p: &FitProgress| {
         bar.set_position(p.searches_done as u64);
-        let which = match p.fold {
-            Some(fold) => format!("fold {fold}"),
-            None => "final".to_string(),
-        };
-        bar.set_message(format!("{:?} {which}: {}", p.target, p.best));
+        if p.fold.is_none() {
+            let k = usize::from(p.target == Target::Phase);
+            finals[k] = format!("{}: {} (epoch {})", if k == 0 { "amp" } else { "phase" }, p.best, p.epoch);
+            bar.set_message(format!("{}  |  {}", finals[0], finals[1]));
+        }
     };
-    let description = format!("fitted on {} (seed {}, {} epochs)", args.data.display(), args.seed, args.epochs);
-    let model = fit(&dataset, &description, &config, &mut on_progress)?;
+    let description = format!("fitted by sts-twin fit on {} (seed {})", dataset_name(&args.data), args.seed);
+    let model = fit_samples(&dataset, &samples, feature_config, &description, &config, &mut on_progress)?;
     bar.finish_and_clear();
-    model.write(&args.out)?;
+    model.write(out)?;
+    print_report(&model, out);
+    println!("read {} groups in {read_s:.1} s; fit in {:.1} s", samples.len(), started.elapsed().as_secs_f64() - read_s);
 
+    if let Some(path) = &args.export_rust {
+        std::fs::write(path, model.rust_source(&dataset_name(&args.data))).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    if let Some(path) = &args.export_c {
+        std::fs::write(path, model.c_source(&dataset_name(&args.data))).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// The dataset's directory name (not its full path: model files carry no machine paths).
+fn dataset_name(path: &Path) -> String {
+    path.canonicalize()
+        .ok()
+        .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .unwrap_or_else(|| path.display().to_string())
+}
+
+fn print_report(model: &ModelFile, out: &Path) {
     let v = &model.validation;
-    println!("amplitude (um): {}", model.amplitude.formula);
-    println!("  complexity {}, R^2 train {:.4}, held-out {:.4}", model.amplitude.complexity, model.amplitude.r2_train, v.amplitude_r2);
-    println!("phase (deg):    {}", model.phase.formula);
-    println!("  complexity {}, R^2 train {:.4}, held-out {:.4}", model.phase.complexity, model.phase.r2_train, v.phase_r2);
+    println!("amplitude (um) = {}", model.amplitude.formula);
+    println!("  complexity {}, R^2 train {:.5}, held-out {:.5}", model.amplitude.complexity, model.amplitude.r2_train, v.amplitude_r2);
+    println!("phase (deg)    = {}", model.phase.formula);
+    println!("  complexity {}, R^2 train {:.5}, held-out {:.5}", model.phase.complexity, model.phase.r2_train, v.phase_r2);
+    println!("amplitude selection:\n{}", indent(&model.amplitude.selection));
+    println!("phase selection:\n{}", indent(&model.phase.selection));
     println!(
         "held-out waveform error over {} groups ({} folds): mean absolute {:.1} nm, RMS {:.1} nm",
         v.groups.len(),
@@ -97,25 +175,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             g.waveform_rms_um * 1e3
         );
     }
-    println!("model written to {} (program id {:08x}, {} bytes of code)", args.out.display(), model.program.id, model.program.code_hex.len() / 2);
+    println!("model written to {} (program id {:08x}, {} bytes of code)", out.display(), model.program.id, model.program.code_hex.len() / 2);
+}
 
-    if let Some(path) = &args.export_rust {
-        let source = format!(
-            "// Generated by sts-twin fit from {}.\n// Inputs are the features f1..f12 of the accelerometer (see docs/features.md).\n\n{}\n{}",
-            args.data.display(),
-            model.amplitude.expr.to_rust("dynamic_error_amp_um", &FEATURE_LABELS, FloatType::F64),
-            model.phase.expr.to_rust("dynamic_error_phase_deg", &FEATURE_LABELS, FloatType::F64)
-        );
-        std::fs::write(path, source).with_context(|| format!("cannot write {}", path.display()))?;
-    }
-    if let Some(path) = &args.export_c {
-        let source = format!(
-            "/* Generated by sts-twin fit from {}.\n   Inputs are the features f1..f12 of the accelerometer (see docs/features.md). */\n#include <math.h>\n\n{}\n{}",
-            args.data.display(),
-            model.amplitude.expr.to_c("dynamic_error_amp_um", &FEATURE_LABELS, FloatType::F64),
-            model.phase.expr.to_c("dynamic_error_phase_deg", &FEATURE_LABELS, FloatType::F64)
-        );
-        std::fs::write(path, source).with_context(|| format!("cannot write {}", path.display()))?;
-    }
-    Ok(())
+fn indent(text: &str) -> String {
+    text.lines().map(|l| format!("  {l}\n")).collect()
 }

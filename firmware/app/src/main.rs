@@ -34,7 +34,7 @@ use sts_twin_board::config::{AbStore, MemoryMedium};
 use sts_twin_board::qemu::{self, DIAG_WORDS};
 use sts_twin_board::servo::{
     background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickResult, TickState,
-    EVENT_CONTROL_RX, EVENT_UNDERRUN,
+    EVENT_CONTROL_RX, EVENT_MODEL_WORK, EVENT_UNDERRUN,
 };
 use sts_twin_board::sync::{Events, SharedCell};
 
@@ -185,7 +185,18 @@ async fn background_task(
     let mut link = Uart0Link;
     let mut ctx = BackgroundCtx { shared, link: &mut link, config, counters: &COUNTERS };
     let mut last_underruns = 0;
+    let mut timing_hash: u32 = 0x811C_9DC5;
     background_loop(app, &mut ctx, &EVENTS, |bits, counters| {
+        if bits & EVENT_MODEL_WORK != 0 {
+            // Where the model work ended relative to the ticks: deterministic under -icount
+            // whatever the host's pace; the platform tests compare it across runs.
+            let ticks = counters.ticks.load(Ordering::Relaxed);
+            let into_period = qemu::SERVO_PERIOD_COUNTS.saturating_sub(Timer0::value());
+            for v in [ticks, into_period] {
+                timing_hash = (timing_hash ^ v).wrapping_mul(0x0100_0193);
+            }
+            diag_write(qemu::DIAG_MODEL_TIMING_HASH, timing_hash);
+        }
         diag_write(qemu::DIAG_MODEL_REQUESTS, counters.model_requests.load(Ordering::Relaxed));
         diag_write(qemu::DIAG_MODEL_RUNS, counters.model_runs.load(Ordering::Relaxed));
         diag_write(qemu::DIAG_CONTROL_RX_DROPPED, hw::UART_RX.dropped() as u32);

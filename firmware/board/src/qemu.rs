@@ -51,6 +51,10 @@ pub const DIAG_INPUT_FAULTS: usize = 12;
 pub const DIAG_HANDLER_LAST: usize = 13;
 /// Diagnostics word: largest `DIAG_HANDLER_LAST`.
 pub const DIAG_HANDLER_MAX: usize = 14;
+/// Diagnostics word: a running FNV-1a hash of (ticks served, timer counts into the period)
+/// at each completion of model work: where the background finished, relative to the
+/// ticks. Under `-icount` it must not depend on the host's pace (docs/firmware.md).
+pub const DIAG_MODEL_TIMING_HASH: usize = 15;
 /// Value of [`DIAG_MAGIC`]: "DIAG".
 pub const DIAG_MAGIC_VALUE: u32 = 0x4741_4944;
 

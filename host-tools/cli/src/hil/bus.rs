@@ -189,6 +189,7 @@ impl BusFile {
             input_faults: d(map::DIAG_INPUT_FAULTS),
             handler_last_counts: d(map::DIAG_HANDLER_LAST),
             handler_max_counts: d(map::DIAG_HANDLER_MAX),
+            model_timing_hash: d(map::DIAG_MODEL_TIMING_HASH),
         }
     }
 }
@@ -238,4 +239,7 @@ pub struct Diagnostics {
     pub handler_last_counts: u32,
     /// Largest `handler_last_counts`.
     pub handler_max_counts: u32,
+    /// Hash of where in the tick periods the model work completed (see
+    /// [`sts_twin_board::qemu::DIAG_MODEL_TIMING_HASH`]).
+    pub model_timing_hash: u32,
 }

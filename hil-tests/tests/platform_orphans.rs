@@ -70,6 +70,24 @@ fn send_signal(pid: u32, signal: &str) {
     assert!(ok, "kill -s {signal} {pid}");
 }
 
+/// Waits (bounded) until every thread of `pid` is in the stopped state.
+fn wait_stopped(pid: u32) {
+    let state = |stat: &str| stat.rsplit(')').next().and_then(|s| s.split_whitespace().next()).map(str::to_owned);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).unwrap();
+        let all_stopped = tasks.flatten().all(|t| {
+            let stat = std::fs::read_to_string(t.path().join("stat")).unwrap_or_default();
+            matches!(state(&stat).as_deref(), Some("T") | Some("t"))
+        });
+        if all_stopped {
+            return;
+        }
+        assert!(Instant::now() < deadline, "QEMU {pid} did not stop");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
 fn assert_gone(pid: u32) {
     let deadline = Instant::now() + GONE_WITHIN;
     while qemu_alive(pid) {
@@ -124,8 +142,10 @@ fn a_tick_timeout_errors_out_and_drop_takes_qemu_down() {
     let config = HilConfig { tick_timeout: Duration::from_millis(500), ..HilConfig::default() };
     let mut hil = Hil::start(config).expect("boot");
     let qemu = hil.qemu_pid();
-    // Freeze QEMU: the next tick can never complete.
+    // Freeze QEMU: the next tick can never complete. The stop reaches a thread running on
+    // another core a moment later; wait until every thread is stopped.
     send_signal(qemu, "STOP");
+    wait_stopped(qemu);
     let started = Instant::now();
     let err = hil.step(Default::default()).unwrap_err();
     assert!(matches!(err, HilError::Timeout { .. }), "{err}");

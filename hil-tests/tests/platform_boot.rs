@@ -23,6 +23,7 @@ fn status(hil: &mut Hil) -> (u32, u32, u32, u32, i16) {
 
 #[test]
 fn boots_and_serves_ticks_bit_identical_to_the_reference_and_across_runs() {
+    let _serial = sts_hil_tests::serial();
     let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     const TICKS: u32 = 3000;
     let inputs = bench_inputs(TICKS);
@@ -30,7 +31,7 @@ fn boots_and_serves_ticks_bit_identical_to_the_reference_and_across_runs() {
     assert!(expected.iter().any(|o| o.flags & OUT_FLAG_MODEL_ACTIVE != 0), "the run must reach the model path");
 
     // Run 1: lockstep.
-    let mut hil = Hil::start(HilConfig::default()).expect("boot");
+    let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("boot");
     hil.wait_for_log(TIMEOUT, |l| l.message.contains("sts-twin firmware")).expect("boot banner in the defmt log");
     let lockstep: Vec<OutputSlot> = inputs.iter().map(|i| hil.step(*i).expect("tick")).collect();
     let counters = hil.counters();
@@ -44,7 +45,7 @@ fn boots_and_serves_ticks_bit_identical_to_the_reference_and_across_runs() {
     assert!(diag.busy_max_counts > 0 && diag.busy_max_counts < diag.period_counts, "{diag:?}");
 
     // Run 2: a fresh QEMU, pipelined through the ring: the same bits.
-    let mut hil = Hil::start(HilConfig::default()).expect("boot");
+    let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("boot");
     let streamed = hil.run_open_loop(&inputs).expect("stream");
     assert_eq!(hil.counters().underruns, 0);
     hil.shutdown().unwrap();
@@ -53,8 +54,9 @@ fn boots_and_serves_ticks_bit_identical_to_the_reference_and_across_runs() {
 
 #[test]
 fn control_link_echoes_sets_the_gain_and_reports_status() {
+    let _serial = sts_hil_tests::serial();
     let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let mut hil = Hil::start(HilConfig::default()).expect("boot");
+    let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("boot");
     let echo = hil.transact(b"hello, firmware", TIMEOUT, |r| r.len() >= 15).unwrap();
     assert_eq!(echo, b"hello, firmware");
     let gain: i16 = -384;
@@ -71,8 +73,9 @@ fn control_link_echoes_sets_the_gain_and_reports_status() {
 
 #[test]
 fn config_store_survives_a_reboot() {
+    let _serial = sts_hil_tests::serial();
     let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let mut hil = Hil::start(HilConfig::default()).expect("boot");
+    let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("boot");
     assert_eq!(status(&mut hil).4, DEFAULT_GAIN, "a fresh bus file has an empty config store");
     let [lo, hi] = 300i16.to_le_bytes();
     hil.transact(&[b'G', lo, hi], TIMEOUT, |r| r.len() >= 3).unwrap();

@@ -10,7 +10,7 @@ static SERIAL: Mutex<()> = Mutex::new(());
 
 fn crash(command: u8, expect_in_log: &str) {
     let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let mut hil = Hil::start(HilConfig::default()).expect("boot");
+    let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("boot");
     for input in bench_inputs(50) {
         hil.step(input).unwrap();
     }
@@ -33,10 +33,12 @@ fn crash(command: u8, expect_in_log: &str) {
 
 #[test]
 fn a_panic_ends_qemu_with_a_failing_status() {
+    let _serial = sts_hil_tests::serial();
     crash(b'P', "panic requested over the control link");
 }
 
 #[test]
 fn a_hard_fault_ends_qemu_with_a_failing_status() {
+    let _serial = sts_hil_tests::serial();
     crash(b'F', "HardFault");
 }

@@ -15,8 +15,9 @@ const GONE_WITHIN: Duration = Duration::from_secs(5);
 /// Not a test of its own: the child's body when run with `MODE_ENV` set.
 #[test]
 fn orphan_child() {
+    let _serial = sts_hil_tests::serial();
     let Ok(mode) = std::env::var(MODE_ENV) else { return };
-    let mut hil = Hil::start(HilConfig::default()).expect("child boots the firmware");
+    let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("child boots the firmware");
     for input in bench_inputs(10) {
         hil.step(input).unwrap();
     }
@@ -110,6 +111,7 @@ fn assert_no_bus_file_of(child_pid: u32) {
 
 #[test]
 fn sigkill_of_the_harness_process_takes_qemu_down() {
+    let _serial = sts_hil_tests::serial();
     let (mut child, qemu) = child("sleep");
     assert!(qemu_alive(qemu));
     child.kill().unwrap(); // SIGKILL: no destructor, no handler runs
@@ -120,6 +122,7 @@ fn sigkill_of_the_harness_process_takes_qemu_down() {
 
 #[test]
 fn a_panicking_harness_takes_qemu_down() {
+    let _serial = sts_hil_tests::serial();
     let (mut child, qemu) = child("panic");
     let status = child.wait().unwrap();
     assert!(!status.success());
@@ -128,6 +131,7 @@ fn a_panicking_harness_takes_qemu_down() {
 
 #[test]
 fn sigint_and_sigterm_to_the_harness_take_qemu_down() {
+    let _serial = sts_hil_tests::serial();
     for (signal, number) in [("INT", 2), ("TERM", 15)] {
         let (mut child, qemu) = child("sleep");
         send_signal(child.id(), signal);
@@ -139,7 +143,8 @@ fn sigint_and_sigterm_to_the_harness_take_qemu_down() {
 
 #[test]
 fn a_tick_timeout_errors_out_and_drop_takes_qemu_down() {
-    let config = HilConfig { tick_timeout: Duration::from_millis(500), ..HilConfig::default() };
+    let _serial = sts_hil_tests::serial();
+    let config = HilConfig { tick_timeout: Duration::from_millis(500), ..sts_hil_tests::bringup_config() };
     let mut hil = Hil::start(config).expect("boot");
     let qemu = hil.qemu_pid();
     // Freeze QEMU: the next tick can never complete. The stop reaches a thread running on

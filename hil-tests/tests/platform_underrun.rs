@@ -10,9 +10,10 @@ use sts_twin_core::bus::OutputSlot;
 
 #[test]
 fn a_stalled_host_is_counted_as_underruns_and_the_loop_resumes() {
+    let _serial = sts_hil_tests::serial();
     let inputs = bench_inputs(300);
     let expected: Vec<OutputSlot> = reference_outputs(&inputs, DEFAULT_GAIN).collect();
-    let mut hil = Hil::start(HilConfig::default()).expect("boot");
+    let mut hil = Hil::start(HilConfig { idle_paused: false, ..sts_hil_tests::bringup_config() }).expect("boot");
     for (k, input) in inputs[..100].iter().enumerate() {
         assert_eq!(hil.step(*input).unwrap(), expected[k]);
     }

@@ -28,7 +28,10 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::debug;
 use defmt_semihosting as _;
 use embassy_executor::InterruptExecutor;
+#[cfg(feature = "bringup")]
 use sts_twin_board::bringup::{BringUpBackground, BringUpServo, BringUpShared};
+#[cfg(not(feature = "bringup"))]
+use sts_twin_board::twin::{TwinBackground, TwinServo, TwinShared};
 use sts_twin_board::bus::{BusAdc, BusDac, BusView};
 use sts_twin_board::config::{AbStore, MemoryMedium};
 use sts_twin_board::qemu::{self, DIAG_WORDS};
@@ -42,13 +45,33 @@ use hw::{Irq, Timer0, Uart0Link};
 use sts_twin_board::TickSource;
 
 /// The servo half of the application.
+#[cfg(not(feature = "bringup"))]
+pub type App = TwinServo;
+/// The background half of the application.
+#[cfg(not(feature = "bringup"))]
+pub type AppBackground = TwinBackground;
+/// The state the two halves share.
+#[cfg(not(feature = "bringup"))]
+pub type AppShared = TwinShared;
+
+/// Builds the application at boot.
+#[cfg(not(feature = "bringup"))]
+fn make_app() -> (App, AppBackground, AppShared) {
+    (TwinServo, TwinBackground::new(), TwinShared::new())
+}
+
+/// The servo half of the application.
+#[cfg(feature = "bringup")]
 pub type App = BringUpServo;
 /// The background half of the application.
+#[cfg(feature = "bringup")]
 pub type AppBackground = BringUpBackground;
 /// The state the two halves share.
+#[cfg(feature = "bringup")]
 pub type AppShared = BringUpShared;
 
 /// Builds the application at boot.
+#[cfg(feature = "bringup")]
 fn make_app() -> (App, AppBackground, AppShared) {
     (BringUpServo::new(), BringUpBackground::new(), BringUpShared::new())
 }

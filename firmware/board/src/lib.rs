@@ -25,6 +25,7 @@ pub mod config;
 pub mod qemu;
 pub mod servo;
 pub mod sync;
+pub mod twin;
 
 pub use sts_twin_core::bus::{InputSlot, OutputSlot};
 

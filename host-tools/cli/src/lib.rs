@@ -10,3 +10,4 @@ pub mod fit;
 pub mod hil;
 pub mod model;
 pub mod rig;
+pub mod trial;

@@ -12,6 +12,10 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// The main job: measure, fit, then cut at 40 Hz with the firmware in QEMU, without and with the twin.
+    Demo(cmd::demo::Args),
+    /// Emulated STS cut of the bicuspid surface (Eq. 6), with or without the twin.
+    Machine(cmd::machine::Args),
     /// Train the explainable twin (amplitude and phase formulas) on a dataset.
     Fit(cmd::fit::Args),
     /// Run the offline dynamic-error measurement test on the emulated machine.
@@ -25,7 +29,9 @@ enum Command {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
+        Command::Demo(args) => cmd::demo::run(args),
         Command::Fit(args) => cmd::fit::run(args),
+        Command::Machine(args) => cmd::machine::run(args),
         Command::Measure(args) => cmd::measure::run(args),
         Command::PaperTable(args) => cmd::paper_table::run(args),
         Command::Regress(args) => cmd::regress::run(args),

@@ -17,8 +17,14 @@ use super::{firmware, HilError};
 /// How to start the firmware under QEMU.
 #[derive(Clone, Debug)]
 pub struct HilConfig {
-    /// The firmware ELF; `None`: [`firmware::firmware_elf`] (env override or build).
+    /// The firmware ELF; `None`: the ELF of `variant` (env override or build).
     pub elf: Option<PathBuf>,
+    /// Which application, when `elf` is `None`.
+    pub variant: firmware::FirmwareVariant,
+    /// Keep the bus paused whenever no tick call ([`Hil::step`], the streams) is under way,
+    /// so that the host's own work between ticks (the plant, control requests) is never
+    /// counted as an underrun. Off: a host that stops feeding is seen as one.
+    pub idle_paused: bool,
     /// `-icount shift=N`: one guest instruction takes 2^N ns of guest time. 2 (250 MIPS,
     /// 31,250 instructions per 125 us tick) resembles a mid-range Cortex-M.
     pub icount_shift: u32,
@@ -38,6 +44,8 @@ impl Default for HilConfig {
     fn default() -> Self {
         Self {
             elf: None,
+            variant: firmware::FirmwareVariant::Twin,
+            idle_paused: true,
             icount_shift: 2,
             boot_timeout: Duration::from_secs(20),
             tick_timeout: Duration::from_secs(10),
@@ -84,7 +92,7 @@ impl Hil {
         let elf = match &config.elf {
             Some(p) if p.is_file() => p.clone(),
             Some(p) => return Err(HilError::ElfMissing(p.clone())),
-            None => firmware::firmware_elf()?,
+            None => firmware::firmware_elf_of(config.variant)?,
         };
         log::check_table(&elf)?;
         if config.handle_signals {
@@ -95,7 +103,10 @@ impl Hil {
         let mut last_err = None;
         for _ in 0..3 {
             match Self::try_start(&config, &program, &elf, &bus) {
-                Ok(hil) => return Ok(hil),
+                Ok(mut hil) => {
+                    hil.idle();
+                    return Ok(hil);
+                }
                 Err(e @ HilError::QemuExited { .. }) => last_err = Some(e),
                 Err(e) => return Err(e),
             }
@@ -200,9 +211,26 @@ impl Hil {
         let k = self.next_tick;
         input.tick = k;
         self.bus.write_input(&input);
-        self.wait_fw_seq(k.wrapping_add(1), "the output of a lockstep tick")?;
+        self.active();
+        let waited = self.wait_fw_seq(k.wrapping_add(1), "the output of a lockstep tick");
+        self.idle();
+        waited?;
         self.next_tick = k.wrapping_add(1);
         Ok(self.bus.read_output(k))
+    }
+
+    /// Lets the firmware take inputs (ends an idle pause).
+    fn active(&mut self) {
+        if self.config.idle_paused {
+            self.bus.set_host_stop(false);
+        }
+    }
+
+    /// Between tick calls: pauses the bus if [`HilConfig::idle_paused`].
+    fn idle(&mut self) {
+        if self.config.idle_paused {
+            self.bus.set_host_stop(true);
+        }
     }
 
     /// Streams `inputs` through the bus ring without waiting for each output (open loop:
@@ -216,7 +244,14 @@ impl Hil {
 
     /// Like [`Hil::run_open_loop`] but hands each output to `sink` as it comes, for long
     /// runs.
-    pub fn stream_open_loop(&mut self, inputs: impl IntoIterator<Item = InputSlot>, mut sink: impl FnMut(OutputSlot)) -> Result<u32, HilError> {
+    pub fn stream_open_loop(&mut self, inputs: impl IntoIterator<Item = InputSlot>, sink: impl FnMut(OutputSlot)) -> Result<u32, HilError> {
+        self.active();
+        let result = self.stream_inner(inputs, sink);
+        self.idle();
+        result
+    }
+
+    fn stream_inner(&mut self, inputs: impl IntoIterator<Item = InputSlot>, mut sink: impl FnMut(OutputSlot)) -> Result<u32, HilError> {
         let mut inputs = inputs.into_iter().peekable();
         let first = self.next_tick;
         let mut written = first;
@@ -278,7 +313,9 @@ impl Hil {
     pub fn transact(&mut self, request: &[u8], timeout: Duration, done: impl FnMut(&[u8]) -> bool) -> Result<Vec<u8>, HilError> {
         self.pause();
         let result = self.link.send(request).and_then(|()| self.link.recv_until(timeout, done));
-        self.resume();
+        if !self.config.idle_paused {
+            self.resume();
+        }
         match result {
             Err(HilError::Timeout { .. }) | Err(HilError::Protocol(_)) => {
                 self.alive("a control-link exchange")?;

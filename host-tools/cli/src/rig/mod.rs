@@ -5,11 +5,13 @@
 //! co-processor wrote at tick `k - 1`; its accelerometer code and the command phase go to the
 //! co-processor, whose DAC code for tick `k` reaches the machine at tick `k + 1`.
 
+mod hil;
 mod sim;
 mod trajectory;
 
+pub use hil::{HilCoprocessor, REQUEST_TIMEOUT};
 pub use sim::SimCoprocessor;
-pub use trajectory::{Bicuspid, Sinusoid, Trajectory, TrajectoryPoint};
+pub use trajectory::{turns_u32, Bicuspid, Sinusoid, Trajectory, TrajectoryPoint};
 
 use sts_emulator::{Machine, StepInput, StepOutput};
 use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};

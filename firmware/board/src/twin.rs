@@ -1,0 +1,185 @@
+//! The twin application on the board seam: `sts_twin_core::servo` in the servo interrupt,
+//! the model update and the control protocol in the background. Every board runs this.
+//!
+//! - [`TwinServo::tick`]: the core's [`Servo::tick`] inside the shared cell (the servo
+//!   interrupt has the highest priority, so the critical section costs it nothing); a model
+//!   request is parked in the shared state and the background is woken.
+//! - [`TwinBackground::model_work`]: finishes the features and evaluates the twin program
+//!   outside any critical section, then hands the result back; the servo applies it at its
+//!   due tick, so the outputs do not depend on how fast this ran.
+//! - [`TwinBackground::on_control_bytes`]: decodes COBS/CRC frames, carries out requests with
+//!   [`handle_request`] and answers; bad frames are counted in the servo's `frame_errors`.
+
+use sts_twin_core::bus::InputSlot;
+use sts_twin_core::config::{ConfigError as RecordError, PersistentConfig, MAX_CONFIG_BYTES};
+use sts_twin_core::control::{handle_request, ConfigWriter, ServoAccess};
+use sts_twin_core::features::{DefaultSpectralRings, FeatureConfig};
+use sts_twin_core::feedforward::FeedforwardParams;
+use sts_twin_core::servo::{ModelRequest, Models, Servo, ServoConfig};
+use sts_twin_core::wire::{encode_frame, ConfigSource, FrameDecoder, Request, MAX_ENCODED_FRAME};
+
+use crate::servo::{BackgroundApp, BackgroundCtx, ServoApp, TickOutcome};
+use crate::sync::SharedCell;
+use crate::ConfigStore;
+
+/// The feature rings, shared lock-free between the servo tick (writer) and the model update
+/// (reader); all atomics.
+pub static RINGS: DefaultSpectralRings = DefaultSpectralRings::new();
+
+/// State shared by the two halves.
+pub struct TwinShared {
+    /// The core's servo pipeline.
+    pub servo: Servo,
+    /// A model request waiting for the background.
+    pub request: Option<ModelRequest>,
+}
+
+impl TwinShared {
+    /// A servo with the default settings (the stored config is applied at boot by
+    /// [`TwinBackground::on_boot`]).
+    pub fn new() -> Self {
+        let (servo, _) = Servo::new(FeatureConfig::DEFAULT, ServoConfig::default(), FeedforwardParams::default());
+        Self { servo, request: None }
+    }
+}
+
+impl Default for TwinShared {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The servo-interrupt half.
+#[derive(Debug, Default)]
+pub struct TwinServo;
+
+impl ServoApp for TwinServo {
+    type Shared = TwinShared;
+
+    #[inline]
+    fn tick(&mut self, input: &InputSlot, shared: &SharedCell<TwinShared>) -> TickOutcome {
+        shared.with(|s| {
+            let (output, request) = s.servo.tick(&RINGS, input);
+            let request_model_work = request.is_some();
+            if request.is_some() {
+                s.request = request;
+            }
+            TickOutcome { output, request_model_work }
+        })
+    }
+
+    fn on_underrun(&mut self, shared: &SharedCell<TwinShared>) {
+        shared.with(|s| {
+            s.servo.underrun();
+        });
+    }
+}
+
+/// The background half: the twin programs, the frame decoder, where the config came from.
+pub struct TwinBackground {
+    models: Models,
+    decoder: FrameDecoder<Request>,
+    config_source: ConfigSource,
+}
+
+impl Default for TwinBackground {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl TwinBackground {
+    /// No program, nothing decoded yet.
+    pub const fn new() -> Self {
+        Self { models: Models::new(), decoder: FrameDecoder::new(), config_source: ConfigSource::Defaults }
+    }
+
+    /// Where the boot configuration came from.
+    pub fn config_source(&self) -> ConfigSource {
+        self.config_source
+    }
+}
+
+/// The servo inside the shared cell, as the control handler sees it.
+struct SharedServo<'a>(&'a SharedCell<TwinShared>);
+
+impl ServoAccess for SharedServo<'_> {
+    fn with<R>(&mut self, f: impl FnOnce(&mut Servo) -> R) -> R {
+        self.0.with(|s| f(&mut s.servo))
+    }
+}
+
+/// The board's config store as the control handler's writer.
+struct StoreWriter<'a>(&'a mut dyn ConfigStore);
+
+impl ConfigWriter for StoreWriter<'_> {
+    fn write_config(&mut self, record: &[u8]) -> bool {
+        self.0.write(record).is_ok()
+    }
+}
+
+impl BackgroundApp for TwinBackground {
+    type Shared = TwinShared;
+
+    fn on_boot(&mut self, ctx: &mut BackgroundCtx<'_, TwinShared>) {
+        let mut record = [0u8; MAX_CONFIG_BYTES];
+        let loaded = match ctx.config.read(&mut record) {
+            Ok(len) => PersistentConfig::decode(&record[..len.min(MAX_CONFIG_BYTES)]),
+            Err(_) => Err(RecordError::Blank),
+        };
+        self.config_source = match loaded {
+            Ok(config) => match ctx.shared.with(|s| s.servo.set_params(config.params)) {
+                Ok(()) => ConfigSource::Stored,
+                Err(_) => ConfigSource::DefaultsAfterCorrupt,
+            },
+            Err(RecordError::Blank) => ConfigSource::Defaults,
+            Err(_) => ConfigSource::DefaultsAfterCorrupt,
+        };
+        if self.config_source == ConfigSource::DefaultsAfterCorrupt {
+            ctx.shared.with(|s| s.servo.counters_mut().config_store_errors += 1);
+        }
+    }
+
+    fn model_work(&mut self, ctx: &mut BackgroundCtx<'_, TwinShared>) {
+        let Some(request) = ctx.shared.with(|s| s.request.take()) else {
+            return;
+        };
+        let result = self.models.compute(&RINGS, &request);
+        ctx.shared.with(|s| s.servo.deliver(result));
+    }
+
+    fn on_control_bytes(&mut self, rx: &[u8], ctx: &mut BackgroundCtx<'_, TwinShared>) {
+        for &byte in rx {
+            let Some(frame) = self.decoder.push(byte) else {
+                continue;
+            };
+            let envelope = match frame {
+                Ok(envelope) => envelope,
+                Err(_) => {
+                    ctx.shared.with(|s| s.servo.counters_mut().frame_errors += 1);
+                    continue;
+                }
+            };
+            let response = handle_request(
+                envelope.body,
+                &mut self.models,
+                &mut SharedServo(ctx.shared),
+                &mut StoreWriter(&mut *ctx.config),
+                self.config_source,
+            );
+            let mut out = [0u8; MAX_ENCODED_FRAME];
+            if let Ok(len) = encode_frame(envelope.seq, &response, &mut out) {
+                let mut sent = 0;
+                // The link's transmit queue holds several frames; a full queue drops the rest
+                // and the host times out and retries.
+                while sent < len {
+                    let n = ctx.link.write(&out[sent..len]);
+                    if n == 0 {
+                        break;
+                    }
+                    sent += n;
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,206 @@
+//! The twin firmware in QEMU against the host: bit-identity with the host core, program
+//! upload and rejection, corrupted control frames, a million ticks, no steps on the DAC.
+
+use std::time::Duration;
+
+use sts_twin::rig::{expect_ack, Coprocessor, HilCoprocessor, SimCoprocessor};
+use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
+use sts_twin_core::features::FeatureConfig;
+use sts_twin_core::feedforward::FeedforwardParams;
+use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
+use sts_twin_core::wire::{encode_frame, Rejection, Request, Response, Status, MAX_ENCODED_FRAME};
+
+/// A 0.25 s window keeps model updates frequent in short runs.
+fn feature_config() -> FeatureConfig {
+    FeatureConfig { window_samples: 2000, ..FeatureConfig::DEFAULT }
+}
+
+fn params() -> FeedforwardParams {
+    FeedforwardParams { enable_ramp_ticks: 400, slew_v_per_tick: 0.05, ..FeedforwardParams::default() }
+}
+
+/// amp = gain * RMS (um per m/s^2), phase = -0.2 * f1 degrees.
+fn program(id: u32, gain: f32) -> Program {
+    let mut b = ProgramBuilder::new();
+    b.id(id).constant(gain).feature(4).mul().store(REG_AMP_UM);
+    b.constant(-0.2).feature(0).mul().store(REG_PHASE_DEG);
+    b.finish().unwrap()
+}
+
+/// A recorded-like stream: a 40 Hz motion whose amplitude changes, with pseudo-noise.
+fn input(k: u32) -> InputSlot {
+    let t = k as f64 / 8000.0;
+    let amp = 4000.0 + 2000.0 * (2.0 * std::f64::consts::PI * 0.3 * t).sin();
+    let phase = 2.0 * std::f64::consts::PI * 40.0 * t;
+    let noise = ((k.wrapping_mul(2_654_435_761) >> 16) % 9) as f64 - 4.0;
+    InputSlot {
+        tick: k,
+        acc_code: (-amp * phase.sin() + noise).round() as i16,
+        flags: IN_FLAG_PHASE_VALID,
+        cmd_phase_turns: ((40.0 * t).fract() * 4_294_967_296.0) as u64 as u32,
+        cmd_pos_nm: (3000.0 * phase.sin()) as i32,
+    }
+}
+
+fn configure(cop: &mut dyn Coprocessor, program: Program) {
+    expect_ack("feature config", cop.request(Request::SetFeatureConfig(feature_config())).unwrap()).unwrap();
+    expect_ack("params", cop.request(Request::SetParams(params())).unwrap()).unwrap();
+    expect_ack("program", cop.request(Request::UploadProgram { program, activate: true }).unwrap()).unwrap();
+    expect_ack("enable", cop.request(Request::SetEnabled(true)).unwrap()).unwrap();
+}
+
+fn status(cop: &mut dyn Coprocessor) -> Status {
+    match cop.request(Request::GetStatus).unwrap() {
+        Response::Status(status) => status,
+        other => panic!("unexpected answer {other:?}"),
+    }
+}
+
+fn boot() -> HilCoprocessor {
+    HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots in QEMU")
+}
+
+/// a) The firmware's DAC codes equal the host core's, bit for bit, on the same stream.
+#[test]
+fn dac_codes_are_bit_identical_to_the_host_core() {
+    let _serial = sts_hil_tests::serial();
+    let inputs: Vec<InputSlot> = (0..24_000).map(input).collect();
+    let mut sim = SimCoprocessor::boot(&[]);
+    configure(&mut sim, program(11, 2.0));
+    let expected: Vec<OutputSlot> = inputs.iter().map(|i| sim.tick(i).unwrap()).collect();
+
+    let mut hil = boot();
+    configure(&mut hil, program(11, 2.0));
+    let outputs = hil.hil().run_open_loop(&inputs).expect("stream");
+    assert_eq!(outputs.len(), expected.len());
+    for (k, (got, want)) in outputs.iter().zip(&expected).enumerate() {
+        assert_eq!(got, want, "tick {k} differs");
+    }
+    let fw = status(&mut hil);
+    // 24,000 ticks at one update per 800 ticks, after the 2,000-tick window filled.
+    assert!(fw.counters.model_updates >= 25, "{:?}", fw.counters);
+    assert_eq!(fw.counters.model_late, 0);
+    assert_eq!(fw.counters.bus_underruns, 0);
+    // Some of the outputs are non-trivial.
+    assert!(outputs.iter().any(|o| o.dac_code.unsigned_abs() > 1000));
+    hil.shutdown().unwrap();
+}
+
+/// b) and c): a new program changes the predictions; a malformed one is rejected and the old
+/// one stays in force.
+#[test]
+fn uploads_change_the_prediction_and_malformed_programs_are_rejected() {
+    let _serial = sts_hil_tests::serial();
+    let mut hil = boot();
+    configure(&mut hil, program(21, 1.0));
+    let inputs: Vec<InputSlot> = (0..6000).map(input).collect();
+    hil.hil().run_open_loop(&inputs).unwrap();
+    let before = status(&mut hil);
+    assert_eq!(before.program_id, Some(21));
+
+    expect_ack("upload", hil.request(Request::UploadProgram { program: program(22, 3.0), activate: true }).unwrap()).unwrap();
+    let inputs: Vec<InputSlot> = (6000..12_000).map(input).collect();
+    hil.hil().run_open_loop(&inputs).unwrap();
+    let after = status(&mut hil);
+    assert_eq!(after.program_id, Some(22));
+    let ratio = after.amp_um / before.amp_um;
+    assert!((2.0..4.5).contains(&ratio), "amplitude {} -> {}", before.amp_um, after.amp_um);
+
+    let mut bad = program(23, 1.0);
+    bad.code[3] = 12; // feature index past f12
+    match hil.request(Request::UploadProgram { program: bad, activate: true }).unwrap() {
+        Response::Rejected(Rejection::Program(_)) => {}
+        other => panic!("a malformed program was not rejected: {other:?}"),
+    }
+    let inputs: Vec<InputSlot> = (12_000..16_000).map(input).collect();
+    hil.hil().run_open_loop(&inputs).unwrap();
+    let last = status(&mut hil);
+    assert_eq!(last.program_id, Some(22), "the old program stays in force");
+    assert_eq!(last.counters.rejected_programs, 1);
+    hil.shutdown().unwrap();
+}
+
+/// d) Corrupted and truncated frames are counted and ignored; the loop never stalls.
+#[test]
+fn corrupted_and_truncated_frames_are_counted_and_ignored() {
+    let _serial = sts_hil_tests::serial();
+    let mut hil = boot();
+    configure(&mut hil, program(31, 1.0));
+    let mut frame = [0u8; MAX_ENCODED_FRAME];
+    let len = encode_frame(500, &Request::Ping { nonce: 77 }, &mut frame).unwrap();
+    let mut flipped = frame;
+    // A flipped bit that does not create a delimiter inside the frame.
+    flipped[len / 2] ^= if flipped[len / 2] == 0x21 { 0x42 } else { 0x21 };
+    let mut truncated = frame[..len / 2].to_vec();
+    truncated.push(0);
+    for bad in [&flipped[..len], &truncated[..], &[0x03, 0xff, 0x00][..]] {
+        let reply = hil.exchange_raw(bad, Duration::from_millis(300));
+        assert!(reply.map(|r| r.is_empty()).unwrap_or(true), "a bad frame was answered");
+        hil.hil().run_open_loop(&(0..400).map(input).collect::<Vec<_>>()).expect("the loop keeps running");
+    }
+    assert_eq!(hil.request(Request::Ping { nonce: 78 }).unwrap(), Response::Pong { nonce: 78 });
+    let s = status(&mut hil);
+    assert_eq!(s.counters.frame_errors, 3, "{:?}", s.counters);
+    hil.shutdown().unwrap();
+}
+
+/// e) A million ticks: every one served, in order, no underrun, overrun or fault.
+#[test]
+fn a_million_ticks_without_a_fault_or_a_missed_tick() {
+    let _serial = sts_hil_tests::serial();
+    let mut hil = boot();
+    configure(&mut hil, program(41, 1.0));
+    let mut next = 0u32;
+    let mut first_bad: Option<OutputSlot> = None;
+    let served = hil
+        .hil()
+        .stream_open_loop((0..1_000_000u32).map(input), |o| {
+            if (o.tick != next || o.fault_count != 0) && first_bad.is_none() {
+                first_bad = Some(o);
+            }
+            next = next.wrapping_add(1);
+        })
+        .expect("stream of a million ticks");
+    assert_eq!(served, 1_000_000);
+    assert_eq!(first_bad, None, "a tick was missed, out of order or faulty (expected tick {next}); {:?}", status(&mut hil).counters);
+    let s = status(&mut hil);
+    assert_eq!(s.counters.ticks, 1_000_000);
+    assert_eq!(s.counters.bus_underruns, 0);
+    assert_eq!(s.counters.bus_overruns, 0);
+    assert_eq!(s.counters.model_faults, 0);
+    assert_eq!(s.counters.model_late, 0);
+    hil.shutdown().unwrap();
+}
+
+/// f) Enabling, disabling and changing the offset never step the DAC beyond the slew limit.
+#[test]
+fn offset_changes_and_enable_never_step_the_dac() {
+    let _serial = sts_hil_tests::serial();
+    let mut hil = boot();
+    configure(&mut hil, program(51, 2.0));
+    expect_ack("disable", hil.request(Request::SetEnabled(false)).unwrap()).unwrap();
+    let limit = 1 + (0.05f64 / (10.0 / 32767.0)).ceil() as i32;
+    let mut last: Option<i16> = None;
+    let mut k = 0u32;
+    let mut run = |hil: &mut HilCoprocessor, ticks: u32| {
+        let inputs: Vec<InputSlot> = (k..k + ticks).map(input).collect();
+        k += ticks;
+        for o in hil.hil().run_open_loop(&inputs).unwrap() {
+            if let Some(prev) = last {
+                assert!((o.dac_code as i32 - prev as i32).abs() <= limit, "step {prev} -> {} at tick {}", o.dac_code, o.tick);
+            }
+            last = Some(o.dac_code);
+        }
+    };
+    run(&mut hil, 4000);
+    expect_ack("enable", hil.request(Request::SetEnabled(true)).unwrap()).unwrap();
+    run(&mut hil, 4000);
+    let offset = FeedforwardParams { offset_v: 1.5, ..params() };
+    expect_ack("offset", hil.request(Request::SetParams(offset)).unwrap()).unwrap();
+    run(&mut hil, 4000);
+    expect_ack("disable", hil.request(Request::SetEnabled(false)).unwrap()).unwrap();
+    run(&mut hil, 4000);
+    // The offset was followed: -1.5 V is about -4915 codes.
+    assert!((last.unwrap() as i32 + 4915).abs() < 20, "settled at {:?}", last);
+    hil.shutdown().unwrap();
+}

@@ -1,0 +1,81 @@
+//! `sts-twin demo`: the main job. Measures the emulated machine, fits the twin, then cuts the
+//! bicuspid surface at 40 Hz with the firmware in QEMU in the loop, without and with the twin.
+
+use std::path::PathBuf;
+
+use sts_emulator::{MeasureConfig, PlantParams};
+
+use crate::fit::{fit, FitConfig};
+use crate::trial::{machine_params, run_trial, TrialConfig};
+
+use super::machine::{coprocessor, print_report};
+
+/// Arguments of `sts-twin demo`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Z operational frequency of the cut, Hz.
+    #[arg(long, default_value_t = 40.0)]
+    pub freq: f64,
+    /// Use an existing model file instead of measuring and fitting one.
+    #[arg(long)]
+    pub twin: Option<PathBuf>,
+    /// Where to keep the fitted model.
+    #[arg(long, default_value = "target/demo-twin.json")]
+    pub out: PathBuf,
+    /// Run the core on the host instead of the firmware in QEMU.
+    #[arg(long)]
+    pub sim: bool,
+    /// Seed of the measurement, the fit and the cut.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+/// Runs `sts-twin demo`.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let plant = PlantParams::default();
+    let model = match &args.twin {
+        Some(path) => crate::model::ModelFile::read(path)?,
+        None => {
+            eprintln!("1/3 measuring the emulated machine: 99 groups, 1-40 Hz x 1-11 um, 6 s each ...");
+            let measure = MeasureConfig { seed: args.seed, ..MeasureConfig::default() };
+            let dataset = sts_emulator::measure::run(&measure, &|_| {})?;
+            eprintln!("2/3 fitting the twin (symbolic regression, cross-validated) ...");
+            let model = fit(&dataset, "demo: default emulated machine", &FitConfig { seed: args.seed, ..FitConfig::default() }, &mut |_| {})?;
+            if let Some(dir) = args.out.parent() {
+                std::fs::create_dir_all(dir)?;
+            }
+            model.write(&args.out)?;
+            println!("amplitude (um) = {}", model.amplitude.formula);
+            println!("phase (deg)    = {}", model.phase.formula);
+            println!(
+                "held-out: amplitude R^2 {:.4}, phase R^2 {:.4}, waveform error {:.1} nm mean absolute ({} written)",
+                model.validation.amplitude_r2,
+                model.validation.phase_r2,
+                model.validation.waveform_mae_um * 1e3,
+                args.out.display()
+            );
+            model
+        }
+    };
+    let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
+    eprintln!("3/3 cutting the bicuspid surface at {} Hz with {which} in the loop ...", args.freq);
+    let params = machine_params(&plant, plant.interface.offset_v);
+    let config = TrialConfig { freq_hz: args.freq, seed: args.seed, ..TrialConfig::default() };
+    let mut reports = Vec::new();
+    for twin in [None, Some(&model)] {
+        let mut cop = coprocessor(args.sim)?;
+        let report = run_trial(cop.as_mut(), &plant, &[], twin, params, &config)?;
+        print_report(&report);
+        reports.push(report);
+    }
+    let (bare, twin) = (&reports[0], &reports[1]);
+    println!(
+        "form error {:.3} -> {:.3} um ({:.0}% less), phase error {:.2} -> {:.2} deg",
+        bare.form_error_pv_um,
+        twin.form_error_pv_um,
+        100.0 * (1.0 - twin.form_error_pv_um / bare.form_error_pv_um),
+        bare.phase_error_deg,
+        twin.phase_error_deg
+    );
+    Ok(())
+}

@@ -1,0 +1,90 @@
+//! `sts-twin machine`: an emulated STS cut of the bicuspid surface, with or without the twin.
+
+use std::path::PathBuf;
+
+use anyhow::Context as _;
+use sts_emulator::{EffectSpec, PlantParams};
+
+use crate::hil::HilConfig;
+use crate::model::ModelFile;
+use crate::rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
+use crate::trial::{machine_params, run_trial, TrialConfig, TrialReport};
+
+/// Arguments of `sts-twin machine`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Z operational frequency, Hz (the spindle turns at half of it).
+    #[arg(long, default_value_t = 40.0)]
+    pub freq: f64,
+    /// Model file of the twin; without it the bare machine cuts.
+    #[arg(long)]
+    pub twin: Option<PathBuf>,
+    /// Plant parameters (TOML); default: the built-in machine.
+    #[arg(long)]
+    pub plant: Option<PathBuf>,
+    /// A physical effect in the machine, `NAME[:k=v,...]` (repeatable).
+    #[arg(long = "effect")]
+    pub effects: Vec<String>,
+    /// Run the core on the host instead of the firmware in QEMU (bit-identical, faster).
+    #[arg(long)]
+    pub sim: bool,
+    /// Offset voltage set in the co-processor (as `calibrate-offset` would), V; default: the
+    /// plant's interface offset.
+    #[arg(long)]
+    pub offset: Option<f64>,
+    /// Seed of the machine's noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Loads the plant parameters and effects named on a command line.
+pub fn load_plant(plant: Option<&PathBuf>, effects: &[String]) -> anyhow::Result<(PlantParams, Vec<EffectSpec>)> {
+    let params = match plant {
+        Some(path) => PlantParams::from_file(path)?,
+        None => PlantParams::default(),
+    };
+    let effects = effects
+        .iter()
+        .map(|text| text.parse::<EffectSpec>().with_context(|| format!("--effect {text}")))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok((params, effects))
+}
+
+/// Boots the co-processor the user asked for.
+pub fn coprocessor(sim: bool) -> anyhow::Result<Box<dyn Coprocessor>> {
+    Ok(if sim { Box::new(SimCoprocessor::boot(&[])) } else { Box::new(HilCoprocessor::start(HilConfig::default())?) })
+}
+
+/// Prints a trial report for people.
+pub fn print_report(report: &TrialReport) {
+    println!(
+        "{:>5.1} Hz  twin {:<5}  form error (PV) {:>7.3} um  RMS {:>6.3} um  phase error {:>6.2} deg  ({}, {} points, cut {:.1} s)",
+        report.freq_hz,
+        report.twin,
+        report.form_error_pv_um,
+        report.form_error_rms_um,
+        report.phase_error_deg,
+        report.coprocessor,
+        report.points,
+        report.cut_time_s
+    );
+}
+
+/// Runs `sts-twin machine`.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let (plant, effects) = load_plant(args.plant.as_ref(), &args.effects)?;
+    let model = args.twin.as_ref().map(|p| ModelFile::read(p)).transpose()?;
+    let params = machine_params(&plant, args.offset.unwrap_or(plant.interface.offset_v));
+    let config = TrialConfig { freq_hz: args.freq, seed: args.seed, ..TrialConfig::default() };
+    let mut cop = coprocessor(args.sim)?;
+    let report = run_trial(cop.as_mut(), &plant, &effects, model.as_ref(), params, &config)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print_report(&report);
+    }
+    Ok(())
+}

@@ -1,0 +1,174 @@
+//! Machining trials: an emulated STS cut of the paper's bicuspid surface (Eq. 6) with the
+//! co-processor in the loop, with or without the twin, and its form and phase errors.
+//!
+//! The cut faces from `r_start_mm` to the centre. Before it, the tool runs the same motion
+//! in air at the starting radius for one feature window plus a second, so that the twin's
+//! features are complete when the cut begins (a machinist's air cut; the twin is trained on
+//! full windows). The form error is the peak-to-peak deviation of the true TCP from the
+//! design surface over all points cut within `r <= r_eval_mm`; the phase error is the lag
+//! of the TCP's fundamental (2C) behind the design's over the same points.
+
+use serde::Serialize;
+use sts_emulator::{EffectSpec, Machine, PlantParams};
+use sts_twin_core::feedforward::FeedforwardParams;
+use sts_twin_core::wire::Request;
+
+use crate::model::ModelFile;
+use crate::rig::{expect_ack, run_loop, Bicuspid, Coprocessor, Trajectory, TrajectoryPoint};
+
+/// Settings of a trial.
+#[derive(Clone, Debug)]
+pub struct TrialConfig {
+    /// Z operational frequency, Hz.
+    pub freq_hz: f64,
+    /// Starting radius of the cut, mm.
+    pub r_start_mm: f64,
+    /// Radius within which the form error is evaluated, mm.
+    pub r_eval_mm: f64,
+    /// X feed per revolution, um.
+    pub feed_um_per_rev: f64,
+    /// Seed of the machine's noise.
+    pub seed: u64,
+}
+
+impl Default for TrialConfig {
+    fn default() -> Self {
+        Self { freq_hz: 40.0, r_start_mm: 0.5, r_eval_mm: 0.5, feed_um_per_rev: 5.0, seed: 1 }
+    }
+}
+
+/// What a trial measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct TrialReport {
+    /// Z operational frequency, Hz.
+    pub freq_hz: f64,
+    /// Whether the twin compensated.
+    pub twin: bool,
+    /// "hil" (firmware in QEMU) or "sim" (the same core on the host).
+    pub coprocessor: String,
+    /// Peak-to-peak deviation of the TCP from the design surface within `r_eval_mm`, um.
+    pub form_error_pv_um: f64,
+    /// Lag of the TCP's fundamental behind the design's, degrees.
+    pub phase_error_deg: f64,
+    /// RMS deviation from the design surface, um.
+    pub form_error_rms_um: f64,
+    /// Machine time of the cut (without the air cut), s.
+    pub cut_time_s: f64,
+    /// Points evaluated.
+    pub points: usize,
+    /// Firmware fault counters' sum at the end.
+    pub fault_count: u32,
+}
+
+/// The feedforward parameters matching the emulated controller's analogue interface.
+pub fn machine_params(plant: &PlantParams, offset_v: f64) -> FeedforwardParams {
+    let ain = &plant.interface;
+    FeedforwardParams {
+        k_dv_um_per_v: (ain.kvc_pulses_per_v * ain.pulse_nm * 1e-3) as f32,
+        k_vc_pulses_per_v: ain.kvc_pulses_per_v as f32,
+        offset_v: offset_v as f32,
+        slew_v_per_tick: 1.0,
+        dac_full_scale_v: 10.0,
+        enable_ramp_ticks: 4000,
+    }
+}
+
+/// The STS trajectory with an air cut before it.
+struct WithAirCut {
+    cut: Bicuspid,
+    air_s: f64,
+}
+
+impl Trajectory for WithAirCut {
+    fn at(&self, t_s: f64) -> TrajectoryPoint {
+        if t_s < self.air_s {
+            // The same motion at the starting radius, phase-continuous into the cut.
+            let mut p = self.cut.at(0.0);
+            let revs = self.cut.spindle_rev_per_s() * (t_s - self.air_s);
+            let c_deg = 360.0 * revs.rem_euclid(1.0);
+            p.spindle_deg = c_deg;
+            p.z_cmd_um = Bicuspid::design_z_um(self.cut.r_start_mm, c_deg);
+            p.phase_turns = crate::rig::turns_u32(2.0 * revs);
+            p
+        } else {
+            self.cut.at(t_s - self.air_s)
+        }
+    }
+    fn sample_rate_hz(&self) -> f64 {
+        self.cut.sample_rate_hz
+    }
+    fn duration_s(&self) -> f64 {
+        self.air_s + self.cut.duration_s()
+    }
+}
+
+/// Runs one trial on `coprocessor`, which is configured here: the feedforward parameters
+/// (`params`), and with `model` its feature settings and program, compensation enabled.
+pub fn run_trial(
+    coprocessor: &mut dyn Coprocessor,
+    plant: &PlantParams,
+    effects: &[EffectSpec],
+    model: Option<&ModelFile>,
+    params: FeedforwardParams,
+    config: &TrialConfig,
+) -> anyhow::Result<TrialReport> {
+    let mut machine = Machine::new(plant, effects, config.seed)?;
+    expect_ack("the feedforward parameters", coprocessor.request(Request::SetParams(params))?)?;
+    let window_s = match model {
+        Some(model) => {
+            expect_ack("the feature settings", coprocessor.request(Request::SetFeatureConfig(model.feature_config))?)?;
+            let program = model.firmware_program()?;
+            expect_ack("the twin program", coprocessor.request(Request::UploadProgram { program, activate: true })?)?;
+            expect_ack("enabling compensation", coprocessor.request(Request::SetEnabled(true))?)?;
+            f64::from(model.feature_config.window_samples) / f64::from(model.feature_config.sample_rate_hz)
+        }
+        None => 0.0,
+    };
+    let cut = Bicuspid { freq_hz: config.freq_hz, r_start_mm: config.r_start_mm, feed_um_per_rev: config.feed_um_per_rev, sample_rate_hz: 8000.0 };
+    // The air cut: the feature window, the enable ramp and a settling second.
+    let air_s = if model.is_some() { window_s + 1.5 } else { 1.0 };
+    let trajectory = WithAirCut { cut, air_s };
+    let ticks = (trajectory.duration_s() * 8000.0).round() as u64;
+    let mut deviations = Vec::new();
+    let (mut s_tcp, mut c_tcp, mut s_des, mut c_des) = (0.0, 0.0, 0.0, 0.0);
+    let mut last_fault = 0;
+    run_loop(&mut machine, coprocessor, &trajectory, 0, ticks, f64::from(params.dac_full_scale_v), true, |s| {
+        last_fault = s.output.fault_count;
+        let t = s.machine.time_s;
+        if t < air_s || s.point.x_mm > config.r_eval_mm {
+            return;
+        }
+        let design = s.point.z_cmd_um;
+        let dev = s.machine.z_tcp_true_um - design;
+        deviations.push(dev);
+        // Fundamental at 2C of the TCP and of the design (the ramp term is common to both
+        // and nearly orthogonal over whole revolutions).
+        let angle = 2.0 * s.point.spindle_deg.to_radians();
+        let (sin, cos) = angle.sin_cos();
+        s_tcp += s.machine.z_tcp_true_um * sin;
+        c_tcp += s.machine.z_tcp_true_um * cos;
+        s_des += design * sin;
+        c_des += design * cos;
+    })?;
+    if deviations.is_empty() {
+        anyhow::bail!("no point of the cut lies within r <= {} mm", config.r_eval_mm);
+    }
+    let max = deviations.iter().cloned().fold(f64::MIN, f64::max);
+    let min = deviations.iter().cloned().fold(f64::MAX, f64::min);
+    let rms = (deviations.iter().map(|d| d * d).sum::<f64>() / deviations.len() as f64).sqrt();
+    let phase_tcp = c_tcp.atan2(s_tcp);
+    let phase_des = c_des.atan2(s_des);
+    let mut lag_deg = (phase_des - phase_tcp).to_degrees();
+    lag_deg = (lag_deg + 180.0).rem_euclid(360.0) - 180.0;
+    Ok(TrialReport {
+        freq_hz: config.freq_hz,
+        twin: model.is_some(),
+        coprocessor: coprocessor.kind().to_string(),
+        form_error_pv_um: max - min,
+        phase_error_deg: lag_deg,
+        form_error_rms_um: rms,
+        cut_time_s: cut.duration_s(),
+        points: deviations.len(),
+        fault_count: last_fault,
+    })
+}

@@ -324,6 +324,19 @@ fn cross_validate(
             m.expr.to_infix_rounded(&FEATURE_LABELS, 5)
         );
     }
+    if let Some(e) = entries.get(selected) {
+        // The held-out figures describe the fold formulas; say so when the final search did
+        // clearly worse than they did (too few epochs for this data).
+        let train_nmse = 1.0 - e.r2_train;
+        if train_nmse > 10.0 * nmse(e) && train_nmse > goal_nmse {
+            let _ = writeln!(
+                explanation,
+                "Note: the selected formula's training NMSE {train_nmse:.3e} is far above the held-out NMSE {:.3e} of the fold formulas: \
+                 the search on all groups found a worse formula than the folds did; more epochs should help.",
+                nmse(e)
+            );
+        }
+    }
     TargetCv { entries, selected, explanation }
 }
 

@@ -6,6 +6,7 @@ use std::time::Instant;
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sts_symreg::OperatorSet;
+use sts_twin_core::features::FEATURE_LABELS;
 
 use crate::analysis;
 use crate::fit::{fit_samples, FitConfig, FitProgress, Target, DEFAULT_OPERATORS};
@@ -146,9 +147,10 @@ fn dataset_name(path: &Path) -> String {
 
 fn print_report(model: &ModelFile, out: &Path) {
     let v = &model.validation;
-    println!("amplitude (um) = {}", model.amplitude.formula);
+    // Six significant digits for reading; the model file holds the exact constants.
+    println!("amplitude (um) = {}", model.amplitude.expr.to_infix_rounded(&FEATURE_LABELS, 6));
     println!("  complexity {}, R^2 train {:.5}, held-out {:.5}", model.amplitude.complexity, model.amplitude.r2_train, v.amplitude_r2);
-    println!("phase (deg)    = {}", model.phase.formula);
+    println!("phase (deg)    = {}", model.phase.expr.to_infix_rounded(&FEATURE_LABELS, 6));
     println!("  complexity {}, R^2 train {:.5}, held-out {:.5}", model.phase.complexity, model.phase.r2_train, v.phase_r2);
     println!("amplitude selection:\n{}", indent(&model.amplitude.selection));
     println!("phase selection:\n{}", indent(&model.phase.selection));

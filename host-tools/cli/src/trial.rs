@@ -29,11 +29,15 @@ pub struct TrialConfig {
     pub feed_um_per_rev: f64,
     /// Seed of the machine's noise.
     pub seed: u64,
+    /// Feature window to use in the co-processor instead of the model's, samples (the
+    /// features of a steady motion hardly depend on the window; a shorter one follows the
+    /// cut's changing amplitude sooner).
+    pub window_samples: Option<u32>,
 }
 
 impl Default for TrialConfig {
     fn default() -> Self {
-        Self { freq_hz: 40.0, r_start_mm: 0.5, r_eval_mm: 0.5, feed_um_per_rev: 5.0, seed: 1 }
+        Self { freq_hz: 40.0, r_start_mm: 0.5, r_eval_mm: 0.5, feed_um_per_rev: 5.0, seed: 1, window_samples: None }
     }
 }
 
@@ -116,11 +120,15 @@ pub fn run_trial(
     expect_ack("the feedforward parameters", coprocessor.request(Request::SetParams(params))?)?;
     let window_s = match model {
         Some(model) => {
-            expect_ack("the feature settings", coprocessor.request(Request::SetFeatureConfig(model.feature_config))?)?;
+            let mut features = model.feature_config;
+            if let Some(window) = config.window_samples {
+                features.window_samples = window;
+            }
+            expect_ack("the feature settings", coprocessor.request(Request::SetFeatureConfig(features))?)?;
             let program = model.firmware_program()?;
             expect_ack("the twin program", coprocessor.request(Request::UploadProgram { program, activate: true })?)?;
             expect_ack("enabling compensation", coprocessor.request(Request::SetEnabled(true))?)?;
-            f64::from(model.feature_config.window_samples) / f64::from(model.feature_config.sample_rate_hz)
+            f64::from(features.window_samples) / f64::from(features.sample_rate_hz)
         }
         None => 0.0,
     };

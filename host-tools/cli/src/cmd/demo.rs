@@ -28,6 +28,11 @@ pub struct Args {
     /// Seed of the measurement, the fit and the cut.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Feature window in the co-processor during the cut, seconds. The twin is trained on
+    /// 5 s windows of steady motion, whose features hardly depend on the window; during a
+    /// cut the amplitude changes with the radius, and a short window follows it.
+    #[arg(long, default_value_t = 0.5)]
+    pub window_s: f64,
 }
 
 /// Runs `sts-twin demo`.
@@ -60,7 +65,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
     eprintln!("3/3 cutting the bicuspid surface at {} Hz with {which} in the loop ...", args.freq);
     let params = machine_params(&plant, plant.interface.offset_v);
-    let config = TrialConfig { freq_hz: args.freq, seed: args.seed, ..TrialConfig::default() };
+    let window_samples = Some(((args.window_s * 8000.0) as u32 / 16) * 16);
+    let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut reports = Vec::new();
     for twin in [None, Some(&model)] {
         let mut cop = coprocessor(args.sim)?;

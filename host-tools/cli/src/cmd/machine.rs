@@ -35,6 +35,9 @@ pub struct Args {
     /// Seed of the machine's noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Feature window in the co-processor, seconds (default: the model's).
+    #[arg(long)]
+    pub window_s: Option<f64>,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -78,7 +81,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let (plant, effects) = load_plant(args.plant.as_ref(), &args.effects)?;
     let model = args.twin.as_ref().map(|p| ModelFile::read(p)).transpose()?;
     let params = machine_params(&plant, args.offset.unwrap_or(plant.interface.offset_v));
-    let config = TrialConfig { freq_hz: args.freq, seed: args.seed, ..TrialConfig::default() };
+    let window_samples = args.window_s.map(|s| ((s * 8000.0) as u32 / 16) * 16);
+    let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut cop = coprocessor(args.sim)?;
     let report = run_trial(cop.as_mut(), &plant, &effects, model.as_ref(), params, &config)?;
     if args.json {

@@ -95,11 +95,14 @@ fn a_corrupt_program_is_named() {
     for (name, replacement, expect) in [
         ("not_hex.json", "zz".to_string() + &hex[2..], "not hexadecimal"),
         ("odd.json", hex[1..].to_string(), "not hexadecimal"),
-        ("truncated.json", hex[..hex.len() / 2].to_string(), "program"),
+        ("truncated.json", hex[..(hex.len() / 2) & !1].to_string(), "program"),
         ("trailing.json", hex.clone() + "00", "after the program"),
     ] {
         let message = read_error(name, &text().replace(hex.as_str(), &replacement));
-        assert!(message.contains("field `program_postcard_hex`") && message.contains(expect), "{name}: {message}");
+        assert!(message.contains("field `program_postcard_hex` ") && message.contains(expect), "{name}: {message}");
+        if name == "truncated.json" {
+            assert!(message.contains("not a postcard-encoded program") || message.contains("invalid program"), "{message}");
+        }
     }
 }
 

@@ -96,6 +96,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         ..FitConfig::default()
     };
     let dataset = sts_dataset::read(&args.data)?;
+    let read_s = started.elapsed().as_secs_f64();
     let feature_config = analysis::feature_config_for(&dataset, args.acc_scale);
     let samples = analysis::group_samples_skipping(&dataset, &feature_config, args.skip_s)?;
     if let Some(path) = &args.table {
@@ -104,7 +105,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let Some(out) = &args.out else {
         return Ok(());
     };
-    let read_s = started.elapsed().as_secs_f64();
+    let features_s = started.elapsed().as_secs_f64();
 
     let folds = config.folds.max(2);
     let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::with_draw_target(Some(2 * folds as u64 + 2), ProgressDrawTarget::stderr()) };
@@ -126,7 +127,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     bar.finish_and_clear();
     model.write(out)?;
     print_report(&model, out);
-    println!("read {} groups in {read_s:.1} s; fit in {:.1} s", samples.len(), started.elapsed().as_secs_f64() - read_s);
+    println!(
+        "read {} groups in {read_s:.1} s, features and targets in {:.1} s, searches and validation in {:.1} s",
+        samples.len(),
+        features_s - read_s,
+        started.elapsed().as_secs_f64() - features_s
+    );
 
     if let Some(path) = &args.export_rust {
         std::fs::write(path, model.rust_source(&dataset_name(&args.data))).with_context(|| format!("cannot write {}", path.display()))?;

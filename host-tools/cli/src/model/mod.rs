@@ -244,7 +244,7 @@ impl ModelFile {
         let (program, rest): (Program, &[u8]) =
             postcard::take_from_bytes(&bytes).map_err(|e| anyhow::anyhow!("is not a postcard-encoded program: {e}"))?;
         if !rest.is_empty() {
-            anyhow::bail!("has {} bytes after the program", rest.len());
+            anyhow::bail!("has {} byte{} after the program", rest.len(), if rest.len() == 1 { "" } else { "s" });
         }
         program.validate().map_err(|e| anyhow::anyhow!("holds an invalid program: {e}"))?;
         Ok(program)

@@ -52,7 +52,8 @@ impl Default for FeedforwardParams {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ParamError {
-    /// `K_dv` is zero, not finite, or outside 1e-4..1e4 um/V in magnitude.
+    /// `K_dv` is zero, not finite, outside 1e-4..1e4 um/V in magnitude, or so small that a
+    /// DAC code is less than 2 pm of correction.
     KDv,
     /// `K_vc` is not finite or not in (0, 1e9] pulses/V.
     KVc,
@@ -69,7 +70,7 @@ pub enum ParamError {
 impl core::fmt::Display for ParamError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(match self {
-            Self::KDv => "k_dv_um_per_v must be finite, non-zero and within 1e-4..1e4 in magnitude",
+            Self::KDv => "k_dv_um_per_v must be finite, within 1e-4..1e4 in magnitude, and give at least 2 pm per DAC code",
             Self::KVc => "k_vc_pulses_per_v must be finite and in (0, 1e9]",
             Self::Offset => "offset_v must be finite and within half the DAC full scale",
             Self::Slew => "slew_v_per_tick must be finite, positive and at most the DAC full scale",
@@ -92,6 +93,11 @@ impl FeedforwardParams {
         let fs = self.dac_full_scale_v;
         if !(fs.is_finite() && fs > 0.0 && fs <= 100.0) {
             return Err(ParamError::DacFullScale);
+        }
+        // At least 2 pm of correction per DAC code keeps the scale below 2^31 in Q32, so the
+        // per-tick product fits in i64 (a 64-bit multiply, not a 128-bit library call).
+        if f64::from(k_dv.abs()) * 1e6 * f64::from(fs) / 32767.0 < 2.0 {
+            return Err(ParamError::KDv);
         }
         if !(self.offset_v.is_finite() && self.offset_v.abs() <= fs / 2.0) {
             return Err(ParamError::Offset);
@@ -214,11 +220,12 @@ impl Feedforward {
         } else {
             (self.gain_q16 - s.gain_step_q16).max(gain_target)
         };
-        // u = -DE; codes = u * codes_per_pm. The product is formed in i128 (the scale can be
-        // large for tiny K_dv) and clamped far outside the DAC range before the gain.
+        // u = -DE; codes = u * codes_per_pm. Validation keeps |codes_per_pm_q32| < 2^31, so
+        // with |DE| <= 2^31 the product fits in i64; it is clamped far outside the DAC range
+        // before the gain.
         const LIMIT_Q16: i64 = 1 << 40;
-        let product_q48 = -(de_pred_pm as i128) * s.codes_per_pm_q32 as i128;
-        let correction_q16 = (product_q48 >> 16).clamp(-LIMIT_Q16 as i128, LIMIT_Q16 as i128) as i64;
+        let product_q48 = (de_pred_pm as i64).wrapping_neg().wrapping_mul(s.codes_per_pm_q32);
+        let correction_q16 = (product_q48 >> 16).clamp(-LIMIT_Q16, LIMIT_Q16);
         let mut target = ((correction_q16 * self.gain_q16) >> 16) - s.offset_q16;
         let saturated = !(CODE_MIN_Q16..=CODE_MAX_Q16).contains(&target);
         target = target.clamp(CODE_MIN_Q16, CODE_MAX_Q16);
@@ -323,9 +330,14 @@ mod tests {
 
     #[test]
     fn extreme_inputs_never_overflow() {
-        for k_dv in [1e-4f32, -1e-4, 1e4] {
-            for fs in [1e-3f32, 100.0] {
+        let mut accepted = 0;
+        for k_dv in [1e-4f32, -1e-4, 0.0656, -0.0656, 1e4, -1e4] {
+            for fs in [1e-3f32, 1.0, 100.0] {
                 let params = FeedforwardParams { k_dv_um_per_v: k_dv, dac_full_scale_v: fs, slew_v_per_tick: fs, offset_v: fs / 2.0, ..Default::default() };
+                if params.validate().is_err() {
+                    continue;
+                }
+                accepted += 1;
                 let mut ff = stage(params);
                 ff.set_enabled(true);
                 for de in [i32::MIN, i32::MAX, 0, -1, 1] {
@@ -335,5 +347,9 @@ mod tests {
                 }
             }
         }
+        // The smallest accepted scales (2 pm per code) are among those exercised.
+        assert!(accepted >= 6, "{accepted}");
+        let tiny = FeedforwardParams { k_dv_um_per_v: 1e-4, dac_full_scale_v: 1.0, ..Default::default() };
+        assert_eq!(tiny.validate(), Err(ParamError::KDv));
     }
 }

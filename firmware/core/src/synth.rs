@@ -84,13 +84,17 @@ fn harmonic_pm(amp_pm: i32, phase_turns: u32) -> i32 {
     ((amp_pm as i64 * sin_q31(phase_turns) as i64) >> 31) as i32
 }
 
-/// A value moving linearly to a target over a number of ticks.
+/// A value moving linearly to a target over a number of ticks. The per-tick steps are
+/// computed once, at the retarget, with 32-bit division (a single instruction on a
+/// Cortex-M4; 64-bit division is a library call of a hundred), so a tick only adds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct Ramp {
     amp_pm: i32,
     amp_target_pm: i32,
+    amp_step_pm: i32,
     phase_turns: u32,
     phase_target_turns: u32,
+    phase_step_turns: i32,
     ticks_left: u32,
 }
 
@@ -102,7 +106,14 @@ impl Ramp {
         if ramp_ticks == 0 {
             self.amp_pm = amp_pm;
             self.phase_turns = phase_turns;
+            return;
         }
+        let n = ramp_ticks.min(i32::MAX as u32) as i32;
+        // |amp| <= 1e9 pm, so the difference fits in i32 after a halving at worst; clamp.
+        let amp_delta = (amp_pm as i64 - self.amp_pm as i64).clamp(i32::MIN as i64, i32::MAX as i64) as i32;
+        self.amp_step_pm = amp_delta / n;
+        // Shorter way round: the wrapped difference read as signed.
+        self.phase_step_turns = (phase_turns.wrapping_sub(self.phase_turns) as i32) / n;
     }
 
     #[inline]
@@ -110,16 +121,13 @@ impl Ramp {
         if self.ticks_left == 0 {
             return;
         }
-        let n = self.ticks_left as i64;
-        let amp_delta = (self.amp_target_pm as i64 - self.amp_pm as i64) / n;
-        self.amp_pm = (self.amp_pm as i64 + amp_delta) as i32;
-        // Shorter way round: the wrapped difference read as signed.
-        let phase_delta = self.phase_target_turns.wrapping_sub(self.phase_turns) as i32 as i64 / n;
-        self.phase_turns = self.phase_turns.wrapping_add(phase_delta as i32 as u32);
         self.ticks_left -= 1;
         if self.ticks_left == 0 {
             self.amp_pm = self.amp_target_pm;
             self.phase_turns = self.phase_target_turns;
+        } else {
+            self.amp_pm = self.amp_pm.saturating_add(self.amp_step_pm);
+            self.phase_turns = self.phase_turns.wrapping_add(self.phase_step_turns as u32);
         }
     }
 }
@@ -145,7 +153,7 @@ impl Synth {
     pub const fn new(ramp_ticks: u32) -> Self {
         const IDLE: TermState = TermState {
             order: 0,
-            ramp: Ramp { amp_pm: 0, amp_target_pm: 0, phase_turns: 0, phase_target_turns: 0, ticks_left: 0 },
+            ramp: Ramp { amp_pm: 0, amp_target_pm: 0, amp_step_pm: 0, phase_turns: 0, phase_target_turns: 0, phase_step_turns: 0, ticks_left: 0 },
         };
         Self {
             fundamental: IDLE.ramp,

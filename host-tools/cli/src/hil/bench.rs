@@ -89,9 +89,20 @@ impl InstructionReport {
 
 /// Runs `ticks` lockstep ticks of [`bench_inputs`] at [`INSTRUCTION_BENCH_SHIFT`] and reads
 /// the firmware's per-tick timer measurement after each.
-pub fn bench_instructions(mut config: HilConfig, ticks: u32) -> Result<InstructionReport, HilError> {
+pub fn bench_instructions(config: HilConfig, ticks: u32) -> Result<InstructionReport, HilError> {
+    bench_instructions_prepared(config, ticks, |_| Ok(()))
+}
+
+/// [`bench_instructions`] with `prepare` run on the booted firmware first (e.g. to upload a
+/// twin program so that the model path and the per-tick terms are measured too).
+pub fn bench_instructions_prepared(
+    mut config: HilConfig,
+    ticks: u32,
+    prepare: impl FnOnce(&mut Hil) -> Result<(), HilError>,
+) -> Result<InstructionReport, HilError> {
     config.icount_shift = INSTRUCTION_BENCH_SHIFT;
     let mut hil = Hil::start(config)?;
+    prepare(&mut hil)?;
     let per_count = 40.0 / f64::from(1u32 << INSTRUCTION_BENCH_SHIFT);
     let mut busy: Vec<u32> = Vec::with_capacity(ticks as usize);
     let mut handler: Vec<u32> = Vec::with_capacity(ticks as usize);

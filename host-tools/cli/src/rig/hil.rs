@@ -51,25 +51,30 @@ impl Coprocessor for HilCoprocessor {
 
     fn request(&mut self, request: Request) -> anyhow::Result<Response> {
         self.seq = self.seq.wrapping_add(1);
-        let seq = self.seq;
-        let mut frame = [0u8; MAX_ENCODED_FRAME + 1];
-        // A leading delimiter resynchronises the firmware's decoder after any line noise.
-        let len = encode_frame(seq, &request, &mut frame[1..]).map_err(|e| anyhow::anyhow!("cannot encode {request:?}: {e}"))?;
-        let reply = self.hil.transact(&frame[..len + 1], REQUEST_TIMEOUT, |bytes| answered(bytes, seq))?;
-        let mut decoder = FrameDecoder::<Response>::new();
-        for &byte in &reply {
-            if let Some(Ok(envelope)) = decoder.push(byte) {
-                if envelope.seq == seq {
-                    return Ok(envelope.body);
-                }
-            }
-        }
-        anyhow::bail!("the firmware sent no answer to {request:?} (sequence {seq})")
+        request_on(&mut self.hil, self.seq, request)
     }
 
     fn kind(&self) -> &'static str {
         "hil"
     }
+}
+
+/// Sends `request` with sequence number `seq` over the firmware's control link (the bus
+/// paused meanwhile) and returns its answer.
+pub fn request_on(hil: &mut Hil, seq: u16, request: Request) -> anyhow::Result<Response> {
+    let mut frame = [0u8; MAX_ENCODED_FRAME + 1];
+    // A leading delimiter resynchronises the firmware's decoder after any line noise.
+    let len = encode_frame(seq, &request, &mut frame[1..]).map_err(|e| anyhow::anyhow!("cannot encode {request:?}: {e}"))?;
+    let reply = hil.transact(&frame[..len + 1], REQUEST_TIMEOUT, |bytes| answered(bytes, seq))?;
+    let mut decoder = FrameDecoder::<Response>::new();
+    for &byte in &reply {
+        if let Some(Ok(envelope)) = decoder.push(byte) {
+            if envelope.seq == seq {
+                return Ok(envelope.body);
+            }
+        }
+    }
+    anyhow::bail!("the firmware sent no answer to {request:?} (sequence {seq})")
 }
 
 /// Whether `bytes` hold a well-formed response with sequence number `seq`.

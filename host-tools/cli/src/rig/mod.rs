@@ -9,7 +9,7 @@ mod hil;
 mod sim;
 mod trajectory;
 
-pub use hil::{HilCoprocessor, REQUEST_TIMEOUT};
+pub use hil::{request_on, HilCoprocessor, REQUEST_TIMEOUT};
 pub use sim::SimCoprocessor;
 pub use trajectory::{turns_u32, Bicuspid, Sinusoid, Trajectory, TrajectoryPoint};
 

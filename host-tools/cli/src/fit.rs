@@ -301,9 +301,9 @@ fn cross_validate(
         entries.push(CvEntry { complexity: member.complexity, r2_train: member.r2, r2_cv: r2 });
     }
     let nmse = |e: &CvEntry| if e.r2_cv.is_finite() { (1.0 - e.r2_cv).max(0.0) } else { f64::INFINITY };
-    let best = entries.iter().map(nmse).fold(f64::INFINITY, f64::min);
-    let threshold = goal_nmse.max(best * cv_ratio);
-    let selected = entries.iter().position(|e| nmse(e) <= threshold).unwrap_or(entries.len().saturating_sub(1));
+    let cv_nmse: Vec<f64> = entries.iter().map(nmse).collect();
+    let (selected, threshold) = select_by_held_out(&cv_nmse, goal_nmse, cv_ratio);
+    let best = cv_nmse.iter().copied().fold(f64::INFINITY, f64::min);
 
     let mut explanation = String::new();
     let _ = writeln!(
@@ -338,6 +338,16 @@ fn cross_validate(
         }
     }
     TargetCv { entries, selected, explanation }
+}
+
+/// The selection rule on held-out NMSEs given in increasing complexity: the first whose
+/// NMSE is at most `max(goal, cv_ratio x best)`. Returns its index and that threshold (the
+/// last index if every NMSE is non-finite).
+pub fn select_by_held_out(cv_nmse: &[f64], goal_nmse: f64, cv_ratio: f64) -> (usize, f64) {
+    let best = cv_nmse.iter().copied().fold(f64::INFINITY, f64::min);
+    let threshold = goal_nmse.max(best * cv_ratio);
+    let selected = cv_nmse.iter().position(|&e| e <= threshold).unwrap_or(cv_nmse.len().saturating_sub(1));
+    (selected, threshold)
 }
 
 fn formula(result: &SearchResult, cv: &TargetCv, r2_cv: f64) -> Formula {
@@ -533,4 +543,39 @@ fn validate(dataset: &Dataset, samples: &[GroupSample], held_out: &[(f64, f64)],
 /// Expressions of a model, for export.
 pub fn model_exprs(model: &ModelFile) -> (&Expr, &Expr) {
     (&model.amplitude.expr, &model.phase.expr)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn selection_takes_the_simplest_good_enough_or_nearly_best_held_out() {
+        // Held-out NMSE by complexity: overfitting at the end.
+        let cv = [1.0, 2e-3, 9e-5, 1e-5, 8e-6, 3e-5];
+        // The goal is met first at index 3.
+        assert_eq!(select_by_held_out(&cv, 2e-5, 1.5), (3, 2e-5));
+        // A loose goal picks a simpler formula.
+        assert_eq!(select_by_held_out(&cv, 1e-4, 1.5).0, 2);
+        // Unreachable goal: within 1.5x of the best (8e-6 -> 1.2e-5) is index 3, not 4.
+        assert_eq!(select_by_held_out(&cv, 0.0, 1.5).0, 3);
+        // Non-finite held-out errors never win.
+        assert_eq!(select_by_held_out(&[f64::INFINITY, 0.5, f64::NAN], 0.0, 1.5).0, 1);
+        assert_eq!(select_by_held_out(&[f64::INFINITY], 0.0, 1.5).0, 0);
+    }
+
+    #[test]
+    fn member_up_to_takes_the_largest_complexity_not_above() {
+        let member = |c: usize| FrontMember { expr: Expr::Const(c as f64), loss: 1.0 / c as f64, complexity: c, r2: 0.0, score: 0.0 };
+        let front = [member(1), member(3), member(7)];
+        assert_eq!(member_up_to(&front, 5).complexity, 3);
+        assert_eq!(member_up_to(&front, 7).complexity, 7);
+        assert_eq!(member_up_to(&front[1..], 2).complexity, 3);
+    }
+
+    #[test]
+    fn phase_r_squared_wraps() {
+        assert!((phase_r_squared(&[-179.0, 0.0, 90.0], &[181.0, 0.0, 90.0]) - 1.0).abs() < 1e-12);
+        assert!(r_squared(&[1.0, 2.0, 3.0], &[1.0, 2.0, 3.0]) == 1.0);
+    }
 }

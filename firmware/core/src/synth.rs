@@ -9,7 +9,23 @@
 //! phase offset move to their new values linearly over [`Synth::ramp_ticks`] ticks, the
 //! phase along the shorter way round, so the synthesised waveform stays continuous.
 
-use crate::program::{ModelOutput, TickTerm, MAX_TERMS};
+use crate::program::{ModelOutput, TermInput, TickTerm, LAGUERRE_STAGES, MAX_TERMS};
+
+/// What the servo tick hands the synthesiser: the command and the other axes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TickInput {
+    /// Command phase of the motion controller, a full turn is 2^32.
+    pub cmd_phase_turns: u32,
+    /// Command position of the Z axis, nanometres.
+    pub cmd_pos_nm: i32,
+    /// X-axis acceleration, micrometres per s^2 (0 where the bus does not carry it).
+    pub x_acc_um_per_s2: i32,
+    /// Spindle angle, a full turn is 2^32 (0 where the bus does not carry it).
+    pub spindle_turns: u32,
+}
+
+/// Ticks between two steps of a [`TickTerm::Drift`]'s exponential (its value is held in between).
+pub const DRIFT_STEP_TICKS: u32 = 256;
 
 /// Table size (entries per turn).
 const SINE_TABLE_BITS: u32 = 10;
@@ -132,10 +148,135 @@ impl Ramp {
     }
 }
 
+/// Kernel state of a term other than a harmonic.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct KernelState {
+    /// Laguerre stage outputs, Q24.
+    stages: [i64; LAGUERRE_STAGES],
+    /// Command positions of the last 4 ticks (velocity), newest first.
+    pos_hist: [i32; 4],
+    /// Dahl state, Q30.
+    dahl_q30: i32,
+    /// The decaying part of a drift, picometres (Q16).
+    drift_q16: i64,
+    /// `exp(-DRIFT_STEP_TICKS / tau)`, Q31.
+    drift_step_q31: i64,
+    /// `sqrt(1 - a^2)` of a Laguerre bank, Q30.
+    g_q30: i64,
+    /// Whether the command history is valid.
+    primed: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct TermState {
     order: u8,
     ramp: Ramp,
+    /// The term in force (`None`: an idle or harmonic slot).
+    kernel: Option<TickTerm>,
+    state: KernelState,
+}
+
+impl Default for TermState {
+    fn default() -> Self {
+        Self { order: 0, ramp: Ramp::default(), kernel: None, state: KernelState::default() }
+    }
+}
+
+impl Eq for TermState {}
+
+/// `exp(-x)` for the drift's set-up (not per tick).
+fn exp_neg(x: f64) -> f64 {
+    libm::exp(-x)
+}
+
+/// Sets a drift's decaying part for machine time `ticks`.
+fn drift_at(state: &mut KernelState, decay_pm: i32, tau_ticks: u32, ticks: u64) {
+    let tau = f64::from(tau_ticks.max(DRIFT_STEP_TICKS));
+    // Held between steps: the value of the last whole step.
+    let steps = ticks / u64::from(DRIFT_STEP_TICKS);
+    let t = (steps * u64::from(DRIFT_STEP_TICKS)) as f64;
+    state.drift_q16 = (f64::from(decay_pm) * exp_neg(t / tau) * 65536.0) as i64;
+    state.drift_step_q31 = (exp_neg(f64::from(DRIFT_STEP_TICKS) / tau) * 2147483648.0) as i64;
+}
+
+/// One tick of a kernel term: its contribution in picometres.
+#[inline]
+fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput, ticks: u64) -> i64 {
+    match *term {
+        TickTerm::Harmonic { .. } => 0,
+        TickTerm::Drift { offset_pm, .. } => {
+            if ticks % u64::from(DRIFT_STEP_TICKS) == 0 && ticks != 0 {
+                st.drift_q16 = (st.drift_q16 * st.drift_step_q31) >> 31;
+            }
+            offset_pm as i64 + (st.drift_q16 >> 16)
+        }
+        TickTerm::AxisCoupling { x_gain_pm_per_mps2, spindle_amp_pm, spindle_phase_turns } => {
+            let x = (x_gain_pm_per_mps2 as i64 * input.x_acc_um_per_s2 as i64) / 1_000_000;
+            x + harmonic_pm(spindle_amp_pm, input.spindle_turns.wrapping_add(spindle_phase_turns)) as i64
+        }
+        TickTerm::Laguerre { input: kind, pole_q30, gains_pm } => {
+            if !st.primed {
+                st.pos_hist = [input.cmd_pos_nm; 4];
+                st.primed = true;
+            }
+            let u_q30: i64 = match kind {
+                TermInput::VelocitySign { smooth_nm_per_4_ticks } => {
+                    let dv = input.cmd_pos_nm as i64 - st.pos_hist[3] as i64;
+                    ((dv << 30) / smooth_nm_per_4_ticks.max(1) as i64).clamp(-(1 << 30), 1 << 30)
+                }
+                TermInput::Dahl { inv_x0_q30 } => {
+                    let dx = input.cmd_pos_nm as i64 - st.pos_hist[0] as i64;
+                    let u = st.dahl_q30 as i64;
+                    let sign = dx.signum();
+                    // du = dx / x0 * (1 - u sgn(dx)), kept within [-1, 1].
+                    let du = (dx * inv_x0_q30 as i64).clamp(-(1 << 31), 1 << 31) * ((1 << 30) - sign * u) >> 30;
+                    let next = (u + du).clamp(-(1 << 30), 1 << 30);
+                    st.dahl_q30 = next as i32;
+                    next
+                }
+                TermInput::PositionSine { turns_per_nm, phase_turns } => {
+                    let phase = (input.cmd_pos_nm as u32).wrapping_mul(turns_per_nm).wrapping_add(phase_turns);
+                    (sin_q31(phase) as i64) >> 1
+                }
+            };
+            st.pos_hist = [input.cmd_pos_nm, st.pos_hist[0], st.pos_hist[1], st.pos_hist[2]];
+            laguerre_step(&mut st.stages, pole_q30 as i64, st.g_q30, u_q30, &gains_pm)
+        }
+    }
+}
+
+/// Advances a Laguerre bank by one tick on input `u` (Q30); returns the weighted output, pm.
+/// Stage 0: `y0 = a y0' + sqrt(1 - a^2) u`; stage i: `yi = a yi' + y(i-1)' - a y(i-1)`.
+#[inline]
+fn laguerre_step(stages: &mut [i64; LAGUERRE_STAGES], a_q30: i64, g_q30: i64, u_q30: i64, gains_pm: &[i32; LAGUERRE_STAGES]) -> i64 {
+    let mut prev_old = stages[0];
+    let mut prev_new = (a_q30 * stages[0] + ((g_q30 * u_q30) >> 6)) >> 30;
+    stages[0] = prev_new;
+    let mut out = gains_pm[0] as i64 * prev_new;
+    for i in 1..LAGUERRE_STAGES {
+        let old = stages[i];
+        let new = ((a_q30 * old - a_q30 * prev_new) >> 30) + prev_old;
+        stages[i] = new;
+        out += gains_pm[i] as i64 * new;
+        prev_old = old;
+        prev_new = new;
+    }
+    out >> 24
+}
+
+/// Integer square root (floor).
+fn isqrt_u64(v: u64) -> u64 {
+    if v < 2 {
+        return v;
+    }
+    let mut x = (libm::sqrt(v as f64)) as u64;
+    while x * x > v {
+        x -= 1;
+    }
+    while (x + 1) * (x + 1) <= v {
+        x += 1;
+    }
+    x
 }
 
 /// The error synthesiser. See the [module docs](self).
@@ -144,6 +285,8 @@ pub struct Synth {
     fundamental: Ramp,
     terms: [TermState; MAX_TERMS],
     term_count: usize,
+    /// Machine time: ticks since the synthesiser started (or [`Synth::set_time_ticks`]).
+    ticks: u64,
     /// Ticks over which a model update moves amplitude and phase to their new values.
     pub ramp_ticks: u32,
 }
@@ -154,11 +297,22 @@ impl Synth {
         const IDLE: TermState = TermState {
             order: 0,
             ramp: Ramp { amp_pm: 0, amp_target_pm: 0, amp_step_pm: 0, phase_turns: 0, phase_target_turns: 0, phase_step_turns: 0, ticks_left: 0 },
+            kernel: None,
+            state: KernelState {
+                stages: [0; LAGUERRE_STAGES],
+                pos_hist: [0; 4],
+                dahl_q30: 0,
+                drift_q16: 0,
+                drift_step_q31: 0,
+                g_q30: 0,
+                primed: false,
+            },
         };
         Self {
             fundamental: IDLE.ramp,
             terms: [IDLE; MAX_TERMS],
             term_count: 0,
+            ticks: 0,
             ramp_ticks,
         }
     }
@@ -169,18 +323,36 @@ impl Synth {
         let ramp = self.ramp_ticks;
         self.fundamental.retarget(um_to_pm(output.amp_um()), deg_to_turns(output.phase_deg()), ramp);
         let count = terms.len().min(MAX_TERMS);
+        let ticks = self.ticks;
         for (slot, term) in self.terms.iter_mut().zip(terms.iter()) {
-            let TickTerm::Harmonic { order, amp_reg, phase_reg } = *term;
+            let TickTerm::Harmonic { order, amp_reg, phase_reg } = *term else {
+                // Kernel terms carry their own coefficients; a changed term restarts its state.
+                if slot.kernel != Some(*term) {
+                    *slot = TermState { order: 0, ramp: Ramp::default(), kernel: Some(*term), state: KernelState::default() };
+                    match *term {
+                        TickTerm::Drift { decay_pm, tau_ticks, .. } => drift_at(&mut slot.state, decay_pm, tau_ticks, ticks),
+                        TickTerm::Laguerre { pole_q30, .. } => {
+                            let one = 1i64 << 30;
+                            let a = i64::from(pole_q30);
+                            slot.state.g_q30 = isqrt_u64(((one - a) * (one + a)) as u64) as i64;
+                        }
+                        _ => {}
+                    }
+                }
+                continue;
+            };
             let amp = output.registers.get(amp_reg as usize).copied().unwrap_or(0.0);
             let phase = output.registers.get(phase_reg as usize).copied().unwrap_or(0.0);
-            if slot.order != order {
+            if slot.order != order || slot.kernel.is_some() {
                 // A new kind of term starts from silence at its own phase.
-                *slot = TermState { order, ramp: Ramp::default() };
+                *slot = TermState { order, ramp: Ramp::default(), kernel: None, state: KernelState::default() };
                 slot.ramp.phase_turns = deg_to_turns(phase);
             }
             slot.ramp.retarget(um_to_pm(amp), deg_to_turns(phase), ramp);
         }
         for slot in self.terms.iter_mut().skip(count) {
+            // Kernel terms stop at once (they have no ramp); harmonics ramp out.
+            slot.kernel = None;
             let phase = slot.ramp.phase_turns;
             slot.ramp.retarget(0, phase, ramp);
         }
@@ -192,17 +364,52 @@ impl Synth {
         self.update(&ModelOutput::default(), &[]);
     }
 
-    /// The predicted dynamic error at this tick, picometres, for command phase `cmd_phase_turns`.
+    /// The predicted dynamic error at this tick, picometres, for command phase `cmd_phase_turns`
+    /// (kernel terms see a command position of zero and no other axes; see [`Synth::next_input`]).
     #[inline]
     pub fn next(&mut self, cmd_phase_turns: u32) -> i32 {
+        self.next_input(&TickInput { cmd_phase_turns, ..TickInput::default() })
+    }
+
+    /// The predicted dynamic error at this tick, picometres, from everything the tick knows.
+    #[inline]
+    pub fn next_input(&mut self, input: &TickInput) -> i32 {
+        let cmd_phase_turns = input.cmd_phase_turns;
         self.fundamental.advance();
         let mut total = harmonic_pm(self.fundamental.amp_pm, cmd_phase_turns.wrapping_add(self.fundamental.phase_turns)) as i64;
+        let ticks = self.ticks;
         for term in self.terms[..self.term_count].iter_mut() {
+            if let Some(kernel) = &term.kernel {
+                total += kernel_pm(kernel, &mut term.state, input, ticks);
+                continue;
+            }
             term.ramp.advance();
             let phase = cmd_phase_turns.wrapping_mul(term.order as u32).wrapping_add(term.ramp.phase_turns);
             total += harmonic_pm(term.ramp.amp_pm, phase) as i64;
         }
+        self.ticks = ticks.wrapping_add(1);
         total.clamp(i32::MIN as i64, i32::MAX as i64) as i32
+    }
+
+    /// Sets the machine time (ticks since the machine started), e.g. to replay a measurement
+    /// group that started at a known machine time; drift terms jump to their value then.
+    pub fn set_time_ticks(&mut self, ticks: u64) {
+        self.ticks = ticks;
+        for term in self.terms.iter_mut() {
+            if let Some(TickTerm::Drift { decay_pm, tau_ticks, .. }) = term.kernel {
+                drift_at(&mut term.state, decay_pm, tau_ticks, ticks);
+            }
+        }
+    }
+
+    /// Restarts the kernel terms' filter states (a new motion from rest), keeping the model.
+    pub fn restart_kernels(&mut self) {
+        for term in self.terms.iter_mut() {
+            if term.kernel.is_some() {
+                let keep = term.state;
+                term.state = KernelState { drift_q16: keep.drift_q16, drift_step_q31: keep.drift_step_q31, g_q30: keep.g_q30, ..KernelState::default() };
+            }
+        }
     }
 
     /// The amplitude currently in force (after ramping), picometres.

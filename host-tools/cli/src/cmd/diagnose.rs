@@ -1,0 +1,64 @@
+//! `sts-twin diagnose DATA --model MODEL [--json]`.
+
+use std::path::PathBuf;
+
+use crate::diagnose::diagnose;
+use crate::model::ModelFile;
+
+/// Arguments of `sts-twin diagnose`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Dataset directory (sts-twin-dataset/1).
+    pub data: PathBuf,
+    /// The model whose residual is diagnosed.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `sts-twin diagnose`.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let dataset = sts_dataset::read(&args.data)?;
+    let model = ModelFile::read(&args.model)?;
+    let d = diagnose(&dataset, &model)?;
+    if args.json {
+        let ranking: Vec<serde_json::Value> = d
+            .ranking
+            .iter()
+            .map(|r| {
+                let params: serde_json::Map<String, serde_json::Value> = r.params.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect();
+                serde_json::json!({
+                    "effect": r.effect,
+                    "explained_fraction": r.explained_fraction,
+                    "p_value": r.p_value,
+                    "groups_improved": r.groups_improved,
+                    "significant": r.significant,
+                    "params": params,
+                    "evidence": r.evidence,
+                })
+            })
+            .collect();
+        let out = serde_json::json!({
+            "verdict": d.verdict,
+            "ranking": ranking,
+            "residual_rms_um": d.residual_rms_um,
+            "model_cv_rms_um": d.model_cv_rms_um,
+            "summary": d.summary,
+            "test": d.test,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        println!("verdict: {}", d.verdict);
+        println!("{}", d.summary);
+        println!("ranking (explained fraction of the held-out residual):");
+        for (i, r) in d.ranking.iter().enumerate() {
+            let params: Vec<String> = r.params.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect();
+            println!("  {}. {:<22} {:>6.1}%  p = {:.1e}{}  [{}]", i + 1, r.effect, r.explained_fraction * 100.0, r.p_value, if r.significant { "  significant" } else { "" }, params.join(", "));
+            println!("     {}", r.evidence);
+        }
+        println!("{}", d.test);
+    }
+    Ok(())
+}

@@ -1,0 +1,292 @@
+//! `diagnose`: which physical effect is missing from a model?
+//!
+//! The residual (measured minus predicted dynamic error, the model's firmware program as
+//! `compare` computes it, over each group's last second) is explained in turn by each of the
+//! eight candidate effects of the library, each a small physical model that is linear in its
+//! coefficients given a few shape parameters (chosen from a grid):
+//!
+//! | effect | what explains the residual |
+//! |---|---|
+//! | `coulomb-friction` | a saturated sign of the slide's velocity (encoder), through a Laguerre model of the servo's disturbance response |
+//! | `presliding-hysteresis` | a Dahl force of the slide's position (presliding distance `x0`), through the same filter |
+//! | `structural-mode` | an extra compliance in phase with the acceleration (`A w^2`), growing with the frequency squared |
+//! | `loop-delay` | a change of the closed loop with the jerk and snap of the command (`A w^3`, `A w^4`) |
+//! | `thermal-drift` | a first-order drift over machine time (or the `temp_c` column) |
+//! | `force-ripple` | sine and cosine of the encoder position over a pitch `p`, through the filter |
+//! | `axis-coupling` | the `x_acc_mps2` column and the spindle angle's once-per-revolution sine |
+//! | `sensor-gain` | the probe reading itself (probe scale), or the model's own prediction (accelerometer scale) |
+//!
+//! Coefficients are fitted on training groups and scored on held-out groups (k folds by
+//! group, round robin): the explained fraction is `1 - SS(residual - explained) / SS(residual)`
+//! summed over held-out groups. It uses only the dataset's columns (optional ones when
+//! present), never anything of the emulator.
+//!
+//! **The test for `none`.** The best candidate is the verdict only if (1) it explains at least
+//! [`MIN_EXPLAINED`] of the held-out residual, (2) it lowers the residual in more held-out
+//! groups than chance allows: a one-sided sign test over groups at `p < ALPHA / 8`
+//! (Bonferroni over the eight candidates), and (3) what it explains is more than the model's
+//! own cross-validated error (its RMS exceeds the model's held-out waveform RMS), so that the
+//! ordinary imprecision of a well-fitted model is not mistaken for a missing effect.
+
+mod candidates;
+mod linalg;
+
+use std::f64::consts::PI;
+
+use rayon::prelude::*;
+use serde::Serialize;
+use sts_dataset::Dataset;
+
+use crate::analysis::{self, GroupSample};
+use crate::compare::predict_group;
+use crate::model::ModelFile;
+
+pub use candidates::{laguerre as laguerre_bank, EFFECTS};
+
+/// Smallest held-out explained fraction of a verdict.
+pub const MIN_EXPLAINED: f64 = 0.25;
+/// Family-wise significance level of the sign test.
+pub const ALPHA: f64 = 0.01;
+/// Cross-validation folds.
+pub const FOLDS: usize = 5;
+
+/// One candidate's result.
+#[derive(Clone, Debug, Serialize)]
+pub struct Ranked {
+    /// Canonical effect name.
+    pub effect: String,
+    /// Explained fraction of the residual on held-out groups (can be negative).
+    pub explained_fraction: f64,
+    /// One-sided sign-test p-value over held-out groups.
+    pub p_value: f64,
+    /// Held-out groups where the candidate lowered the residual.
+    pub groups_improved: usize,
+    /// Estimated parameters (name with unit, value).
+    pub params: Vec<(String, f64)>,
+    /// The evidence in words.
+    pub evidence: String,
+    /// Whether it passes the test.
+    pub significant: bool,
+}
+
+/// The diagnosis.
+#[derive(Clone, Debug, Serialize)]
+pub struct Diagnosis {
+    /// The best significant candidate, or `none`.
+    pub verdict: String,
+    /// Candidates, best first.
+    pub ranking: Vec<Ranked>,
+    /// RMS of the residual over every group's last second, um.
+    pub residual_rms_um: f64,
+    /// The model's own held-out waveform RMS, um (from its model file).
+    pub model_cv_rms_um: f64,
+    /// One sentence.
+    pub summary: String,
+    /// The statistical test, stated.
+    pub test: String,
+}
+
+/// Everything a candidate may use about one group (last-second window plus whole-group
+/// signals for filters that need the motion's history).
+pub struct GroupCtx<'a> {
+    /// The group's sample (features, targets).
+    pub sample: &'a GroupSample,
+    /// The group's data.
+    pub data: &'a sts_dataset::GroupData,
+    /// The model's predicted dynamic error over the whole group, um.
+    pub predicted_um: Vec<f64>,
+    /// First sample of the scored window.
+    pub start: usize,
+    /// Residual over the window, um.
+    pub residual: Vec<f64>,
+    /// Command phase (radians) over the window.
+    pub theta: Vec<f64>,
+    /// Sample rate, Hz.
+    pub sample_rate_hz: f64,
+}
+
+/// Sufficient statistics of one group for a linear candidate: `X'X`, `X'r`, `r'r`.
+#[derive(Clone, Debug)]
+pub struct Stats {
+    /// `X'X`.
+    pub xtx: Vec<Vec<f64>>,
+    /// `X'r`.
+    pub xtr: Vec<f64>,
+    /// `r'r`.
+    pub rr: f64,
+}
+
+impl Stats {
+    /// Accumulates stats of regressor columns `x` (each over the window) and residual `r`.
+    pub fn from_columns(x: &[Vec<f64>], r: &[f64]) -> Self {
+        let p = x.len();
+        let mut xtx = vec![vec![0.0; p]; p];
+        let mut xtr = vec![0.0; p];
+        for i in 0..p {
+            xtr[i] = x[i].iter().zip(r).map(|(a, b)| a * b).sum();
+            for j in 0..=i {
+                let v: f64 = x[i].iter().zip(&x[j]).map(|(a, b)| a * b).sum();
+                xtx[i][j] = v;
+                xtx[j][i] = v;
+            }
+        }
+        Self { xtx, xtr, rr: r.iter().map(|v| v * v).sum() }
+    }
+
+    /// Residual sum of squares after subtracting `X theta`.
+    pub fn sse(&self, theta: &[f64]) -> f64 {
+        let p = theta.len();
+        let mut quad = 0.0;
+        for i in 0..p {
+            for j in 0..p {
+                quad += theta[i] * self.xtx[i][j] * theta[j];
+            }
+        }
+        let lin: f64 = theta.iter().zip(&self.xtr).map(|(a, b)| a * b).sum();
+        (self.rr - 2.0 * lin + quad).max(0.0)
+    }
+}
+
+/// Least-squares coefficients over a set of groups' stats.
+pub fn solve(stats: &[&Stats]) -> Vec<f64> {
+    let p = stats.first().map_or(0, |s| s.xtr.len());
+    let mut a = vec![vec![0.0; p]; p];
+    let mut b = vec![0.0; p];
+    for s in stats {
+        for i in 0..p {
+            b[i] += s.xtr[i];
+            for j in 0..p {
+                a[i][j] += s.xtx[i][j];
+            }
+        }
+    }
+    linalg::solve_ridge(a, b)
+}
+
+/// P(Binomial(n, 1/2) >= k).
+pub fn sign_test_p(k: usize, n: usize) -> f64 {
+    if n == 0 {
+        return 1.0;
+    }
+    // Sum in log space.
+    let ln_choose = |n: usize, k: usize| -> f64 { (1..=k).map(|i| ((n - k + i) as f64).ln() - (i as f64).ln()).sum() };
+    let mut p = 0.0;
+    for j in k..=n {
+        p += (ln_choose(n, j) - n as f64 * std::f64::consts::LN_2).exp();
+    }
+    p.min(1.0)
+}
+
+/// Builds each group's context: the model's predictions and the residual over the last second.
+pub fn contexts<'a>(dataset: &'a Dataset, samples: &'a [GroupSample], model: &ModelFile) -> anyhow::Result<Vec<GroupCtx<'a>>> {
+    let program = model.firmware_program()?;
+    let fs = dataset.manifest.sample_rate_hz;
+    Ok(samples
+        .par_iter()
+        .map(|s| {
+            let data = &dataset.groups[s.index];
+            let (predicted_um, _) = predict_group(&program, s, data, fs);
+            let start = s.targets.window_start;
+            let residual = (start..data.len()).map(|k| data.z_tcp_um[k] - data.z_cmd_um[k] - predicted_um[k]).collect();
+            let theta = (start..data.len()).map(|k| 2.0 * PI * s.targets.freq_hz * data.t_s[k] + s.targets.cmd.phase_rad).collect();
+            GroupCtx { sample: s, data, predicted_um, start, residual, theta, sample_rate_hz: fs }
+        })
+        .collect())
+}
+
+/// Diagnoses `model` on `dataset`.
+pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<Diagnosis> {
+    let mut feature_config = model.feature_config;
+    feature_config.sample_rate_hz = dataset.manifest.sample_rate_hz as f32;
+    let skip_s = model.training.as_ref().map_or(analysis::DEFAULT_SKIP_S, |t| t.skip_s);
+    let samples = analysis::group_samples_skipping(dataset, &feature_config, skip_s)?;
+    let ctx = contexts(dataset, &samples, model)?;
+    Ok(diagnose_contexts(&ctx, model.validation.waveform_rms_um))
+}
+
+/// Diagnoses prepared group contexts; `model_cv_rms_um` is the model's own held-out error.
+pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
+    let n = ctx.len();
+    let total_ss: f64 = ctx.iter().map(|c| c.residual.iter().map(|r| r * r).sum::<f64>()).sum();
+    let total_n: usize = ctx.iter().map(|c| c.residual.len()).sum();
+    let residual_rms_um = (total_ss / total_n.max(1) as f64).sqrt();
+    let folds = FOLDS.min(n).max(2);
+    let results: Vec<Ranked> = candidates::ALL
+        .par_iter()
+        .map(|cand| {
+            let evaluated = cand.evaluate(ctx, folds);
+            let improved = evaluated.improvements.iter().filter(|d| **d > 0.0).count();
+            let p_value = sign_test_p(improved, evaluated.improvements.len());
+            let explained_fraction = if total_ss > 0.0 { evaluated.improvements.iter().sum::<f64>() / total_ss } else { 0.0 };
+            let explained_rms = (explained_fraction.max(0.0) * total_ss / total_n.max(1) as f64).sqrt();
+            let significant = evaluated.testable
+                && explained_fraction >= MIN_EXPLAINED
+                && p_value < ALPHA / candidates::ALL.len() as f64
+                && explained_rms > model_cv_rms_um;
+            Ranked {
+                effect: cand.name().to_string(),
+                explained_fraction,
+                p_value,
+                groups_improved: improved,
+                params: evaluated.params,
+                evidence: evaluated.evidence,
+                significant,
+            }
+        })
+        .collect();
+    let mut ranking = results;
+    ranking.sort_by(|a, b| b.explained_fraction.total_cmp(&a.explained_fraction).then(a.effect.cmp(&b.effect)));
+    let verdict = match ranking.first() {
+        Some(best) if best.significant => best.effect.clone(),
+        _ => "none".to_string(),
+    };
+    let summary = match ranking.first() {
+        Some(best) if best.significant => format!(
+            "{} explains {:.0}% of the held-out residual (RMS {:.1} nm; the model's own held-out error is {:.1} nm): {}",
+            best.effect,
+            best.explained_fraction * 100.0,
+            residual_rms_um * 1e3,
+            model_cv_rms_um * 1e3,
+            best.evidence
+        ),
+        Some(best) => format!(
+            "no candidate explains a significant part of the residual (RMS {:.1} nm, the model's own held-out error {:.1} nm); the best, {}, explains {:.0}% (p = {:.1e})",
+            residual_rms_um * 1e3,
+            model_cv_rms_um * 1e3,
+            best.effect,
+            best.explained_fraction * 100.0,
+            best.p_value
+        ),
+        None => "no groups".to_string(),
+    };
+    let test = format!(
+        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold. A candidate is significant when it explains at least {:.0}% of the held-out residual, lowers it in more held-out groups than chance (one-sided sign test, p < {ALPHA}/8 = {:.2e}, Bonferroni over the 8 candidates), and the residual RMS it explains exceeds the model's own cross-validated waveform RMS ({:.1} nm). The verdict is the best candidate if significant, else none.",
+        MIN_EXPLAINED * 100.0,
+        ALPHA / 8.0,
+        model_cv_rms_um * 1e3
+    );
+    Diagnosis { verdict, ranking, residual_rms_um, model_cv_rms_um, summary, test }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sign_test_probabilities() {
+        assert!((sign_test_p(0, 10) - 1.0).abs() < 1e-12);
+        assert!((sign_test_p(10, 10) - 1.0 / 1024.0).abs() < 1e-12);
+        assert!((sign_test_p(9, 10) - 11.0 / 1024.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn stats_give_the_sse_of_a_fit() {
+        let x = vec![vec![1.0, 2.0, 3.0], vec![1.0, 1.0, 1.0]];
+        let r = vec![2.0, 4.1, 6.0];
+        let s = Stats::from_columns(&x, &r);
+        let theta = solve(&[&s]);
+        let direct: f64 = (0..3).map(|k| (r[k] - theta[0] * x[0][k] - theta[1] * x[1][k]).powi(2)).sum();
+        assert!((s.sse(&theta) - direct).abs() < 1e-9);
+        assert!((theta[0] - 2.0).abs() < 0.1);
+    }
+}

@@ -1,0 +1,393 @@
+//! `fit --effect NAME[,NAME...]`: the twin gains physical-effect terms.
+//!
+//! Each effect becomes per-tick terms of the firmware program ([`TickTerm`]) whose
+//! coefficients are estimated from the data, from inputs the firmware has every tick (the
+//! command position, machine time, and the X acceleration and spindle angle where the bus
+//! carries them):
+//!
+//! | effect | term(s) |
+//! |---|---|
+//! | `coulomb-friction` | Laguerre bank on the saturated sign of the command velocity |
+//! | `presliding-hysteresis` | Laguerre bank on the Dahl state of the command position |
+//! | `force-ripple` | two Laguerre banks on sine and cosine of the command position over the pitch |
+//! | `thermal-drift` | `offset + decay exp(-t / tau)` over machine time |
+//! | `axis-coupling` | X acceleration gain and the spindle's once-per-revolution sine |
+//! | `structural-mode`, `loop-delay`, `sensor-gain` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
+//!
+//! How: the terms are fitted first, on what the formulas can never explain: each group's
+//! dynamic error minus its own sine at the command frequency (regressors likewise made
+//! orthogonal to that sine per group). The dataset's `z_tcp_um` is then reduced by the terms'
+//! full output (their share at the command frequency included), and the usual fit trains
+//! the amplitude and phase formulas on that, so that formulas plus terms reproduce the
+//! measurement without counting anything twice. Held-out figures of the fit then score
+//! formulas and terms together. The model file gains an `effects` field recording each
+//! effect's estimated parameters; the terms are in the program itself.
+
+use std::f64::consts::PI;
+use std::path::Path;
+
+use anyhow::Context as _;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use sts_dataset::{Dataset, GroupData};
+use sts_twin_core::program::{TermInput, TickTerm, LAGUERRE_STAGES};
+
+use crate::analysis::targets;
+use crate::diagnose::{solve, Stats, EFFECTS};
+use crate::model::{hex_encode, ModelFile};
+
+/// Laguerre pole of the effect terms (the same as the diagnosis's).
+pub const POLE: f64 = 0.93;
+
+/// One effect added to a model.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct EffectRecord {
+    /// Canonical name.
+    pub effect: String,
+    /// Estimated parameters (name with unit, value).
+    pub params: Vec<(String, f64)>,
+    /// Number of per-tick terms it added to the program.
+    pub terms: usize,
+    /// How the effect is represented.
+    pub note: String,
+}
+
+/// A dataset prepared for `fit --effect`: `z_tcp_um` reduced by the effect terms' output.
+pub struct Prepared {
+    /// The dataset the formulas are fitted on.
+    pub dataset: Dataset,
+    /// The terms to append to the program.
+    pub terms: Vec<TickTerm>,
+    /// What was added.
+    pub records: Vec<EffectRecord>,
+}
+
+/// Per-group inputs of the term regressors (what the firmware sees), whole group.
+struct GroupInputs {
+    /// Command position, integer nanometres (as on the bus).
+    pos_nm: Vec<i32>,
+    /// Command phase, radians.
+    theta: Vec<f64>,
+    /// First sample of the scored window.
+    start: usize,
+    /// Dynamic error minus its own sine at the command frequency, over the window.
+    target: Vec<f64>,
+}
+
+fn group_inputs(group: &GroupData, fs: f64, freq_hz: f64) -> anyhow::Result<GroupInputs> {
+    let t = targets::group_targets(group, fs, freq_hz)?;
+    let start = skip_start(group.len(), fs);
+    let theta: Vec<f64> = group.t_s.iter().map(|ts| 2.0 * PI * freq_hz * ts + t.cmd.phase_rad).collect();
+    let de: Vec<f64> = (start..group.len()).map(|k| group.z_tcp_um[k] - group.z_cmd_um[k]).collect();
+    let target = project_out_fundamental(&de, &theta[start..]);
+    Ok(GroupInputs { pos_nm: group.z_cmd_um.iter().map(|z| (z * 1000.0).round() as i32).collect(), theta, start, target })
+}
+
+/// The window the terms are fitted on: after the start transient (0.5 s) to the end.
+fn skip_start(len: usize, fs: f64) -> usize {
+    ((0.5 * fs) as usize).min(len.saturating_sub(1))
+}
+
+/// `y` minus its least-squares sine and cosine at phase `theta` and its mean.
+fn project_out_fundamental(y: &[f64], theta: &[f64]) -> Vec<f64> {
+    let s: Vec<f64> = theta.iter().map(|t| t.sin()).collect();
+    let c: Vec<f64> = theta.iter().map(|t| t.cos()).collect();
+    let one = vec![1.0; y.len()];
+    let st = Stats::from_columns(&[s.clone(), c.clone(), one], y);
+    let th = solve(&[&st]);
+    y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k] - th[2]).collect()
+}
+
+/// f64 mirror of the firmware's Laguerre bank (stage outputs over the whole group).
+fn laguerre_all(u: &[f64], stages: usize) -> Vec<Vec<f64>> {
+    crate::diagnose::laguerre_bank(u, 0, POLE, stages)
+}
+
+/// The inputs of a term kind, as the firmware computes them from the command position.
+fn term_input(kind: &TermInput, pos: &[i32]) -> Vec<f64> {
+    match *kind {
+        TermInput::VelocitySign { smooth_nm_per_4_ticks } => (0..pos.len())
+            .map(|k| {
+                let dv = f64::from(pos[k]) - f64::from(pos[k.saturating_sub(4)]);
+                (dv / f64::from(smooth_nm_per_4_ticks.max(1))).clamp(-1.0, 1.0)
+            })
+            .collect(),
+        TermInput::Dahl { inv_x0_q30 } => {
+            let inv = f64::from(inv_x0_q30) / (1u64 << 30) as f64;
+            let mut u = 0.0f64;
+            (0..pos.len())
+                .map(|k| {
+                    let dx = if k == 0 { 0.0 } else { f64::from(pos[k]) - f64::from(pos[k - 1]) };
+                    u = (u + (dx * inv).clamp(-2.0, 2.0) * (1.0 - dx.signum() * u)).clamp(-1.0, 1.0);
+                    u
+                })
+                .collect()
+        }
+        TermInput::PositionSine { turns_per_nm, phase_turns } => pos
+            .iter()
+            .map(|&p| {
+                let turns = (p as u32).wrapping_mul(turns_per_nm).wrapping_add(phase_turns);
+                (2.0 * PI * f64::from(turns) / 4_294_967_296.0).sin()
+            })
+            .collect(),
+    }
+}
+
+/// Regressor columns of one group for a set of term inputs (each through a Laguerre bank),
+/// made orthogonal to the group's fundamental over the window.
+fn columns(g: &GroupInputs, kinds: &[TermInput]) -> Vec<Vec<f64>> {
+    let mut cols = Vec::new();
+    for kind in kinds {
+        let u = term_input(kind, &g.pos_nm);
+        for stage in laguerre_all(&u, LAGUERRE_STAGES) {
+            cols.push(project_out_fundamental(&stage[g.start..], &g.theta[g.start..]));
+        }
+    }
+    cols
+}
+
+/// Fits the Laguerre coefficients for `kinds` on all groups; returns (coefficients, SSE).
+fn fit_kinds(inputs: &[GroupInputs], kinds: &[TermInput]) -> (Vec<f64>, f64) {
+    let stats: Vec<Stats> = inputs.par_iter().map(|g| Stats::from_columns(&columns(g, kinds), &g.target)).collect();
+    let refs: Vec<&Stats> = stats.iter().collect();
+    let theta = solve(&refs);
+    let sse = stats.iter().map(|s| s.sse(&theta)).sum();
+    (theta, sse)
+}
+
+fn laguerre_terms(kinds: &[TermInput], theta: &[f64]) -> Vec<TickTerm> {
+    kinds
+        .iter()
+        .enumerate()
+        .map(|(i, kind)| {
+            let mut gains_pm = [0i32; LAGUERRE_STAGES];
+            for (s, g) in gains_pm.iter_mut().enumerate() {
+                *g = (theta[i * LAGUERRE_STAGES + s] * 1e6).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32;
+            }
+            TickTerm::Laguerre { input: *kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm }
+        })
+        .collect()
+}
+
+/// Picks the best of several input-kind sets by SSE.
+fn best_of(inputs: &[GroupInputs], sets: Vec<Vec<TermInput>>) -> (Vec<TermInput>, Vec<f64>) {
+    let mut best: Option<(Vec<TermInput>, Vec<f64>, f64)> = None;
+    for kinds in sets {
+        let (theta, sse) = fit_kinds(inputs, &kinds);
+        if best.as_ref().is_none_or(|b| sse < b.2) {
+            best = Some((kinds, theta, sse));
+        }
+    }
+    let (k, t, _) = best.expect("at least one set");
+    (k, t)
+}
+
+fn ripple_sets() -> Vec<Vec<TermInput>> {
+    (0..48)
+        .map(|i| {
+            let pitch_nm = 1000.0 * 1.045f64.powi(i);
+            let turns_per_nm = (4_294_967_296.0 / pitch_nm).round() as u32;
+            vec![TermInput::PositionSine { turns_per_nm, phase_turns: 0 }, TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 }]
+        })
+        .collect()
+}
+
+/// Prepares `fit --effect` for the named effects: fits their terms and returns the dataset
+/// whose `z_tcp_um` excludes the terms' output.
+pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> {
+    for n in names {
+        if !EFFECTS.contains(&n.as_str()) {
+            anyhow::bail!("--effect: unknown effect {n:?} (known: {})", EFFECTS.join(", "));
+        }
+    }
+    let fs = dataset.manifest.sample_rate_hz;
+    let inputs: Vec<GroupInputs> = dataset
+        .manifest
+        .groups
+        .par_iter()
+        .zip(dataset.groups.par_iter())
+        .map(|(info, g)| group_inputs(g, fs, info.freq_hz).with_context(|| info.file.clone()))
+        .collect::<anyhow::Result<_>>()?;
+    let mut terms = Vec::new();
+    let mut records = Vec::new();
+    for name in names {
+        let (new_terms, params, note) = match name.as_str() {
+            "coulomb-friction" => {
+                let sets = [2, 8, 30, 120].iter().map(|&s| vec![TermInput::VelocitySign { smooth_nm_per_4_ticks: s }]).collect();
+                let (kinds, theta) = best_of(&inputs, sets);
+                let TermInput::VelocitySign { smooth_nm_per_4_ticks } = kinds[0] else { unreachable!() };
+                let smooth = f64::from(smooth_nm_per_4_ticks) * fs / 4.0 / 1000.0;
+                (laguerre_terms(&kinds, &theta), vec![("smoothing_velocity_um_per_s".to_string(), smooth)], "Laguerre bank on the saturated sign of the command velocity".to_string())
+            }
+            "presliding-hysteresis" => {
+                let sets = [100.0, 300.0, 1000.0, 3000.0].iter().map(|&x0: &f64| vec![TermInput::Dahl { inv_x0_q30: ((1u64 << 30) as f64 / x0).round() as i32 }]).collect();
+                let (kinds, theta) = best_of(&inputs, sets);
+                let TermInput::Dahl { inv_x0_q30 } = kinds[0] else { unreachable!() };
+                let x0_um = (1u64 << 30) as f64 / f64::from(inv_x0_q30) / 1000.0;
+                (laguerre_terms(&kinds, &theta), vec![("presliding_distance_um".to_string(), x0_um)], "Laguerre bank on the Dahl state of the command position".to_string())
+            }
+            "force-ripple" => {
+                let (kinds, theta) = best_of(&inputs, ripple_sets());
+                let TermInput::PositionSine { turns_per_nm, .. } = kinds[0] else { unreachable!() };
+                let pitch_um = 4_294_967_296.0 / f64::from(turns_per_nm) / 1000.0;
+                (laguerre_terms(&kinds, &theta), vec![("pitch_um".to_string(), pitch_um)], "two Laguerre banks on the sine and cosine of the command position".to_string())
+            }
+            "thermal-drift" => {
+                let (term, params) = fit_drift(dataset, &inputs, fs);
+                (vec![term], params, "offset + decay * exp(-t / tau) over machine time".to_string())
+            }
+            "axis-coupling" => {
+                let (term, params) = fit_coupling(dataset, &inputs)?;
+                (vec![term], params, "X acceleration gain and spindle once-per-revolution sine (the bus must carry X acceleration and spindle angle)".to_string())
+            }
+            _ => (Vec::new(), Vec::new(), "linear change of the response at the command frequency: carried by the refitted amplitude and phase formulas".to_string()),
+        };
+        records.push(EffectRecord { effect: name.clone(), params, terms: new_terms.len(), note });
+        terms.extend(new_terms);
+    }
+    if terms.len() > sts_twin_core::program::MAX_TERMS {
+        anyhow::bail!("--effect: {} per-tick terms needed, the program holds at most {}", terms.len(), sts_twin_core::program::MAX_TERMS);
+    }
+    // The dataset without the terms' output, through the firmware's own synthesiser.
+    let mut reduced = dataset.clone();
+    let program = sts_twin_core::program::Program { terms: terms.iter().copied().collect(), ..sts_twin_core::program::Program::empty(0) };
+    reduced.groups.par_iter_mut().zip(dataset.manifest.groups.par_iter()).for_each(|(g, info)| {
+        let out = terms_output(&program.terms, g, info.start_s, fs);
+        for (z, o) in g.z_tcp_um.iter_mut().zip(out) {
+            *z -= o;
+        }
+    });
+    Ok(Prepared { dataset: reduced, terms, records })
+}
+
+/// The terms' output over a group, um, computed by the firmware's synthesiser.
+pub fn terms_output(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64) -> Vec<f64> {
+    use sts_twin_core::synth::{Synth, TickInput};
+    let mut synth = Synth::new(0);
+    synth.set_time_ticks((start_s.max(0.0) * fs).round() as u64);
+    synth.update(&sts_twin_core::program::ModelOutput::default(), terms);
+    synth.restart_kernels();
+    (0..group.len())
+        .map(|k| {
+            let x_acc = group.x_acc_mps2.as_ref().map_or(0.0, |v| v[k]);
+            let spindle = group.spindle_deg.as_ref().map_or(0.0, |v| (v[k] / 360.0).rem_euclid(1.0));
+            let input = TickInput {
+                cmd_phase_turns: 0,
+                cmd_pos_nm: (group.z_cmd_um[k] * 1000.0).round() as i32,
+                x_acc_um_per_s2: (x_acc * 1e6).round() as i32,
+                spindle_turns: (spindle * 4_294_967_296.0) as u64 as u32,
+            };
+            f64::from(synth.next_input(&input)) * 1e-6
+        })
+        .collect()
+}
+
+fn fit_drift(dataset: &Dataset, inputs: &[GroupInputs], fs: f64) -> (TickTerm, Vec<(String, f64)>) {
+    // The drift is what the sine removal leaves as each group's mean; fit on the DE directly.
+    let mut best: Option<(f64, Vec<f64>, f64)> = None;
+    for tau in [100.0, 200.0, 400.0, 700.0, 1000.0, 1500.0, 2500.0, 4000.0, 8000.0] {
+        let stats: Vec<Stats> = dataset
+            .groups
+            .iter()
+            .zip(&dataset.manifest.groups)
+            .zip(inputs)
+            .map(|((g, info), gi)| {
+                let de: Vec<f64> = (gi.start..g.len()).map(|k| g.z_tcp_um[k] - g.z_cmd_um[k]).collect();
+                let y = project_out_fundamental_keep_mean(&de, &gi.theta[gi.start..]);
+                let e: Vec<f64> = g.t_s[gi.start..].iter().map(|t| (-(info.start_s + t) / tau).exp()).collect();
+                Stats::from_columns(&[vec![1.0; e.len()], e], &y)
+            })
+            .collect();
+        let refs: Vec<&Stats> = stats.iter().collect();
+        let theta = solve(&refs);
+        let sse: f64 = stats.iter().map(|s| s.sse(&theta)).sum();
+        if best.as_ref().is_none_or(|b| sse < b.2) {
+            best = Some((tau, theta, sse));
+        }
+    }
+    let (tau, theta, _) = best.unwrap_or((1000.0, vec![0.0, 0.0], 0.0));
+    let term = TickTerm::Drift { offset_pm: (theta[0] * 1e6).round() as i32, decay_pm: (theta[1] * 1e6).round() as i32, tau_ticks: (tau * fs).round() as u32 };
+    (term, vec![("offset_um".into(), theta[0]), ("decay_um".into(), theta[1]), ("time_constant_s".into(), tau)])
+}
+
+/// `y` minus its sine and cosine at `theta` (the mean kept).
+fn project_out_fundamental_keep_mean(y: &[f64], theta: &[f64]) -> Vec<f64> {
+    let s: Vec<f64> = theta.iter().map(|t| t.sin()).collect();
+    let c: Vec<f64> = theta.iter().map(|t| t.cos()).collect();
+    let st = Stats::from_columns(&[s.clone(), c.clone(), vec![1.0; y.len()]], y);
+    let th = solve(&[&st]);
+    y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k]).collect()
+}
+
+fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> anyhow::Result<(TickTerm, Vec<(String, f64)>)> {
+    let has_x = dataset.groups.iter().all(|g| g.x_acc_mps2.is_some());
+    let has_s = dataset.groups.iter().all(|g| g.spindle_deg.is_some());
+    if !has_x && !has_s {
+        anyhow::bail!("--effect axis-coupling: the dataset has no x_acc_mps2 or spindle_deg column");
+    }
+    let stats: Vec<Stats> = dataset
+        .groups
+        .iter()
+        .zip(inputs)
+        .map(|(g, gi)| {
+            let w = gi.start..g.len();
+            let x: Vec<f64> = g.x_acc_mps2.as_ref().map_or(vec![0.0; w.len()], |v| v[w.clone()].to_vec());
+            let sp: Vec<f64> = g.spindle_deg.as_ref().map_or(vec![0.0; w.len()], |v| v[w.clone()].to_vec());
+            let cols = [x, sp.iter().map(|d| d.to_radians().sin()).collect(), sp.iter().map(|d| d.to_radians().cos()).collect()];
+            let cols: Vec<Vec<f64>> = cols.iter().map(|c| project_out_fundamental(c, &gi.theta[gi.start..])).collect();
+            Stats::from_columns(&cols, &gi.target)
+        })
+        .collect();
+    let refs: Vec<&Stats> = stats.iter().collect();
+    let theta = solve(&refs);
+    // a sin(s) + b cos(s) = amp sin(s + phase)
+    let amp = theta[1].hypot(theta[2]);
+    let phase = theta[2].atan2(theta[1]);
+    let term = TickTerm::AxisCoupling {
+        x_gain_pm_per_mps2: (theta[0] * 1e6).round() as i32,
+        spindle_amp_pm: (amp * 1e6).round() as i32,
+        spindle_phase_turns: ((phase / (2.0 * PI)).rem_euclid(1.0) * 4_294_967_296.0) as u64 as u32,
+    };
+    Ok((term, vec![("x_um_per_mps2".into(), theta[0]), ("spindle_um".into(), amp), ("spindle_phase_deg".into(), phase.to_degrees())]))
+}
+
+impl Prepared {
+    /// Appends the terms to a model fitted on [`Prepared::dataset`] (program, listing, id).
+    pub fn attach(&self, mut model: ModelFile) -> anyhow::Result<ModelFile> {
+        if self.terms.is_empty() {
+            return Ok(model);
+        }
+        let mut program = model.firmware_program()?;
+        for t in &self.terms {
+            program.terms.push(*t).map_err(|_| anyhow::anyhow!("too many per-tick terms"))?;
+        }
+        program.id = 0;
+        program.validate().map_err(|e| anyhow::anyhow!("program with effect terms: {e}"))?;
+        let mut buf = [0u8; 2048];
+        let bytes = postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+        program.id = sts_twin_core::wire::frame_crc32(bytes);
+        let bytes = postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+        model.program_postcard_hex = hex_encode(bytes);
+        model.program.id = program.id;
+        model.program.terms = program.terms.len();
+        Ok(model)
+    }
+
+    /// Adds the `effects` field to a written model file.
+    pub fn write_record(&self, path: &Path) -> anyhow::Result<()> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        let mut value: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+        value["effects"] = serde_json::to_value(&self.records)?;
+        std::fs::write(path, serde_json::to_string_pretty(&value)? + "\n").with_context(|| format!("cannot write {}", path.display()))
+    }
+}
+
+/// The `effects` field of a model file, if any.
+pub fn read_records(path: &Path) -> anyhow::Result<Vec<EffectRecord>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let value: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    match value.get("effects") {
+        Some(v) => serde_json::from_value(v.clone()).with_context(|| format!("{}: field `effects`", path.display())),
+        None => Ok(Vec::new()),
+    }
+}

@@ -6,8 +6,12 @@
 
 pub mod analysis;
 pub mod cmd;
+pub mod compare;
+pub mod diagnose;
+pub mod effects;
 pub mod fit;
 pub mod hil;
 pub mod model;
+pub mod report;
 pub mod rig;
 pub mod trial;

@@ -12,10 +12,14 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Compare a model's predicted dynamic error with a measurement (text, JSON, HTML report).
+    Compare(cmd::compare::Args),
     /// The main job: measure, fit, then cut at 40 Hz with the firmware in QEMU, without and with the twin.
     Demo(cmd::demo::Args),
     /// Emulated STS cut of the bicuspid surface (Eq. 6), with or without the twin.
     Machine(cmd::machine::Args),
+    /// Rank the physical effects missing from a model by how much of its residual they explain.
+    Diagnose(cmd::diagnose::Args),
     /// Train the explainable twin (amplitude and phase formulas) on a dataset.
     Fit(cmd::fit::Args),
     /// Run the offline dynamic-error measurement test on the emulated machine.
@@ -29,7 +33,9 @@ enum Command {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
+        Command::Compare(args) => cmd::compare::run(args),
         Command::Demo(args) => cmd::demo::run(args),
+        Command::Diagnose(args) => cmd::diagnose::run(args),
         Command::Fit(args) => cmd::fit::run(args),
         Command::Machine(args) => cmd::machine::run(args),
         Command::Measure(args) => cmd::measure::run(args),

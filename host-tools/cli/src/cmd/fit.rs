@@ -52,6 +52,9 @@ pub struct Args {
     /// Accelerometer scale, m/s^2 per LSB, when the manifest does not state it.
     #[arg(long)]
     pub acc_scale: Option<f64>,
+    /// Physical effects the twin gains as per-tick terms (canonical names, comma separated).
+    #[arg(long, value_delimiter = ',')]
+    pub effect: Vec<String>,
     /// Seconds at each group's start left out of the feature window (the start transient
     /// of a group recorded from rest).
     #[arg(long, default_value_t = analysis::DEFAULT_SKIP_S)]
@@ -96,6 +99,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         ..FitConfig::default()
     };
     let dataset = sts_dataset::read(&args.data)?;
+    let prepared = if args.effect.is_empty() { None } else { Some(crate::effects::prepare(&dataset, &args.effect)?) };
+    let dataset = prepared.as_ref().map_or(&dataset, |p| &p.dataset);
     let read_s = started.elapsed().as_secs_f64();
     let feature_config = analysis::feature_config_for(&dataset, args.acc_scale);
     let samples = analysis::group_samples_skipping(&dataset, &feature_config, args.skip_s)?;
@@ -125,7 +130,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let description = format!("fitted by sts-twin fit on {} (seed {})", dataset_name(&args.data), args.seed);
     let model = fit_samples(&dataset, &samples, feature_config, &description, &config, &mut on_progress)?;
     bar.finish_and_clear();
+    let model = match &prepared { Some(p) => p.attach(model)?, None => model };
     model.write(out)?;
+    if let Some(p) = &prepared {
+        p.write_record(out)?;
+    }
     print_report(&model, out);
     println!(
         "read {} groups in {read_s:.1} s, features and targets in {:.1} s, searches and validation in {:.1} s",

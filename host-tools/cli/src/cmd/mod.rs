@@ -1,6 +1,8 @@
 //! One module per `sts-twin` subcommand: its arguments and its `run`.
 
+pub mod compare;
 pub mod demo;
+pub mod diagnose;
 pub mod fit;
 pub mod machine;
 pub mod measure;

@@ -317,11 +317,11 @@ fn transient_line_hz(ctx: &[GroupCtx]) -> f64 {
         }
         let r: Vec<f64> = (0..n).map(|k| c.data.z_tcp_um[k] - c.data.z_cmd_um[k] - c.predicted_um[k]).collect();
         let t = &c.data.t_s[..n];
-        for (i, s) in spectrum.iter_mut().enumerate().skip(100).step_by(4) {
+        for (i, s) in spectrum.iter_mut().enumerate().skip(120).step_by(4) {
             *s += line_amp(t, &r, i as f64);
         }
     }
-    spectrum.iter().enumerate().skip(100).max_by(|a, b| a.1.total_cmp(b.1)).map_or(0.0, |(i, _)| i as f64)
+    spectrum.iter().enumerate().skip(120).max_by(|a, b| a.1.total_cmp(b.1)).map_or(0.0, |(i, _)| i as f64)
 }
 
 fn thermal(ctx: &[GroupCtx], folds: usize) -> Evaluated {
@@ -376,12 +376,19 @@ fn thermal(ctx: &[GroupCtx], folds: usize) -> Evaluated {
 }
 
 fn ripple(ctx: &[GroupCtx], folds: usize) -> Evaluated {
-    // Pitch search on the unfiltered position sine (slow groups see it unfiltered).
+    // Pitch search on the unfiltered position sine over the slowest groups, where the servo
+    // follows a position-periodic error without filtering (peak velocity at most 100 um/s, or
+    // the slowest fifth).
     let pitches: Vec<f64> = (0..60).map(|i| 1.0 * 1.04f64.powi(i)).collect();
+    let vpeak = |c: &GroupCtx| 2.0 * PI * c.sample.info.freq_hz * cmd_amp(c);
+    let mut speeds: Vec<f64> = ctx.iter().map(vpeak).collect();
+    speeds.sort_by(f64::total_cmp);
+    let limit = speeds.get(speeds.len() / 5).copied().unwrap_or(0.0).max(100.0);
+    let slow: Vec<&GroupCtx> = ctx.iter().filter(|c| vpeak(c) <= limit).collect();
     let raw: Vec<Vec<Stats>> = pitches
         .par_iter()
         .map(|p| {
-            ctx.iter()
+            slow.iter()
                 .map(|c| {
                     let x = &c.data.z_enc_um[c.start..];
                     let s: Vec<f64> = x.iter().map(|x| (2.0 * PI * x / p).sin()).collect();
@@ -400,8 +407,8 @@ fn ripple(ctx: &[GroupCtx], folds: usize) -> Evaluated {
         .map(|c| {
             let s: Vec<f64> = c.data.z_enc_um.iter().map(|x| (2.0 * PI * x / pitch).sin()).collect();
             let co: Vec<f64> = c.data.z_enc_um.iter().map(|x| (2.0 * PI * x / pitch).cos()).collect();
-            let mut cols = laguerre(&s, c.start, LAGUERRE_POLE, LAGUERRE_STAGES);
-            cols.extend(laguerre(&co, c.start, LAGUERRE_POLE, LAGUERRE_STAGES));
+            let mut cols = laguerre(&s, c.start, LAGUERRE_POLE, 2 * LAGUERRE_STAGES);
+            cols.extend(laguerre(&co, c.start, LAGUERRE_POLE, 2 * LAGUERRE_STAGES));
             cols
         })
         .collect();

@@ -202,6 +202,14 @@ struct Health {
     degraded: u16,
 }
 
+/// Ticks to the first model request: one interval, shifted by half a feature block so that
+/// requests (and the model results applied `model_latency_ticks` later, when that is a whole
+/// number of blocks) never fall on the tick that closes a 16-sample feature block, the most
+/// expensive tick of the feature update.
+fn first_request_countdown(config: &ServoConfig) -> u32 {
+    config.model_interval_ticks.max(1).saturating_add((crate::features::BLOCK_SAMPLES / 2) as u32)
+}
+
 /// The servo-interrupt side of the twin. See the [module docs](self).
 pub struct Servo {
     features: DefaultFeatureState,
@@ -218,6 +226,8 @@ pub struct Servo {
     last_output: ModelOutput,
     last_features: [f32; 12],
     last_dac: i16,
+    /// Ticks until the next model request.
+    model_countdown: u32,
 }
 
 impl Servo {
@@ -249,6 +259,7 @@ impl Servo {
             last_output: ModelOutput::default(),
             last_features: [0.0; 12],
             last_dac: 0,
+            model_countdown: first_request_countdown(&config),
         };
         let check = params_check.map_err(InitError::Params).and(features_check);
         (servo, check)
@@ -278,8 +289,11 @@ impl Servo {
         self.features.push(rings, input.acc_code);
 
         let mut request = None;
-        let interval = self.config.model_interval_ticks.max(1) as u64;
-        if tick % interval == interval - 1 {
+        // A countdown, not `tick % interval`: a 64-bit remainder is a library call of a
+        // hundred instructions on a Cortex-M4, every tick.
+        self.model_countdown = self.model_countdown.saturating_sub(1);
+        if self.model_countdown == 0 {
+            self.model_countdown = self.config.model_interval_ticks.max(1);
             let capture = self.features.capture(rings);
             // Only a full window gives the features the model was trained on.
             if capture.samples >= self.feature_config.window_samples {

@@ -157,10 +157,10 @@ struct KernelState {
     pos_hist: [i32; 4],
     /// Dahl state, Q30.
     dahl_q30: i32,
-    /// The decaying part of a drift, picometres (Q16).
-    drift_q16: i64,
-    /// `exp(-DRIFT_STEP_TICKS / tau)`, Q31.
-    drift_step_q31: i64,
+    /// The decaying part of a drift, picometres (Q8).
+    drift_q8: i64,
+    /// `exp(-DRIFT_STEP_TICKS / tau)`, Q23 (so the product stays within 64 bits).
+    drift_step_q23: i64,
     /// `sqrt(1 - a^2)` of a Laguerre bank, Q30.
     g_q30: i64,
     /// Whether the command history is valid.
@@ -195,8 +195,8 @@ fn drift_at(state: &mut KernelState, decay_pm: i32, tau_ticks: u32, ticks: u64) 
     // Held between steps: the value of the last whole step.
     let steps = ticks / u64::from(DRIFT_STEP_TICKS);
     let t = (steps * u64::from(DRIFT_STEP_TICKS)) as f64;
-    state.drift_q16 = (f64::from(decay_pm) * exp_neg(t / tau) * 65536.0) as i64;
-    state.drift_step_q31 = (exp_neg(f64::from(DRIFT_STEP_TICKS) / tau) * 2147483648.0) as i64;
+    state.drift_q8 = (f64::from(decay_pm) * exp_neg(t / tau) * 256.0) as i64;
+    state.drift_step_q23 = (exp_neg(f64::from(DRIFT_STEP_TICKS) / tau) * 8388608.0) as i64;
 }
 
 /// One tick of a kernel term: its contribution in picometres.
@@ -206,9 +206,9 @@ fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput, ticks: u6
         TickTerm::Harmonic { .. } => 0,
         TickTerm::Drift { offset_pm, .. } => {
             if ticks % u64::from(DRIFT_STEP_TICKS) == 0 && ticks != 0 {
-                st.drift_q16 = (st.drift_q16 * st.drift_step_q31) >> 31;
+                st.drift_q8 = (st.drift_q8 * st.drift_step_q23) >> 23;
             }
-            offset_pm as i64 + (st.drift_q16 >> 16)
+            offset_pm as i64 + (st.drift_q8 >> 8)
         }
         TickTerm::AxisCoupling { x_gain_pm_per_mps2, spindle_amp_pm, spindle_phase_turns } => {
             let x = (x_gain_pm_per_mps2 as i64 * input.x_acc_um_per_s2 as i64) / 1_000_000;
@@ -302,8 +302,8 @@ impl Synth {
                 stages: [0; LAGUERRE_STAGES],
                 pos_hist: [0; 4],
                 dahl_q30: 0,
-                drift_q16: 0,
-                drift_step_q31: 0,
+                drift_q8: 0,
+                drift_step_q23: 0,
                 g_q30: 0,
                 primed: false,
             },
@@ -407,7 +407,7 @@ impl Synth {
         for term in self.terms.iter_mut() {
             if term.kernel.is_some() {
                 let keep = term.state;
-                term.state = KernelState { drift_q16: keep.drift_q16, drift_step_q31: keep.drift_step_q31, g_q30: keep.g_q30, ..KernelState::default() };
+                term.state = KernelState { drift_q8: keep.drift_q8, drift_step_q23: keep.drift_step_q23, g_q30: keep.g_q30, ..KernelState::default() };
             }
         }
     }

@@ -133,25 +133,46 @@ fn term_input(kind: &TermInput, pos: &[i32]) -> Vec<f64> {
     }
 }
 
-/// Regressor columns of one group for a set of term inputs (each through a Laguerre bank),
-/// made orthogonal to the group's fundamental over the window.
-fn columns(g: &GroupInputs, kinds: &[TermInput]) -> Vec<Vec<f64>> {
-    let mut cols = Vec::new();
+/// Regressor columns of one group for a set of term inputs (each through a Laguerre bank)
+/// over the window: (made orthogonal to the group's fundamental, as they are).
+fn columns(g: &GroupInputs, kinds: &[TermInput]) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+    let mut projected = Vec::new();
+    let mut raw = Vec::new();
     for kind in kinds {
         let u = term_input(kind, &g.pos_nm);
         for stage in laguerre_all(&u, LAGUERRE_STAGES) {
-            cols.push(project_out_fundamental(&stage[g.start..], &g.theta[g.start..]));
+            projected.push(project_out_fundamental(&stage[g.start..], &g.theta[g.start..]));
+            raw.push(stage[g.start..].to_vec());
         }
     }
-    cols
+    (projected, raw)
 }
+
+/// Weight of the penalty on a term's whole output energy: the fit sees only what the formulas
+/// cannot explain, so a combination of stages that is nearly a pure sine at the command
+/// frequency is undetermined by it; the penalty keeps such combinations small.
+pub const OUTPUT_PENALTY: f64 = 1e-2;
 
 /// Fits the Laguerre coefficients for `kinds` on all groups; returns (coefficients, SSE).
 fn fit_kinds(inputs: &[GroupInputs], kinds: &[TermInput]) -> (Vec<f64>, f64) {
-    let stats: Vec<Stats> = inputs.par_iter().map(|g| Stats::from_columns(&columns(g, kinds), &g.target)).collect();
-    let refs: Vec<&Stats> = stats.iter().collect();
+    let pairs: Vec<(Stats, Stats)> = inputs
+        .par_iter()
+        .map(|g| {
+            let (p, r) = columns(g, kinds);
+            (Stats::from_columns(&p, &g.target), Stats::from_columns(&r, &vec![0.0; g.target.len()]))
+        })
+        .collect();
+    let mut penalised: Vec<Stats> = pairs.iter().map(|(p, _)| p.clone()).collect();
+    for (s, (_, raw)) in penalised.iter_mut().zip(&pairs) {
+        for (row, raw_row) in s.xtx.iter_mut().zip(&raw.xtx) {
+            for (v, r) in row.iter_mut().zip(raw_row) {
+                *v += OUTPUT_PENALTY * r;
+            }
+        }
+    }
+    let refs: Vec<&Stats> = penalised.iter().collect();
     let theta = solve(&refs);
-    let sse = stats.iter().map(|s| s.sse(&theta)).sum();
+    let sse = pairs.iter().map(|(p, _)| p.sse(&theta)).sum();
     (theta, sse)
 }
 
@@ -389,5 +410,46 @@ pub fn read_records(path: &Path) -> anyhow::Result<Vec<EffectRecord>> {
     match value.get("effects") {
         Some(v) => serde_json::from_value(v.clone()).with_context(|| format!("{}: field `effects`", path.display())),
         None => Ok(Vec::new()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sine_group(freq_hz: f64, amp_um: f64, n: usize) -> GroupData {
+        let mut g = GroupData::with_len(n);
+        for k in 0..n {
+            let t = k as f64 / 8000.0;
+            g.t_s[k] = t;
+            g.z_cmd_um[k] = amp_um * (2.0 * PI * freq_hz * t).sin();
+        }
+        g
+    }
+
+    /// The firmware kernels (fixed point) reproduce the f64 regressors the fit uses.
+    #[test]
+    fn kernels_match_the_fitted_model() {
+        let g = sine_group(5.0, 6.0, 16000);
+        let pos: Vec<i32> = g.z_cmd_um.iter().map(|z| (z * 1000.0).round() as i32).collect();
+        let gains = [0.3, -0.2, 0.1, 0.05, -0.04, 0.02, 0.01, -0.01];
+        for kind in [
+            TermInput::VelocitySign { smooth_nm_per_4_ticks: 8 },
+            TermInput::Dahl { inv_x0_q30: ((1u64 << 30) as f64 / 700.0) as i32 },
+            TermInput::PositionSine { turns_per_nm: (4_294_967_296.0f64 / 3000.0) as u32, phase_turns: 1 << 30 },
+        ] {
+            let terms = laguerre_terms(&[kind], &gains);
+            let kernel = terms_output(&terms, &g, 0.0, 8000.0);
+            let stages = laguerre_all(&term_input(&kind, &pos), LAGUERRE_STAGES);
+            let worst = (0..g.len())
+                .map(|k| (kernel[k] - stages.iter().zip(&gains).map(|(s, w)| s[k] * w).sum::<f64>()).abs())
+                .fold(0.0, f64::max);
+            assert!(worst < 2e-4, "{kind:?}: kernel differs from the model by {worst} um");
+        }
+        let drift = TickTerm::Drift { offset_pm: 300_000, decay_pm: -300_000, tau_ticks: 8000 * 600 };
+        let out = terms_output(&[drift], &g, 900.0, 8000.0);
+        let want = |t: f64| 0.3 - 0.3 * (-t / 600.0).exp();
+        assert!((out[0] - want(900.0)).abs() < 1e-3, "{} vs {}", out[0], want(900.0));
+        assert!((out[15999] - want(902.0)).abs() < 1e-3);
     }
 }

@@ -1,0 +1,152 @@
+//! The hidden-effect suite: emulator data with one randomly drawn effect (effect and
+//! parameters from a seed; the tools are never told which), diagnosed against the twin of the
+//! machine as it was (a model fitted on clean data), then refitted with `--effect <verdict>`.
+//!
+//! Measured per case: the verdict (confusion matrix), the waveform RMS of the reference model
+//! on the new data (every group is held out for it), and the held-out RMS of the model fitted
+//! with the verdict's terms, against the reference model's own held-out RMS on clean data.
+//!
+//! CI runs a reduced grid (`ci_suite`, a few minutes). The full run is
+//!
+//! ```text
+//! STS_SUITE_SEEDS=20 STS_SUITE_FIT_SEEDS=3 STS_SUITE_GRID=paper \
+//!   cargo test --release -p sts-twin --test diagnose_hidden_effects -- --ignored --nocapture
+//! ```
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use sts_dataset::Dataset;
+use sts_emulator::{EffectSpec, MeasureConfig, EFFECT_NAMES};
+use sts_twin::compare::compare;
+use sts_twin::diagnose::diagnose;
+use sts_twin::effects::prepare;
+use sts_twin::fit::{fit, FitConfig};
+use sts_twin::model::ModelFile;
+
+struct Suite {
+    seeds: u64,
+    fit_seeds: u64,
+    paper_grid: bool,
+    epochs: usize,
+}
+
+fn env_u64(name: &str, default: u64) -> u64 {
+    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+fn measure(suite: &Suite, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
+    let mut config = MeasureConfig { effects, seed, ..MeasureConfig::default() };
+    if !suite.paper_grid {
+        config.freqs_hz = vec![1.0, 5.0, 10.0, 20.0, 30.0, 40.0];
+        config.amps_um = vec![1.0, 4.0, 7.0, 10.0];
+        config.duration_s = 5.5;
+    }
+    sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
+}
+
+fn fit_config(suite: &Suite) -> FitConfig {
+    FitConfig { max_epochs: suite.epochs, folds: if suite.paper_grid { 5 } else { 4 }, ..FitConfig::default() }
+}
+
+struct Outcome {
+    verdict: String,
+    reference_rms_um: f64,
+    refit_rms_um: Option<f64>,
+}
+
+fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u64, refit: bool) -> Outcome {
+    let effects = match effect {
+        Some(name) => {
+            let mut rng = ChaCha8Rng::seed_from_u64(0x5eed_0000 + seed);
+            vec![EffectSpec::random(name, &mut rng).expect("known effect")]
+        }
+        None => Vec::new(),
+    };
+    let data = measure(suite, effects, 100 + seed);
+    let d = diagnose(&data, reference).expect("diagnose");
+    let (c, _) = compare(&data, reference).expect("compare");
+    let refit_rms_um = if refit && d.verdict != "none" {
+        let prepared = prepare(&data, &[d.verdict.clone()]).expect("prepare");
+        let model = fit(&prepared.dataset, "suite", &fit_config(suite), &mut |_| {}).expect("fit");
+        let model = prepared.attach(model).expect("attach");
+        Some(model.validation.waveform_rms_um)
+    } else {
+        None
+    };
+    Outcome { verdict: d.verdict, reference_rms_um: c.waveform_rms_um, refit_rms_um }
+}
+
+fn run_suite(suite: &Suite) {
+    let reference_data = measure(suite, Vec::new(), 1);
+    let reference = fit(&reference_data, "reference (clean machine)", &fit_config(suite), &mut |_| {}).expect("reference fit");
+    let clean_rms = reference.validation.waveform_rms_um;
+    println!("reference model: held-out waveform RMS on clean data {:.2} nm", clean_rms * 1e3);
+
+    let mut labels: Vec<&str> = EFFECT_NAMES.to_vec();
+    labels.push("none");
+    let mut confusion = vec![vec![0usize; labels.len()]; labels.len()];
+    let mut falls: Vec<(String, u64, f64, f64, f64)> = Vec::new();
+    for (row, truth) in labels.iter().enumerate() {
+        let effect = if *truth == "none" { None } else { Some(*truth) };
+        for seed in 0..suite.seeds {
+            let refit = effect.is_some() && seed < suite.fit_seeds;
+            let o = run_case(suite, &reference, effect, seed, refit);
+            let col = labels.iter().position(|l| *l == o.verdict).unwrap_or(labels.len() - 1);
+            confusion[row][col] += 1;
+            if let Some(after) = o.refit_rms_um {
+                falls.push((truth.to_string(), seed, o.reference_rms_um, after, clean_rms));
+            }
+            println!("{truth:<22} seed {seed:>2}: verdict {:<22} reference RMS {:.1} nm{}", o.verdict, o.reference_rms_um * 1e3, o.refit_rms_um.map_or(String::new(), |r| format!(", refit held-out RMS {:.1} nm", r * 1e3)));
+        }
+    }
+
+    println!("\nconfusion matrix (rows: hidden effect, columns: verdict; {} seeds each)", suite.seeds);
+    let short: Vec<String> = labels.iter().map(|l| l.chars().take(8).collect()).collect();
+    println!("{:<22} {}", "", short.iter().map(|s| format!("{s:>9}")).collect::<String>());
+    for (i, l) in labels.iter().enumerate() {
+        println!("{l:<22} {}", confusion[i].iter().map(|n| format!("{n:>9}")).collect::<String>());
+    }
+    let mut all_ok = true;
+    for (i, l) in labels.iter().enumerate() {
+        let rate = confusion[i][i] as f64 / suite.seeds as f64;
+        let need = if *l == "none" { 0.95 } else { 0.90 };
+        println!("{l:<22} correct {:>5.1}% (target {:.0}%)", rate * 100.0, need * 100.0);
+        all_ok &= rate >= need;
+    }
+    println!("\nrefit with --effect <verdict>: reference RMS -> held-out RMS (fall; ratio to the clean held-out RMS {:.1} nm)", clean_rms * 1e3);
+    let mut fall_ok = true;
+    for (effect, seed, before, after, clean) in &falls {
+        let fall = 1.0 - after / before;
+        println!("  {effect:<22} seed {seed}: {:.1} -> {:.1} nm, fall {:.0}%, {:.2}x clean", before * 1e3, after * 1e3, fall * 100.0, after / clean);
+        fall_ok &= fall >= 0.5;
+    }
+    let total: usize = (0..labels.len()).map(|i| confusion[i][i]).sum();
+    let cases = labels.len() as u64 * suite.seeds;
+    println!("\noverall: {total}/{cases} correct; every refit's error fell by at least 50%: {fall_ok}");
+    if suite.seeds >= 20 {
+        assert!(all_ok, "a per-effect rate is below its target");
+    } else {
+        // Few seeds: the overall rate must still reach 90% and every clean case must be `none`.
+        assert!(total as f64 >= 0.9 * cases as f64, "only {total} of {cases} verdicts right");
+        assert_eq!(confusion[labels.len() - 1][labels.len() - 1], suite.seeds as usize, "clean data must give `none`");
+    }
+    assert!(fall_ok, "a refit did not halve the error");
+}
+
+/// CI's share: 24 groups of 5.5 s, 2 seeds per effect (and clean), one refit per effect.
+#[test]
+fn ci_suite() {
+    run_suite(&Suite { seeds: env_u64("STS_SUITE_CI_SEEDS", 2), fit_seeds: 1, paper_grid: false, epochs: 8 });
+}
+
+/// The full run (see the module docs for the command).
+#[test]
+#[ignore]
+fn full_suite() {
+    run_suite(&Suite {
+        seeds: env_u64("STS_SUITE_SEEDS", 20),
+        fit_seeds: env_u64("STS_SUITE_FIT_SEEDS", 3),
+        paper_grid: std::env::var("STS_SUITE_GRID").map_or(true, |g| g == "paper"),
+        epochs: env_u64("STS_SUITE_EPOCHS", 40) as usize,
+    });
+}

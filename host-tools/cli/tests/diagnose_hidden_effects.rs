@@ -86,9 +86,10 @@ fn run_suite(suite: &Suite) {
     labels.push("none");
     let mut confusion = vec![vec![0usize; labels.len()]; labels.len()];
     let mut falls: Vec<(String, u64, f64, f64, f64)> = Vec::new();
-    for (row, truth) in labels.iter().enumerate() {
-        let effect = if *truth == "none" { None } else { Some(*truth) };
-        for seed in 0..suite.seeds {
+    // Seeds outermost, so that a partial run still covers every effect.
+    for seed in 0..suite.seeds {
+        for (row, truth) in labels.iter().enumerate() {
+            let effect = if *truth == "none" { None } else { Some(*truth) };
             let refit = effect.is_some() && seed < suite.fit_seeds;
             let o = run_case(suite, &reference, effect, seed, refit);
             let col = labels.iter().position(|l| *l == o.verdict).unwrap_or(labels.len() - 1);

@@ -203,14 +203,36 @@ fn best_of(inputs: &[GroupInputs], sets: Vec<Vec<TermInput>>) -> (Vec<TermInput>
     (k, t)
 }
 
-fn ripple_sets() -> Vec<Vec<TermInput>> {
-    (0..48)
-        .map(|i| {
-            let pitch_nm = 1000.0 * 1.045f64.powi(i);
-            let turns_per_nm = (4_294_967_296.0 / pitch_nm).round() as u32;
-            vec![TermInput::PositionSine { turns_per_nm, phase_turns: 0 }, TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 }]
+/// The ripple's pitch: the position sine (unfiltered) that best explains the slowest groups,
+/// where the servo follows a position-periodic error without filtering (peak command velocity
+/// at most 100 um/s, or the slowest fifth of the groups).
+fn ripple_pitch(dataset: &Dataset, inputs: &[GroupInputs]) -> Vec<TermInput> {
+    let vpeak: Vec<f64> = dataset.manifest.groups.iter().map(|g| 2.0 * PI * g.freq_hz * g.amp_um).collect();
+    let mut sorted = vpeak.clone();
+    sorted.sort_by(f64::total_cmp);
+    let limit = sorted.get(sorted.len() / 5).copied().unwrap_or(0.0).max(100.0);
+    let slow: Vec<&GroupInputs> = inputs.iter().zip(&vpeak).filter(|(_, v)| **v <= limit).map(|(g, _)| g).collect();
+    let candidates: Vec<u32> = (0..60).map(|i| (4_294_967_296.0 / (1000.0 * 1.04f64.powi(i))).round() as u32).collect();
+    let sse: Vec<f64> = candidates
+        .par_iter()
+        .map(|&turns_per_nm| {
+            let kinds = [TermInput::PositionSine { turns_per_nm, phase_turns: 0 }, TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 }];
+            let stats: Vec<Stats> = slow
+                .iter()
+                .map(|g| {
+                    let cols: Vec<Vec<f64>> =
+                        kinds.iter().map(|k| project_out_fundamental(&term_input(k, &g.pos_nm)[g.start..], &g.theta[g.start..])).collect();
+                    Stats::from_columns(&cols, &g.target)
+                })
+                .collect();
+            let refs: Vec<&Stats> = stats.iter().collect();
+            let theta = solve(&refs);
+            stats.iter().map(|s| s.sse(&theta)).sum()
         })
-        .collect()
+        .collect();
+    let best = (0..candidates.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
+    let turns_per_nm = candidates[best];
+    vec![TermInput::PositionSine { turns_per_nm, phase_turns: 0 }, TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 }]
 }
 
 /// Prepares `fit --effect` for the named effects: fits their terms and returns the dataset
@@ -248,7 +270,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
                 (laguerre_terms(&kinds, &theta), vec![("presliding_distance_um".to_string(), x0_um)], "Laguerre bank on the Dahl state of the command position".to_string())
             }
             "force-ripple" => {
-                let (kinds, theta) = best_of(&inputs, ripple_sets());
+                let (kinds, theta) = best_of(&inputs, vec![ripple_pitch(dataset, &inputs)]);
                 let TermInput::PositionSine { turns_per_nm, .. } = kinds[0] else { unreachable!() };
                 let pitch_um = 4_294_967_296.0 / f64::from(turns_per_nm) / 1000.0;
                 (laguerre_terms(&kinds, &theta), vec![("pitch_um".to_string(), pitch_um)], "two Laguerre banks on the sine and cosine of the command position".to_string())

@@ -304,7 +304,8 @@ impl Servo {
         }
         self.apply_due(tick);
 
-        let de_pm = self.synth.next(input.cmd_phase_turns);
+        // Kernel terms (effects) see the command position; X and spindle are not on the bus yet.
+        let de_pm = self.synth.next_input(&crate::synth::TickInput { cmd_phase_turns: input.cmd_phase_turns, cmd_pos_nm: input.cmd_pos_nm, ..Default::default() });
         let trusted = self.health.degraded == 0;
         let ff = self.feedforward.tick(de_pm, trusted && self.model_active);
         self.counters.dac_saturations += ff.saturated as u32;

@@ -512,4 +512,55 @@ mod tests {
         }
         assert_eq!(synth.next(deg_to_turns(30.0)), 0);
     }
+
+    #[test]
+    fn drift_follows_its_exponential_over_machine_time() {
+        let mut synth = Synth::new(0);
+        let term = TickTerm::Drift { offset_pm: 800_000, decay_pm: -800_000, tau_ticks: 8000 * 900 };
+        synth.set_time_ticks(8000 * 300);
+        synth.update(&ModelOutput::default(), &[term]);
+        let want = |t_s: f64| 0.8e6 * (1.0 - libm::exp(-t_s / 900.0));
+        let first = synth.next_input(&TickInput::default()) as f64;
+        assert!((first - want(300.0)).abs() < 50.0, "{first} vs {}", want(300.0));
+        for _ in 0..8000 * 10 {
+            synth.next_input(&TickInput::default());
+        }
+        let later = synth.next_input(&TickInput::default()) as f64;
+        assert!((later - want(310.0)).abs() < 100.0, "{later} vs {}", want(310.0));
+    }
+
+    #[test]
+    fn axis_coupling_scales_the_x_acceleration_and_adds_the_spindle_sine() {
+        let mut synth = Synth::new(0);
+        let term = TickTerm::AxisCoupling { x_gain_pm_per_mps2: 800_000, spindle_amp_pm: 50_000, spindle_phase_turns: 0 };
+        synth.update(&ModelOutput::default(), &[term]);
+        // 0.25 m/s^2 -> 0.2 um; spindle at a quarter turn -> +50 nm.
+        let out = synth.next_input(&TickInput { x_acc_um_per_s2: 250_000, spindle_turns: 1 << 30, ..TickInput::default() });
+        assert!((out - 250_000).abs() < 20, "{out}");
+    }
+
+    #[test]
+    fn laguerre_term_is_linear_and_starts_from_rest() {
+        let run = |gain: i32| {
+            let mut synth = Synth::new(0);
+            let mut gains = [0i32; LAGUERRE_STAGES];
+            gains[0] = gain;
+            gains[3] = -gain / 2;
+            let term = TickTerm::Laguerre { input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 8 }, pole_q30: (0.93 * (1u64 << 30) as f64) as i32, gains_pm: gains };
+            synth.update(&ModelOutput::default(), &[term]);
+            (0..4000)
+                .map(|k| {
+                    let pos = (5000.0 * libm::sin(2.0 * core::f64::consts::PI * 10.0 * k as f64 / 8000.0)) as i32;
+                    synth.next_input(&TickInput { cmd_pos_nm: pos, ..TickInput::default() }) as i64
+                })
+                .collect::<std::vec::Vec<i64>>()
+        };
+        let one = run(100_000);
+        let two = run(200_000);
+        assert_eq!(one[0], 0, "a bank at rest with the command at rest outputs nothing");
+        assert!(one.iter().map(|v| v.abs()).max().unwrap() > 50_000);
+        for (a, b) in one.iter().zip(&two) {
+            assert!((2 * a - b).abs() <= 2, "{a} {b}");
+        }
+    }
 }

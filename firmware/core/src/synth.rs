@@ -167,19 +167,13 @@ struct KernelState {
     primed: bool,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct TermState {
     order: u8,
     ramp: Ramp,
     /// The term in force (`None`: an idle or harmonic slot).
     kernel: Option<TickTerm>,
     state: KernelState,
-}
-
-impl Default for TermState {
-    fn default() -> Self {
-        Self { order: 0, ramp: Ramp::default(), kernel: None, state: KernelState::default() }
-    }
 }
 
 impl Eq for TermState {}
@@ -229,7 +223,7 @@ fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput, ticks: u6
                     let u = st.dahl_q30 as i64;
                     let sign = dx.signum();
                     // du = dx / x0 * (1 - u sgn(dx)), kept within [-1, 1].
-                    let du = (dx * inv_x0_q30 as i64).clamp(-(1 << 31), 1 << 31) * ((1 << 30) - sign * u) >> 30;
+                    let du = ((dx * inv_x0_q30 as i64).clamp(-(1 << 31), 1 << 31) * ((1 << 30) - sign * u)) >> 30;
                     let next = (u + du).clamp(-(1 << 30), 1 << 30);
                     st.dahl_q30 = next as i32;
                     next

@@ -33,7 +33,7 @@ use std::sync::mpsc;
 
 use rayon::prelude::*;
 use sts_dataset::Dataset;
-use sts_symreg::{Expr, FrontMember, Matrix, OperatorSet, SearchConfig, SearchResult, SelectionConfig};
+use sts_symreg::{FrontMember, Matrix, OperatorSet, SearchConfig, SearchResult, SelectionConfig};
 use sts_twin_core::features::{FeatureConfig, FEATURE_LABELS};
 use sts_twin_core::program::Program;
 
@@ -540,14 +540,10 @@ fn validate(dataset: &Dataset, samples: &[GroupSample], held_out: &[(f64, f64)],
     }
 }
 
-/// Expressions of a model, for export.
-pub fn model_exprs(model: &ModelFile) -> (&Expr, &Expr) {
-    (&model.amplitude.expr, &model.phase.expr)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sts_symreg::Expr;
 
     #[test]
     fn selection_takes_the_simplest_good_enough_or_nearly_best_held_out() {

@@ -53,3 +53,26 @@ fn background_timing_and_outputs_do_not_depend_on_the_host_pace() {
         "the model work completed at different points of the ticks"
     );
 }
+
+/// A host that is slow to take its outputs (the sink sleeps now and then, so the firmware
+/// runs a whole ring ahead) still gets every output, in order: the stream never lets the
+/// firmware overwrite an output slot the host has not read.
+#[test]
+fn a_host_slow_to_read_outputs_loses_none() {
+    let _serial = sts_hil_tests::serial();
+    let inputs = bench_inputs(20 * 256);
+    let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("boot");
+    let mut ticks = Vec::with_capacity(inputs.len());
+    hil.stream_open_loop(inputs.iter().copied(), |o| {
+        if o.tick % 97 == 0 {
+            std::thread::sleep(Duration::from_millis(15));
+        }
+        ticks.push(o.tick);
+    })
+    .expect("stream");
+    let expected: Vec<u32> = (0..inputs.len() as u32).collect();
+    let first_wrong = ticks.iter().zip(&expected).position(|(got, want)| got != want);
+    assert_eq!(first_wrong, None, "output {first_wrong:?} came from another tick");
+    assert_eq!(ticks.len(), expected.len());
+    hil.shutdown().unwrap();
+}

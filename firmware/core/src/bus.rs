@@ -19,8 +19,8 @@
 //! | 0x100 + 16 * RING_SLOTS | output ring | [`OutputSlot`] `k` likewise | firmware |
 //!
 //! Ordering: a writer fills a slot, then (after a memory barrier) bumps its sequence word; a
-//! reader reads the sequence word, then the slot. The host never runs more than
-//! [`RING_SLOTS`] inputs ahead of `FW_SEQ`. The firmware's output for tick `k` is applied to
+//! reader reads the sequence word, then the slot. Fewer than [`RING_SLOTS`] ticks are ever
+//! in flight: the host writes input `k` only once it has read output `k - RING_SLOTS + 1`. The firmware's output for tick `k` is applied to
 //! the plant at tick `k + 1`, always: that is the bus's fixed one-tick latency.
 //!
 //! This module only defines the layout and the slot encodings; the volatile access lives in

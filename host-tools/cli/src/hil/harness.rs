@@ -260,8 +260,11 @@ impl Hil {
         loop {
             let fw = self.bus.fw_seq();
             let mut progressed = false;
-            // Keep one slot of slack: the firmware reads slot k while the host may write k + RING - 1.
-            while inputs.peek().is_some() && written.wrapping_sub(fw) < (RING_SLOTS - 1) as u32 {
+            // Bounded by what the host has *read*, not by FW_SEQ: input k makes the firmware
+            // write output slot k % RING, so more than a ring beyond `read` would overwrite
+            // outputs not yet read (seen when the host lagged a whole ring behind the
+            // firmware). One slot of slack as on the input side.
+            while inputs.peek().is_some() && in_flight_allowed(written, read) {
                 let mut input = inputs.next().expect("peeked");
                 input.tick = written;
                 self.bus.write_input(&input);
@@ -459,4 +462,10 @@ impl Waiter {
         }
         Ok(())
     }
+}
+
+/// True when input `written` may be sent while outputs from `read` on are still unread:
+/// both rings then hold every slot in flight (`read <= FW_SEQ <= written`).
+fn in_flight_allowed(written: u32, read: u32) -> bool {
+    written.wrapping_sub(read) < (RING_SLOTS - 1) as u32
 }

@@ -48,11 +48,11 @@ fn main() {
                 let header: Vec<String> = (0..N_FEATURES).map(|j| format!("x{j}")).collect();
                 s.push_str(&header.join(","));
                 s.push_str(",y\n");
-                for r in 0..x.n_rows() {
+                for (r, y_r) in y.iter().enumerate() {
                     for v in x.row(r) {
                         s.push_str(&format!("{v:?},"));
                     }
-                    s.push_str(&format!("{:?}\n", y[r]));
+                    s.push_str(&format!("{y_r:?}\n"));
                 }
                 let path = format!("{dir}/{}_seed{seed}.csv", p.name());
                 std::fs::write(&path, s).expect("write CSV");

@@ -2,6 +2,7 @@
 //! the constants (the Jacobian that Levenberg-Marquardt needs).
 
 use crate::expr::{BinaryOp, Expr, PostfixNode, UnaryOp};
+use crate::fastmath;
 
 /// One instruction of a compiled program. A binary operator whose right operand is a leaf is
 /// fused with it, which saves one buffer fill per leaf.
@@ -92,53 +93,172 @@ pub struct Evaluator {
     tmp_fb: Vec<f64>,
 }
 
-/// Sum of `v - v`: zero when every value is finite, NaN otherwise. Vectorises well.
+/// Whether the CPU has AVX2 (detected once, then cached by std). The AVX2 variants of the
+/// evaluator do the same IEEE operations in the same order as the generic ones (FMA is not
+/// enabled, and Rust never contracts `a * b + c`), so they give the same bits.
+#[cfg(target_arch = "x86_64")]
 #[inline]
+fn has_avx2() -> bool {
+    std::arch::is_x86_feature_detected!("avx2")
+}
+
+/// Whether every value is finite. A branch-free fold, so that it vectorises.
+#[inline(always)]
 fn all_finite(v: &[f64]) -> bool {
-    let mut acc = 0.0f64;
-    for &x in v {
-        acc += x - x;
-    }
-    acc == 0.0
+    v.iter().fold(true, |ok, x| ok & x.is_finite())
 }
 
-#[inline]
+#[inline(always)]
 fn apply_binary(op: BinaryOp, a: &mut [f64], b: &[f64]) {
+    let b = &b[..a.len()];
     match op {
-        BinaryOp::Add => a.iter_mut().zip(b).for_each(|(x, y)| *x += *y),
-        BinaryOp::Sub => a.iter_mut().zip(b).for_each(|(x, y)| *x -= *y),
-        BinaryOp::Mul => a.iter_mut().zip(b).for_each(|(x, y)| *x *= *y),
-        BinaryOp::Div => a.iter_mut().zip(b).for_each(|(x, y)| *x /= *y),
-        BinaryOp::Pow => a.iter_mut().zip(b).for_each(|(x, y)| *x = x.abs().powf(*y)),
+        BinaryOp::Add => {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += *y;
+            }
+        }
+        BinaryOp::Sub => {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x -= *y;
+            }
+        }
+        BinaryOp::Mul => {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x *= *y;
+            }
+        }
+        BinaryOp::Div => {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x /= *y;
+            }
+        }
+        BinaryOp::Pow => fastmath::pow_abs_in_place(a, b),
     }
 }
 
-#[inline]
+#[inline(always)]
 fn apply_binary_const(op: BinaryOp, a: &mut [f64], c: f64) {
     match op {
-        BinaryOp::Add => a.iter_mut().for_each(|x| *x += c),
-        BinaryOp::Sub => a.iter_mut().for_each(|x| *x -= c),
-        BinaryOp::Mul => a.iter_mut().for_each(|x| *x *= c),
-        BinaryOp::Div => a.iter_mut().for_each(|x| *x /= c),
-        BinaryOp::Pow => {
-            if c == 2.0 {
-                a.iter_mut().for_each(|x| *x *= *x)
-            } else {
-                a.iter_mut().for_each(|x| *x = x.abs().powf(c))
+        BinaryOp::Add => {
+            for x in a.iter_mut() {
+                *x += c;
+            }
+        }
+        BinaryOp::Sub => {
+            for x in a.iter_mut() {
+                *x -= c;
+            }
+        }
+        BinaryOp::Mul => {
+            for x in a.iter_mut() {
+                *x *= c;
+            }
+        }
+        BinaryOp::Div => {
+            for x in a.iter_mut() {
+                *x /= c;
+            }
+        }
+        BinaryOp::Pow => fastmath::pow_abs_const_in_place(a, c),
+    }
+}
+
+#[inline(always)]
+fn apply_unary(op: UnaryOp, a: &mut [f64]) {
+    match op {
+        UnaryOp::Abs => {
+            for x in a.iter_mut() {
+                *x = x.abs();
+            }
+        }
+        UnaryOp::Sqrt => {
+            for x in a.iter_mut() {
+                *x = x.abs().sqrt();
+            }
+        }
+        UnaryOp::Exp => fastmath::exp_in_place(a),
+        UnaryOp::Log => fastmath::ln_in_place(a),
+        UnaryOp::Tanh => fastmath::tanh_in_place(a),
+        UnaryOp::Sin => {
+            for x in a.iter_mut() {
+                *x = x.sin();
             }
         }
     }
 }
 
-#[inline]
-fn apply_unary(op: UnaryOp, a: &mut [f64]) {
+/// `fa = d op(a) / da`, given `v = op(a)`, column-wise.
+#[inline(always)]
+fn unary_derivative(op: UnaryOp, a: &[f64], v: &[f64], fa: &mut [f64]) {
+    let (a, v) = (&a[..fa.len()], &v[..fa.len()]);
+    let it = fa.iter_mut().zip(a.iter().zip(v));
     match op {
-        UnaryOp::Abs => a.iter_mut().for_each(|x| *x = x.abs()),
-        UnaryOp::Sqrt => a.iter_mut().for_each(|x| *x = x.abs().sqrt()),
-        UnaryOp::Exp => a.iter_mut().for_each(|x| *x = x.exp()),
-        UnaryOp::Log => a.iter_mut().for_each(|x| *x = x.abs().ln()),
-        UnaryOp::Tanh => a.iter_mut().for_each(|x| *x = x.tanh()),
-        UnaryOp::Sin => a.iter_mut().for_each(|x| *x = x.sin()),
+        UnaryOp::Abs => {
+            for (f, (x, _)) in it {
+                *f = if *x > 0.0 {
+                    1.0
+                } else if *x < 0.0 {
+                    -1.0
+                } else {
+                    0.0
+                };
+            }
+        }
+        UnaryOp::Sqrt => {
+            for (f, (x, v)) in it {
+                *f = 0.5 * v / x;
+            }
+        }
+        UnaryOp::Exp => fa.copy_from_slice(v),
+        UnaryOp::Log => {
+            for (f, (x, _)) in it {
+                *f = 1.0 / x;
+            }
+        }
+        UnaryOp::Tanh => {
+            for (f, (_, v)) in it {
+                *f = 1.0 - v * v;
+            }
+        }
+        UnaryOp::Sin => {
+            for (f, (x, _)) in it {
+                *f = x.cos();
+            }
+        }
+    }
+}
+
+/// `fa = d op(a, b) / da`, `fb = d op(a, b) / db`, given `v = op(a, b)`, column-wise.
+#[inline(always)]
+fn binary_derivatives(op: BinaryOp, a: &[f64], b: &[f64], v: &[f64], fa: &mut [f64], fb: &mut [f64]) {
+    let n = fa.len();
+    let (a, b, v, fb) = (&a[..n], &b[..n], &v[..n], &mut fb[..n]);
+    let it = fa.iter_mut().zip(fb.iter_mut()).zip(a.iter().zip(b).zip(v));
+    match op {
+        BinaryOp::Add => {
+            fa.fill(1.0);
+            fb.fill(1.0);
+        }
+        BinaryOp::Sub => {
+            fa.fill(1.0);
+            fb.fill(-1.0);
+        }
+        BinaryOp::Mul => {
+            fa.copy_from_slice(b);
+            fb.copy_from_slice(a);
+        }
+        BinaryOp::Div => {
+            for ((da, db), ((_, y), v)) in it {
+                (*da, *db) = (1.0 / y, -v / y);
+            }
+        }
+        // d|x|^y/dx = y |x|^y / x, d|x|^y/dy = |x|^y ln|x|; both 0 where |x|^y is 0.
+        BinaryOp::Pow => {
+            for ((da, db), ((x, y), v)) in it {
+                let (ga, gb) = (y * v / x, v * fastmath::ln(*x));
+                (*da, *db) = if *v == 0.0 { (0.0, 0.0) } else { (ga, gb) };
+            }
+        }
     }
 }
 
@@ -172,6 +292,26 @@ impl Evaluator {
     /// assert_eq!(out, [3.0, 6.0]);
     /// ```
     pub fn eval(&mut self, program: &Program, columns: &[&[f64]], out: &mut [f64]) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if has_avx2() {
+                // SAFETY: the CPU supports AVX2 (checked just above).
+                return unsafe { self.eval_avx2(program, columns, out) };
+            }
+        }
+        self.eval_generic(program, columns, out)
+    }
+
+    /// [`Evaluator::eval`] compiled for AVX2 (4 lanes instead of SSE2's 2).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn eval_avx2(&mut self, program: &Program, columns: &[&[f64]], out: &mut [f64]) -> bool {
+        self.eval_generic(program, columns, out)
+    }
+
+    /// The body of [`Evaluator::eval`], for every instruction set.
+    #[inline(always)]
+    fn eval_generic(&mut self, program: &Program, columns: &[&[f64]], out: &mut [f64]) -> bool {
         let n = self.n_rows;
         assert_eq!(out.len(), n, "output length must equal the evaluator's row count");
         while self.stack.len() < program.max_stack {
@@ -181,7 +321,7 @@ impl Evaluator {
         for instr in &program.fused {
             match *instr {
                 Instr::Const(c) => {
-                    self.stack[sp].iter_mut().for_each(|x| *x = c);
+                    self.stack[sp].fill(c);
                     sp += 1;
                     continue;
                 }
@@ -220,6 +360,38 @@ impl Evaluator {
         out: &mut [f64],
         jacobian: &mut [f64],
     ) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if has_avx2() {
+                // SAFETY: the CPU supports AVX2 (checked just above).
+                return unsafe { self.eval_with_jacobian_avx2(program, columns, out, jacobian) };
+            }
+        }
+        self.eval_with_jacobian_generic(program, columns, out, jacobian)
+    }
+
+    /// [`Evaluator::eval_with_jacobian`] compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn eval_with_jacobian_avx2(
+        &mut self,
+        program: &Program,
+        columns: &[&[f64]],
+        out: &mut [f64],
+        jacobian: &mut [f64],
+    ) -> bool {
+        self.eval_with_jacobian_generic(program, columns, out, jacobian)
+    }
+
+    /// The body of [`Evaluator::eval_with_jacobian`], for every instruction set.
+    #[inline(always)]
+    fn eval_with_jacobian_generic(
+        &mut self,
+        program: &Program,
+        columns: &[&[f64]],
+        out: &mut [f64],
+        jacobian: &mut [f64],
+    ) -> bool {
         let n = self.n_rows;
         let k = program.n_constants;
         let width = (k + 1) * n;
@@ -239,10 +411,10 @@ impl Evaluator {
             match *node {
                 PostfixNode::Const(c) => {
                     let (buf, dep) = &mut self.jac_stack[sp];
-                    buf[..n].iter_mut().for_each(|x| *x = c);
-                    buf[n..width].iter_mut().for_each(|x| *x = 0.0);
+                    buf[..n].fill(c);
+                    buf[n..width].fill(0.0);
                     let row = (const_idx + 1) * n;
-                    buf[row..row + n].iter_mut().for_each(|x| *x = 1.0);
+                    buf[row..row + n].fill(1.0);
                     *dep = true;
                     const_idx += 1;
                     sp += 1;
@@ -257,31 +429,16 @@ impl Evaluator {
                     let (buf, dep) = &mut self.jac_stack[sp - 1];
                     let (a, rest) = buf.split_at_mut(n);
                     if *dep {
-                        let fa = &mut self.tmp_fa;
-                        for i in 0..n {
-                            let x = a[i];
-                            let v = op.apply(x);
-                            self.tmp_value[i] = v;
-                            fa[i] = match op {
-                                UnaryOp::Abs => {
-                                    if x > 0.0 {
-                                        1.0
-                                    } else if x < 0.0 {
-                                        -1.0
-                                    } else {
-                                        0.0
-                                    }
-                                }
-                                UnaryOp::Sqrt => 0.5 * v / x,
-                                UnaryOp::Exp => v,
-                                UnaryOp::Log => 1.0 / x,
-                                UnaryOp::Tanh => 1.0 - v * v,
-                                UnaryOp::Sin => x.cos(),
-                            };
-                        }
+                        let v = &mut self.tmp_value;
+                        v.copy_from_slice(a);
+                        apply_unary(op, v);
+                        unary_derivative(op, a, v, &mut self.tmp_fa);
+                        let fa = &self.tmp_fa;
                         for j in 0..k {
                             let d = &mut rest[j * n..(j + 1) * n];
-                            d.iter_mut().zip(fa.iter()).for_each(|(d, f)| *d *= *f);
+                            for (d, f) in d.iter_mut().zip(fa.iter()) {
+                                *d *= *f;
+                            }
                         }
                         a.copy_from_slice(&self.tmp_value);
                         if !all_finite(&buf[..width]) {
@@ -309,28 +466,11 @@ impl Evaluator {
                     }
                     let (a, arest) = abuf.split_at_mut(n);
                     let (b, brest) = bbuf.split_at(n);
-                    let fa = &mut self.tmp_fa;
-                    let fb = &mut self.tmp_fb;
-                    for i in 0..n {
-                        let (x, y) = (a[i], b[i]);
-                        let v = op.apply(x, y);
-                        self.tmp_value[i] = v;
-                        let (da, db) = match op {
-                            BinaryOp::Add => (1.0, 1.0),
-                            BinaryOp::Sub => (1.0, -1.0),
-                            BinaryOp::Mul => (y, x),
-                            BinaryOp::Div => (1.0 / y, -v / y),
-                            BinaryOp::Pow => {
-                                if v == 0.0 {
-                                    (0.0, 0.0)
-                                } else {
-                                    (y * v / x, v * x.abs().ln())
-                                }
-                            }
-                        };
-                        fa[i] = da;
-                        fb[i] = db;
-                    }
+                    let v = &mut self.tmp_value;
+                    v.copy_from_slice(a);
+                    apply_binary(op, v, b);
+                    binary_derivatives(op, a, b, v, &mut self.tmp_fa, &mut self.tmp_fb);
+                    let (fa, fb) = (&self.tmp_fa, &self.tmp_fb);
                     for j in 0..k {
                         let d = &mut arest[j * n..(j + 1) * n];
                         let dbj = &brest[j * n..(j + 1) * n];
@@ -368,7 +508,7 @@ impl Evaluator {
         if *dep {
             jacobian.copy_from_slice(&buf[n..width]);
         } else {
-            jacobian.iter_mut().for_each(|x| *x = 0.0);
+            jacobian.fill(0.0);
         }
         all_finite(out)
     }
@@ -445,6 +585,98 @@ mod tests {
                 let fd = (fp[r] - fm[r]) / (2.0 * h);
                 let an = jac[j * n + r];
                 assert!((fd - an).abs() <= 1e-5 * (1.0 + an.abs()), "const {j} row {r}: fd {fd} vs {an}");
+            }
+        }
+    }
+
+    /// The AVX2 variants give the same bits as the generic (SSE2) code.
+    #[test]
+    fn avx2_and_generic_agree_bit_for_bit() {
+        let e = sample();
+        let cols = data();
+        let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
+        let p = Program::compile(&e);
+        let n = cols[0].len();
+        let k = p.n_constants();
+        let mut ev = Evaluator::new(n);
+        let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+        assert!(ev.eval(&p, &refs, &mut a));
+        assert!(ev.eval_generic(&p, &refs, &mut b));
+        assert_eq!(a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), b.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+        let (mut ja, mut jb) = (vec![0.0; k * n], vec![0.0; k * n]);
+        assert!(ev.eval_with_jacobian(&p, &refs, &mut a, &mut ja));
+        assert!(ev.eval_with_jacobian_generic(&p, &refs, &mut b, &mut jb));
+        assert_eq!(a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), b.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+        assert_eq!(ja.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), jb.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+    }
+
+    /// The libm semantics the engine had before its own `exp`/`ln`/`tanh`/`pow`: the
+    /// evaluator must classify every edge input the same way (valid or not) and, when valid,
+    /// agree to rounding.
+    fn std_unary(op: UnaryOp, a: f64) -> f64 {
+        match op {
+            Abs => a.abs(),
+            Sqrt => a.abs().sqrt(),
+            Exp => a.exp(),
+            Log => a.abs().ln(),
+            Tanh => a.tanh(),
+            Sin => a.sin(),
+        }
+    }
+
+    fn std_binary(op: BinaryOp, a: f64, b: f64) -> f64 {
+        match op {
+            Add => a + b,
+            Sub => a - b,
+            Mul => a * b,
+            Div => a / b,
+            Pow => a.abs().powf(b),
+        }
+    }
+
+    const EDGES: [f64; 24] = [
+        0.0, -0.0, 1.0, -1.0, 2.0, -2.0, 0.78, -0.78, 5e-324, -5e-324, 1e-300, 2.5e-308, 30.0, -30.0, 709.0, 709.9,
+        -745.0, -746.0, 1e300, -1e300, f64::MAX, f64::INFINITY, f64::NEG_INFINITY, f64::NAN,
+    ];
+
+    fn check_one(e: &Expr, cols: &[&[f64]], want: f64) {
+        let p = Program::compile(e);
+        let mut ev = Evaluator::new(1);
+        let mut out = [0.0];
+        let ok = ev.eval(&p, cols, &mut out);
+        // The evaluator checks what operators compute (data columns are checked when loaded);
+        let want_ok = want.is_finite();
+        let inputs_finite = cols.iter().all(|c| c[0].is_finite());
+        assert_eq!(ok, want_ok, "{e} at {cols:?}: got {} valid={ok}, std {want}", out[0]);
+        if ok {
+            let tol = 2e-13 * want.abs();
+            assert!((out[0] - want).abs() <= tol, "{e} at {cols:?}: {} vs std {want}", out[0]);
+        }
+        if inputs_finite {
+            let row: Vec<f64> = cols.iter().map(|c| c[0]).collect();
+            assert_eq!(e.eval_row(&row).is_finite(), want_ok, "{e} row at {row:?}");
+        }
+    }
+
+    #[test]
+    fn edge_inputs_are_classified_as_with_libm() {
+        for op in UnaryOp::ALL {
+            for &x in &EDGES {
+                let e = Expr::unary(op, Expr::Var(0));
+                check_one(&e, &[&[x]], std_unary(op, x));
+            }
+        }
+        for op in BinaryOp::ALL {
+            for &x in &EDGES {
+                for &y in &EDGES {
+                    // Column op column, and column op constant (the fused path).
+                    let e = Expr::binary(op, Expr::Var(0), Expr::Var(1));
+                    check_one(&e, &[&[x], &[y]], std_binary(op, x, y));
+                    if y.is_finite() {
+                        let e = Expr::binary(op, Expr::Var(0), Expr::Const(y));
+                        check_one(&e, &[&[x]], std_binary(op, x, y));
+                    }
+                }
             }
         }
     }

@@ -54,15 +54,16 @@ impl UnaryOp {
         UnaryOp::Sin,
     ];
 
-    /// Applies the operator with the firmware's semantics.
+    /// Applies the operator with the firmware's semantics. `exp`, `log` and `tanh` are the
+    /// engine's own ([`crate::fastmath`], within 5.5e-16 of the exact value).
     #[inline]
     pub fn apply(self, a: f64) -> f64 {
         match self {
             UnaryOp::Abs => a.abs(),
             UnaryOp::Sqrt => a.abs().sqrt(),
-            UnaryOp::Exp => a.exp(),
-            UnaryOp::Log => a.abs().ln(),
-            UnaryOp::Tanh => a.tanh(),
+            UnaryOp::Exp => crate::fastmath::exp(a),
+            UnaryOp::Log => crate::fastmath::ln(a),
+            UnaryOp::Tanh => crate::fastmath::tanh(a),
             UnaryOp::Sin => a.sin(),
         }
     }
@@ -90,7 +91,8 @@ impl BinaryOp {
         BinaryOp::Pow,
     ];
 
-    /// Applies the operator with the firmware's semantics.
+    /// Applies the operator with the firmware's semantics. `pow` is the engine's own
+    /// ([`crate::fastmath::pow_abs`]).
     #[inline]
     pub fn apply(self, a: f64, b: f64) -> f64 {
         match self {
@@ -98,7 +100,7 @@ impl BinaryOp {
             BinaryOp::Sub => a - b,
             BinaryOp::Mul => a * b,
             BinaryOp::Div => a / b,
-            BinaryOp::Pow => a.abs().powf(b),
+            BinaryOp::Pow => crate::fastmath::pow_abs(a, b),
         }
     }
 

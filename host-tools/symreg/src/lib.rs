@@ -26,6 +26,7 @@
 pub mod data;
 pub mod eval;
 pub mod expr;
+pub mod fastmath;
 mod mutate;
 mod optimize;
 pub mod planted;

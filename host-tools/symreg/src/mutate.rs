@@ -27,7 +27,7 @@ impl Rand {
     pub fn below(&mut self, n: usize) -> usize {
         debug_assert!(n > 0);
         // Multiply-shift: bias below 2^-32 for the small n used here.
-        ((self.0.next_u64() >> 32) * n as u64 >> 32) as usize
+        (((self.0.next_u64() >> 32) * n as u64) >> 32) as usize
     }
 
     pub fn chance(&mut self, p: f64) -> bool {

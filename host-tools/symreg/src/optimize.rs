@@ -83,8 +83,8 @@ impl<'a> Workspace<'a> {
             for a in 0..k {
                 let ja = &self.jac[a * n..(a + 1) * n];
                 let mut s = 0.0;
-                for r in 0..n {
-                    s += ja[r] * (self.pred[r] - self.y[r]);
+                for ((j, p), y) in ja.iter().zip(&self.pred[..n]).zip(&self.y[..n]) {
+                    s += j * (p - y);
                 }
                 jtr[a] = s;
                 for b in 0..=a {
@@ -156,7 +156,7 @@ fn solve_spd(m: &mut [f64], b: &[f64], k: usize) -> Option<Vec<f64>> {
         for p in 0..j {
             d -= m[j * k + p] * m[j * k + p];
         }
-        if !(d > 0.0) || !d.is_finite() {
+        if d <= 0.0 || !d.is_finite() {
             return None;
         }
         let d = d.sqrt();

@@ -467,7 +467,7 @@ fn validate(x: &Matrix, y: &[f64]) -> Result<f64, SymregError> {
     }
     let mean = y.iter().sum::<f64>() / y.len() as f64;
     let var = y.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / y.len() as f64;
-    if !(var > 0.0) {
+    if var.is_nan() || var <= 0.0 {
         return Err(SymregError::ConstantTarget { value: y[0] });
     }
     Ok(var)

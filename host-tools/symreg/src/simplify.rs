@@ -295,7 +295,7 @@ fn pow(a: Expr, b: Expr) -> Expr {
     match (a, b) {
         // pow takes |a| itself.
         (Expr::Unary(UnaryOp::Abs, inner), b) => pow(*inner, b),
-        (a, Expr::Const(e)) if e == 0.5 => unary(UnaryOp::Sqrt, a),
+        (a, Expr::Const(0.5)) => unary(UnaryOp::Sqrt, a),
         (a, b) => Expr::binary(Pow, a, b),
     }
 }

@@ -87,7 +87,8 @@ impl Program {
 pub struct Evaluator {
     n_rows: usize,
     stack: Vec<Vec<f64>>,
-    jac_stack: Vec<(Vec<f64>, bool)>,
+    /// Value and derivative rows, and the range of constants the entry depends on.
+    jac_stack: Vec<(Vec<f64>, usize, usize)>,
     tmp_value: Vec<f64>,
     tmp_fa: Vec<f64>,
     tmp_fb: Vec<f64>,
@@ -392,15 +393,20 @@ impl Evaluator {
         out: &mut [f64],
         jacobian: &mut [f64],
     ) -> bool {
+        // Each stack entry holds its value (rows 0..n) and its derivatives with respect to
+        // the constants of its subtree only. In postfix order a subtree's constants are a
+        // contiguous range, and the two operands of a binary operator own adjacent disjoint
+        // ranges, so no derivative row is ever zero-filled or summed: row j of the result
+        // is `fa * da_j` or `fb * db_j`. Row j lives at `(j + 1) * n` in every buffer.
         let n = self.n_rows;
         let k = program.n_constants;
         let width = (k + 1) * n;
         assert_eq!(out.len(), n);
         assert_eq!(jacobian.len(), k * n);
         while self.jac_stack.len() < program.max_stack {
-            self.jac_stack.push((Vec::new(), false));
+            self.jac_stack.push((Vec::new(), 0, 0));
         }
-        for (buf, _) in &mut self.jac_stack {
+        for (buf, _, _) in &mut self.jac_stack {
             if buf.len() < width {
                 buf.resize(width, 0.0);
             }
@@ -410,38 +416,37 @@ impl Evaluator {
         for node in &program.postfix {
             match *node {
                 PostfixNode::Const(c) => {
-                    let (buf, dep) = &mut self.jac_stack[sp];
+                    let (buf, lo, hi) = &mut self.jac_stack[sp];
                     buf[..n].fill(c);
-                    buf[n..width].fill(0.0);
                     let row = (const_idx + 1) * n;
                     buf[row..row + n].fill(1.0);
-                    *dep = true;
+                    (*lo, *hi) = (const_idx, const_idx + 1);
                     const_idx += 1;
                     sp += 1;
                 }
                 PostfixNode::Var(i) => {
-                    let (buf, dep) = &mut self.jac_stack[sp];
+                    let (buf, lo, hi) = &mut self.jac_stack[sp];
                     buf[..n].copy_from_slice(&columns[i][..n]);
-                    *dep = false;
+                    (*lo, *hi) = (const_idx, const_idx);
                     sp += 1;
                 }
                 PostfixNode::Unary(op) => {
-                    let (buf, dep) = &mut self.jac_stack[sp - 1];
+                    let (buf, lo, hi) = &mut self.jac_stack[sp - 1];
+                    let (lo, hi) = (*lo, *hi);
                     let (a, rest) = buf.split_at_mut(n);
-                    if *dep {
+                    if hi > lo {
                         let v = &mut self.tmp_value;
                         v.copy_from_slice(a);
                         apply_unary(op, v);
                         unary_derivative(op, a, v, &mut self.tmp_fa);
                         let fa = &self.tmp_fa;
-                        for j in 0..k {
-                            let d = &mut rest[j * n..(j + 1) * n];
+                        for d in rest[lo * n..hi * n].chunks_exact_mut(n) {
                             for (d, f) in d.iter_mut().zip(fa.iter()) {
                                 *d *= *f;
                             }
                         }
                         a.copy_from_slice(&self.tmp_value);
-                        if !all_finite(&buf[..width]) {
+                        if !all_finite(a) || !all_finite(&rest[lo * n..hi * n]) {
                             return false;
                         }
                     } else {
@@ -452,15 +457,17 @@ impl Evaluator {
                     }
                 }
                 PostfixNode::Binary(op) => {
-                    let (lo, hi) = self.jac_stack.split_at_mut(sp - 1);
-                    let (abuf, adep) = &mut lo[sp - 2];
-                    let (bbuf, bdep) = &hi[0];
-                    let bdep = *bdep;
-                    if !*adep && !bdep {
+                    let (below, top) = self.jac_stack.split_at_mut(sp - 1);
+                    let (abuf, alo, ahi) = &mut below[sp - 2];
+                    let (bbuf, blo, bhi) = &top[0];
+                    let (la, ha, lb, hb) = (*alo, *ahi, *blo, *bhi);
+                    debug_assert!(ha == lb || la == ha || lb == hb);
+                    if la == ha && lb == hb {
                         apply_binary(op, &mut abuf[..n], &bbuf[..n]);
                         if !all_finite(&abuf[..n]) {
                             return false;
                         }
+                        (*alo, *ahi) = (lb, hb);
                         sp -= 1;
                         continue;
                     }
@@ -471,31 +478,22 @@ impl Evaluator {
                     apply_binary(op, v, b);
                     binary_derivatives(op, a, b, v, &mut self.tmp_fa, &mut self.tmp_fb);
                     let (fa, fb) = (&self.tmp_fa, &self.tmp_fb);
-                    for j in 0..k {
-                        let d = &mut arest[j * n..(j + 1) * n];
-                        let dbj = &brest[j * n..(j + 1) * n];
-                        match (*adep, bdep) {
-                            (true, true) => {
-                                for i in 0..n {
-                                    d[i] = fa[i] * d[i] + fb[i] * dbj[i];
-                                }
-                            }
-                            (true, false) => {
-                                for i in 0..n {
-                                    d[i] *= fa[i];
-                                }
-                            }
-                            (false, true) => {
-                                for i in 0..n {
-                                    d[i] = fb[i] * dbj[i];
-                                }
-                            }
-                            (false, false) => unreachable!("handled above"),
+                    for d in arest[la * n..ha * n].chunks_exact_mut(n) {
+                        for (d, f) in d.iter_mut().zip(fa.iter()) {
+                            *d *= *f;
+                        }
+                    }
+                    let (dst, src) = (&mut arest[lb * n..hb * n], &brest[lb * n..hb * n]);
+                    for (d, s) in dst.chunks_exact_mut(n).zip(src.chunks_exact(n)) {
+                        for ((d, s), f) in d.iter_mut().zip(s).zip(fb.iter()) {
+                            *d = f * s;
                         }
                     }
                     a.copy_from_slice(&self.tmp_value);
-                    *adep = true;
-                    if !all_finite(&abuf[..width]) {
+                    // The operands' ranges are adjacent (or one is empty).
+                    let (lo, hi) = if la == ha { (lb, hb) } else if lb == hb { (la, ha) } else { (la, hb) };
+                    (*alo, *ahi) = (lo, hi);
+                    if !all_finite(a) || !all_finite(&arest[lo * n..hi * n]) {
                         return false;
                     }
                     sp -= 1;
@@ -503,9 +501,10 @@ impl Evaluator {
             }
         }
         debug_assert_eq!(sp, 1);
-        let (buf, dep) = &self.jac_stack[0];
+        let (buf, lo, hi) = &self.jac_stack[0];
         out.copy_from_slice(&buf[..n]);
-        if *dep {
+        debug_assert!(*hi == *lo || (*lo, *hi) == (0, k));
+        if *hi > *lo {
             jacobian.copy_from_slice(&buf[n..width]);
         } else {
             jacobian.fill(0.0);

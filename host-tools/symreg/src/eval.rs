@@ -76,6 +76,27 @@ impl Program {
         }
     }
 
+    /// Replaces the constants (postfix order, as [`Expr::constants`]) without recompiling:
+    /// the same program as compiling the expression with those constants.
+    ///
+    /// # Panics
+    /// If `values` does not hold [`Program::n_constants`] values.
+    pub fn set_constants(&mut self, values: &[f64]) {
+        assert_eq!(values.len(), self.n_constants, "one value per constant");
+        let mut it = values.iter();
+        for node in &mut self.postfix {
+            if let PostfixNode::Const(c) = node {
+                *c = *it.next().expect("counted");
+            }
+        }
+        let mut it = values.iter();
+        for instr in &mut self.fused {
+            if let Instr::Const(c) | Instr::BinaryConst(_, c) = instr {
+                *c = *it.next().expect("counted");
+            }
+        }
+    }
+
     /// Number of constants (the parameters of [`Evaluator::eval_with_jacobian`]).
     pub fn n_constants(&self) -> usize {
         self.n_constants
@@ -678,6 +699,17 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn set_constants_equals_recompiling() {
+        let mut e = sample();
+        let mut p = Program::compile(&e);
+        let c: Vec<f64> = e.constants().iter().map(|v| v * 1.7 - 0.1).collect();
+        p.set_constants(&c);
+        e.set_constants(&c);
+        let q = Program::compile(&e);
+        assert_eq!(format!("{:?}", p), format!("{:?}", q));
     }
 
     #[test]

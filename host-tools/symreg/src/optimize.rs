@@ -60,6 +60,8 @@ impl<'a> Workspace<'a> {
         let mut jtj = vec![0.0; k * k];
         let mut jtr = vec![0.0; k];
         let mut trial = vec![0.0; k];
+        // Whether `theta` moved from the expression's constants (written back at the end).
+        let mut accepted = false;
         let mut iter = 0;
         while iter < iterations {
             iter += 1;
@@ -116,20 +118,20 @@ impl<'a> Workspace<'a> {
                     lambda *= 10.0;
                     continue;
                 }
-                let mut candidate = expr.clone();
-                candidate.set_constants(&trial);
-                let cand_program = Program::compile(&candidate);
-                match self.mse_program(&cand_program) {
+                program.set_constants(&trial);
+                match self.mse_program(&program) {
                     Some(m2) if m2 < mse => {
                         theta.copy_from_slice(&trial);
-                        *expr = candidate;
-                        program = cand_program;
+                        accepted = true;
                         current = Some(m2);
                         lambda = (lambda * 0.3).max(1e-12);
                         improved = true;
                         break;
                     }
-                    _ => lambda *= 10.0,
+                    _ => {
+                        program.set_constants(&theta);
+                        lambda *= 10.0;
+                    }
                 }
             }
             if !improved {
@@ -141,6 +143,9 @@ impl<'a> Workspace<'a> {
                     break;
                 }
             }
+        }
+        if accepted {
+            expr.set_constants(&theta);
         }
         match current {
             Some(c) => Some(c),

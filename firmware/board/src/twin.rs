@@ -141,10 +141,10 @@ impl BackgroundApp for TwinBackground {
     }
 
     fn model_work(&mut self, ctx: &mut BackgroundCtx<'_, TwinShared>) {
-        let Some(request) = ctx.shared.with(|s| s.request.take()) else {
+        let Some((request, path)) = ctx.shared.with(|s| s.request.take().map(|r| (r, *s.servo.analogue_path()))) else {
             return;
         };
-        let result = self.models.compute(&RINGS, &request);
+        let result = self.models.compute(&RINGS, &request, &path);
         ctx.shared.with(|s| s.servo.deliver(result));
     }
 

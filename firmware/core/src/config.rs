@@ -13,8 +13,8 @@ use crate::wire::frame_crc32;
 
 /// Magic bytes at the start of a record.
 pub const CONFIG_MAGIC: [u8; 4] = *b"STSC";
-/// Format version of the record.
-pub const CONFIG_VERSION: u16 = 1;
+/// Format version of the record (2: the feedforward parameters carry the analogue-path table).
+pub const CONFIG_VERSION: u16 = 2;
 /// Largest record, bytes.
 pub const MAX_CONFIG_BYTES: usize = 256;
 
@@ -118,6 +118,12 @@ mod tests {
             assert!(PersistentConfig::decode(&bad).is_err(), "flip in byte {byte} not caught");
         }
         assert_eq!(PersistentConfig::decode(&buf[..len - 1]), Err(ConfigError::Length));
+        // The largest record: a full analogue-path table.
+        let points: [(f32, f32); crate::analogue_path::PATH_POINTS] = core::array::from_fn(|i| (5.0 * (i + 1) as f32, -1.5 * i as f32));
+        let path = crate::analogue_path::AnaloguePath::from_points(&points).unwrap();
+        let full = PersistentConfig { params: FeedforwardParams { analogue_path: path, ..Default::default() } };
+        let full_len = full.encode(&mut buf).unwrap();
+        assert_eq!(PersistentConfig::decode(&buf[..full_len]), Ok(full));
         let invalid = PersistentConfig { params: FeedforwardParams { k_dv_um_per_v: 0.0, ..Default::default() } };
         let len = invalid.encode(&mut buf).unwrap();
         assert_eq!(PersistentConfig::decode(&buf[..len]), Err(ConfigError::Invalid));

@@ -17,6 +17,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::analogue_path::{AnaloguePath, PathError};
+
 /// Parameters of the feedforward, as set over the control channel and stored in the config.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -33,6 +35,9 @@ pub struct FeedforwardParams {
     pub dac_full_scale_v: f32,
     /// Ticks over which enabling or disabling ramps the gain between 0 and 1.
     pub enable_ramp_ticks: u32,
+    /// The analogue path's phase response, subtracted from each model update's phase (see
+    /// [`crate::analogue_path`]); empty by default.
+    pub analogue_path: AnaloguePath,
 }
 
 impl Default for FeedforwardParams {
@@ -44,6 +49,7 @@ impl Default for FeedforwardParams {
             slew_v_per_tick: 0.5,
             dac_full_scale_v: 10.0,
             enable_ramp_ticks: 4000,
+            analogue_path: AnaloguePath::NONE,
         }
     }
 }
@@ -65,6 +71,8 @@ pub enum ParamError {
     DacFullScale,
     /// The enable ramp is longer than 10 minutes at 8 kHz.
     EnableRamp,
+    /// The analogue-path table is malformed.
+    AnaloguePath(PathError),
 }
 
 impl core::fmt::Display for ParamError {
@@ -76,6 +84,7 @@ impl core::fmt::Display for ParamError {
             Self::Slew => "slew_v_per_tick must be finite, positive and at most the DAC full scale",
             Self::DacFullScale => "dac_full_scale_v must be finite and in (0, 100]",
             Self::EnableRamp => "enable_ramp_ticks must be at most 4,800,000",
+            Self::AnaloguePath(err) => return write!(f, "analogue_path: {err}"),
         })
     }
 }
@@ -108,7 +117,7 @@ impl FeedforwardParams {
         if self.enable_ramp_ticks > 4_800_000 {
             return Err(ParamError::EnableRamp);
         }
-        Ok(())
+        self.analogue_path.validate().map_err(ParamError::AnaloguePath)
     }
 
     /// Volts per DAC code.

@@ -19,6 +19,7 @@
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
 
+pub mod analogue_path;
 pub mod bus;
 pub mod config;
 pub mod control;

@@ -18,10 +18,11 @@
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
+use crate::analogue_path::AnaloguePath;
 use crate::bus::{InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_ENABLED, OUT_FLAG_MODEL_ACTIVE, OUT_FLAG_SATURATED, OUT_FLAG_SLEWING};
 use crate::features::{Capture, DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, Features};
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
-use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS};
+use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_PHASE_DEG};
 use crate::synth::Synth;
 
 pub use crate::counters::Counters;
@@ -87,6 +88,9 @@ pub struct ModelRequest {
     pub tick: u64,
     /// Tick at which the result takes effect.
     pub due_tick: u64,
+    /// The command phase's advance per tick at the request, u32 turns (as `i32`, signed):
+    /// the command frequency, for the analogue-path correction.
+    pub cmd_step_turns: i32,
 }
 
 /// Why a model update produced no output.
@@ -169,8 +173,10 @@ impl Models {
         self.staged.as_ref().map(|p| p.id)
     }
 
-    /// Finishes the features of `request` and evaluates the active program on them.
-    pub fn compute(&mut self, rings: &DefaultSpectralRings, request: &ModelRequest) -> ModelResult {
+    /// Finishes the features of `request`, evaluates the active program on them and corrects
+    /// the phases for the analogue path (`path`, see [`crate::analogue_path`]) at the command
+    /// frequency of the request.
+    pub fn compute(&mut self, rings: &DefaultSpectralRings, request: &ModelRequest, path: &AnaloguePath) -> ModelResult {
         let mut result = ModelResult { due_tick: request.due_tick, features: [0.0; 12], outcome: Err(ModelFault::NoProgram) };
         let features: Features = match rings.finish(&request.capture, &mut self.scratch) {
             Ok(features) => features,
@@ -182,11 +188,37 @@ impl Models {
         result.features = features.as_array();
         if let Some(program) = &self.active {
             result.outcome = match program.evaluate(&result.features) {
-                Ok(output) => Ok((output, program.terms.clone(), program.id)),
+                Ok(mut output) => {
+                    correct_for_path(&mut output, &program.terms, path, request.cmd_step_turns, request.capture.cfg.sample_rate_hz);
+                    Ok((output, program.terms.clone(), program.id))
+                }
                 Err(err) => Err(ModelFault::Eval(err)),
             };
         }
         result
+    }
+}
+
+/// Subtracts the analogue path's phase at the command frequency from the fundamental's
+/// phase, and at `n` times it from each order-`n` harmonic term's phase (a phase register
+/// shared by several terms is corrected once, for the first).
+fn correct_for_path(output: &mut ModelOutput, terms: &[TickTerm], path: &AnaloguePath, cmd_step_turns: i32, sample_rate_hz: f32) {
+    if path.count == 0 {
+        return;
+    }
+    let freq_hz = cmd_step_turns as f32 * (sample_rate_hz / 4_294_967_296.0);
+    // A command running backwards sees the conjugate response.
+    let phase_at = |f_hz: f32| if f_hz < 0.0 { -path.phase_deg_at(-f_hz) } else { path.phase_deg_at(f_hz) };
+    let mut corrected = 1u32 << REG_PHASE_DEG;
+    output.registers[REG_PHASE_DEG as usize] -= phase_at(freq_hz);
+    for term in terms {
+        if let TickTerm::Harmonic { order, phase_reg, .. } = *term {
+            let bit = 1u32.checked_shl(u32::from(phase_reg)).unwrap_or(0);
+            if let Some(reg) = output.registers.get_mut(phase_reg as usize).filter(|_| corrected & bit == 0) {
+                *reg -= phase_at(freq_hz * f32::from(order));
+                corrected |= bit;
+            }
+        }
     }
 }
 
@@ -228,6 +260,8 @@ pub struct Servo {
     last_dac: i16,
     /// Ticks until the next model request.
     model_countdown: u32,
+    /// The previous tick's command phase, u32 turns.
+    prev_cmd_phase_turns: u32,
 }
 
 impl Servo {
@@ -260,6 +294,7 @@ impl Servo {
             last_features: [0.0; 12],
             last_dac: 0,
             model_countdown: first_request_countdown(&config),
+            prev_cmd_phase_turns: 0,
         };
         let check = params_check.map_err(InitError::Params).and(features_check);
         (servo, check)
@@ -287,6 +322,8 @@ impl Servo {
         self.health.underrun_run = 0;
         self.check_input(input.acc_code);
         self.features.push(rings, input.acc_code);
+        let prev_cmd_phase_turns = self.prev_cmd_phase_turns;
+        self.prev_cmd_phase_turns = input.cmd_phase_turns;
 
         let mut request = None;
         // A countdown, not `tick % interval`: a 64-bit remainder is a library call of a
@@ -298,7 +335,8 @@ impl Servo {
             // Only a full window gives the features the model was trained on.
             if capture.samples >= self.feature_config.window_samples {
                 let due_tick = tick + self.config.model_latency_ticks as u64;
-                request = Some(ModelRequest { capture, tick, due_tick });
+                let cmd_step_turns = input.cmd_phase_turns.wrapping_sub(prev_cmd_phase_turns) as i32;
+                request = Some(ModelRequest { capture, tick, due_tick, cmd_step_turns });
                 self.awaiting_due = Some(due_tick);
             }
         }
@@ -414,6 +452,11 @@ impl Servo {
         self.pending = Some(result);
     }
 
+    /// The analogue-path table in force (part of the feedforward parameters).
+    pub fn analogue_path(&self) -> &AnaloguePath {
+        &self.feedforward.params().analogue_path
+    }
+
     /// Sets the feedforward parameters (rejected ones are counted and change nothing).
     pub fn set_params(&mut self, params: FeedforwardParams) -> Result<(), ParamError> {
         let result = self.feedforward.set_params(params);
@@ -486,5 +529,39 @@ impl Servo {
             .wrapping_add(c.input_stuck)
             .wrapping_add(c.input_saturated)
             .wrapping_add(c.config_store_errors)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 40 Hz at 8 kHz as the command's phase step.
+    const STEP_40HZ: i32 = (4_294_967_296.0f64 * 40.0 / 8000.0) as i64 as i32;
+
+    #[test]
+    fn the_path_phase_is_taken_off_the_fundamental_and_each_harmonic_once() {
+        let path = AnaloguePath::from_points(&[(40.0, -6.0), (80.0, -30.0), (120.0, -90.0)]).unwrap();
+        let mut output = ModelOutput::default();
+        output.registers[REG_PHASE_DEG as usize] = 10.0;
+        output.registers[3] = 1.0;
+        output.registers[5] = 2.0;
+        let terms = [
+            TickTerm::Harmonic { order: 2, amp_reg: 2, phase_reg: 3 },
+            TickTerm::Harmonic { order: 3, amp_reg: 4, phase_reg: 5 },
+            // Shares term 1's phase register: corrected once only.
+            TickTerm::Harmonic { order: 3, amp_reg: 6, phase_reg: 3 },
+        ];
+        correct_for_path(&mut output, &terms, &path, STEP_40HZ, 8000.0);
+        assert!((output.registers[REG_PHASE_DEG as usize] - 16.0).abs() < 1e-3);
+        assert!((output.registers[3] - 31.0).abs() < 1e-3);
+        assert!((output.registers[5] - 92.0).abs() < 1e-3);
+        // A command running backwards sees the conjugate; an empty table changes nothing.
+        let mut backwards = ModelOutput::default();
+        correct_for_path(&mut backwards, &[], &path, -STEP_40HZ, 8000.0);
+        assert!((backwards.registers[REG_PHASE_DEG as usize] + 6.0).abs() < 1e-3);
+        let mut untouched = output;
+        correct_for_path(&mut untouched, &terms, &AnaloguePath::NONE, STEP_40HZ, 8000.0);
+        assert_eq!(untouched, output);
     }
 }

@@ -56,7 +56,8 @@ impl Twin {
         };
         let (output, request) = self.servo.tick(&self.rings, input);
         if let Some(request) = request {
-            let result = self.models.compute(&self.rings, &request);
+            let path = *self.servo.analogue_path();
+            let result = self.models.compute(&self.rings, &request, &path);
             self.servo.deliver(result);
         }
         output

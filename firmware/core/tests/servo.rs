@@ -99,7 +99,8 @@ fn a_late_computed_model_gives_bit_identical_output() {
         }
         while let Some(pos) = queue.iter().position(|(at, _)| *at == k) {
             let (_, request) = queue.remove(pos);
-            servo.deliver(models.compute(&rings, &request));
+            let path = *servo.analogue_path();
+            servo.deliver(models.compute(&rings, &request, &path));
         }
     }
     assert_eq!(servo.counters().model_late, 0);

@@ -13,6 +13,7 @@ use sts_emulator::{EffectSpec, Machine, PlantParams};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::Request;
 
+use crate::calibrate::{measure_path, path_table, PathConfig, PathPoint};
 use crate::model::ModelFile;
 use crate::rig::{expect_ack, run_loop, Bicuspid, Coprocessor, Trajectory, TrajectoryPoint};
 
@@ -74,7 +75,24 @@ pub fn machine_params(plant: &PlantParams, offset_v: f64) -> FeedforwardParams {
         slew_v_per_tick: 1.0,
         dac_full_scale_v: 10.0,
         enable_ramp_ticks: 4000,
+        analogue_path: sts_twin_core::analogue_path::AnaloguePath::NONE,
     }
+}
+
+/// Measures the analogue path's phase with `coprocessor` on a machine like the trial's (same
+/// plant and effects, its own noise seed), as a lab calibrates before cutting, and returns
+/// `params` carrying the table, with the measured points.
+pub fn with_measured_path(
+    coprocessor: &mut dyn Coprocessor,
+    plant: &PlantParams,
+    effects: &[EffectSpec],
+    params: FeedforwardParams,
+    seed: u64,
+) -> anyhow::Result<(FeedforwardParams, Vec<PathPoint>)> {
+    let mut machine = Machine::new(plant, effects, seed ^ 0xCA1B)?;
+    let points = measure_path(coprocessor, &mut machine, params, &PathConfig::default(), 0)?;
+    let analogue_path = path_table(&points)?;
+    Ok((FeedforwardParams { analogue_path, ..params }, points))
 }
 
 /// The STS trajectory with an air cut before it.

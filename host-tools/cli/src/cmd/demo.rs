@@ -6,9 +6,9 @@ use std::path::PathBuf;
 use sts_emulator::{MeasureConfig, PlantParams};
 
 use crate::fit::{fit, FitConfig};
-use crate::trial::{machine_params, run_trial, TrialConfig};
+use crate::trial::{machine_params, run_trial, with_measured_path, TrialConfig};
 
-use super::machine::{coprocessor, print_report};
+use super::machine::{coprocessor, print_path, print_report};
 
 /// Arguments of `sts-twin demo`.
 #[derive(Debug, clap::Args)]
@@ -33,6 +33,10 @@ pub struct Args {
     /// cut the amplitude changes with the radius, and a short window follows it.
     #[arg(long, default_value_t = 0.5)]
     pub window_s: f64,
+    /// Do not measure the analogue path's phase before the twin's cut (Eq. 5 as the paper
+    /// applies it, uncorrected for the path's lag).
+    #[arg(long)]
+    pub no_path: bool,
 }
 
 /// Runs `sts-twin demo`.
@@ -70,6 +74,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut reports = Vec::new();
     for twin in [None, Some(&model)] {
         let mut cop = coprocessor(args.sim)?;
+        let params = if twin.is_some() && !args.no_path {
+            let (params, points) = with_measured_path(cop.as_mut(), &plant, &[], params, args.seed)?;
+            print_path(&points);
+            params
+        } else {
+            params
+        };
         let report = run_trial(cop.as_mut(), &plant, &[], twin, params, &config)?;
         print_report(&report);
         reports.push(report);

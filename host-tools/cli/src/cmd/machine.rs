@@ -8,7 +8,8 @@ use sts_emulator::{EffectSpec, PlantParams};
 use crate::hil::HilConfig;
 use crate::model::ModelFile;
 use crate::rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
-use crate::trial::{machine_params, run_trial, TrialConfig, TrialReport};
+use crate::calibrate::PathPoint;
+use crate::trial::{machine_params, run_trial, with_measured_path, TrialConfig, TrialReport};
 
 /// Arguments of `sts-twin machine`.
 #[derive(Debug, clap::Args)]
@@ -38,6 +39,10 @@ pub struct Args {
     /// Feature window in the co-processor, seconds (default: the model's).
     #[arg(long)]
     pub window_s: Option<f64>,
+    /// Do not measure the analogue path's phase before the twin's cut (Eq. 5 as the paper
+    /// applies it, uncorrected for the path's lag).
+    #[arg(long)]
+    pub no_path: bool,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -59,6 +64,12 @@ pub fn load_plant(plant: Option<&PathBuf>, effects: &[String]) -> anyhow::Result
 /// Boots the co-processor the user asked for.
 pub fn coprocessor(sim: bool) -> anyhow::Result<Box<dyn Coprocessor>> {
     Ok(if sim { Box::new(SimCoprocessor::boot(&[])) } else { Box::new(HilCoprocessor::start(HilConfig::default())?) })
+}
+
+/// Prints a measured analogue path for people.
+pub fn print_path(points: &[PathPoint]) {
+    let cells: Vec<String> = points.iter().map(|p| format!("{:.0} Hz {:+.2} deg", p.freq_hz, p.phase_deg)).collect();
+    eprintln!("analogue path (DAC -> TCP) phase: {}", cells.join(", "));
 }
 
 /// Prints a trial report for people.
@@ -84,6 +95,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let window_samples = args.window_s.map(|s| ((s * 8000.0) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut cop = coprocessor(args.sim)?;
+    let params = if model.is_some() && !args.no_path {
+        let (params, points) = with_measured_path(cop.as_mut(), &plant, &effects, params, args.seed)?;
+        if !args.json {
+            print_path(&points);
+        }
+        params
+    } else {
+        params
+    };
     let report = run_trial(cop.as_mut(), &plant, &effects, model.as_ref(), params, &config)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

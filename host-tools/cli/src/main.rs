@@ -12,6 +12,9 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Calibrate before a cut: interface offset, K_dv and analogue path, stored in the co-processor and verified.
+    #[command(alias = "calibrate")]
+    CalibrateOffset(cmd::calibrate::Args),
     /// Compare a model's predicted dynamic error with a measurement (text, JSON, HTML report).
     Compare(cmd::compare::Args),
     /// The main job: measure, fit, then cut at 40 Hz with the firmware in QEMU, without and with the twin.
@@ -33,6 +36,7 @@ enum Command {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
+        Command::CalibrateOffset(args) => cmd::calibrate::run(args),
         Command::Compare(args) => cmd::compare::run(args),
         Command::Demo(args) => cmd::demo::run(args),
         Command::Diagnose(args) => cmd::diagnose::run(args),

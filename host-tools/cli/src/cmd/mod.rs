@@ -1,5 +1,6 @@
 //! One module per `sts-twin` subcommand: its arguments and its `run`.
 
+pub mod calibrate;
 pub mod compare;
 pub mod demo;
 pub mod diagnose;

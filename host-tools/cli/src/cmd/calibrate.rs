@@ -1,0 +1,82 @@
+//! `sts-twin calibrate-offset`: the calibration before a cut (offset, `K_dv`, analogue path),
+//! stored in the co-processor's config and verified after a reboot.
+
+use std::path::PathBuf;
+
+use anyhow::Context as _;
+
+use crate::calibrate::{calibrate, CalibrationConfig, HilBoard, PathConfig};
+use crate::cmd::machine::load_plant;
+use crate::hil::HilConfig;
+use crate::rig::SimCoprocessor;
+
+/// Arguments of `sts-twin calibrate-offset`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Run the core on the host instead of the firmware in QEMU (its config store is then
+    /// in memory and ends with the command).
+    #[arg(long)]
+    pub sim: bool,
+    /// Plant parameters (TOML); default: the built-in machine.
+    #[arg(long)]
+    pub plant: Option<PathBuf>,
+    /// A physical effect in the machine, `NAME[:k=v,...]` (repeatable).
+    #[arg(long = "effect")]
+    pub effects: Vec<String>,
+    /// Seed of the machine's noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// The QEMU board's memory file, which holds its config store: created if missing and
+    /// kept, so that the calibration outlives the command (default: a file that ends with it).
+    #[arg(long, conflicts_with = "sim")]
+    pub bus: Option<PathBuf>,
+    /// Frequencies of the analogue path's measurement, Hz, comma-separated (at most 8;
+    /// default 5,10,20,30,40,50,60,80).
+    #[arg(long, value_delimiter = ',')]
+    pub path_freqs: Option<Vec<f64>>,
+    /// Do not measure the analogue path (an empty table is stored: no phase correction).
+    #[arg(long, conflicts_with = "path_freqs")]
+    pub no_path: bool,
+    /// Print the result as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `sts-twin calibrate-offset`.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let (plant, effects) = load_plant(args.plant.as_ref(), &args.effects)?;
+    let mut config = CalibrationConfig::full();
+    if args.no_path {
+        config.path = None;
+    } else if let Some(freqs_hz) = &args.path_freqs {
+        config.path = Some(PathConfig { freqs_hz: freqs_hz.clone(), ..PathConfig::default() });
+    }
+    let quiet = args.json;
+    let mut progress = |line: &str| {
+        if !quiet {
+            eprintln!("{line}");
+        }
+    };
+    let report = if args.sim {
+        let mut board = SimCoprocessor::boot(&[]);
+        calibrate(&mut board, &plant, &effects, args.seed, &config, &mut progress)?
+    } else {
+        let hil_config = HilConfig { bus_path: args.bus.clone(), ..HilConfig::default() };
+        let mut board = HilBoard::start(hil_config)?;
+        let result = calibrate(&mut board, &plant, &effects, args.seed, &config, &mut progress);
+        let stopped = board.shutdown();
+        let report = result?;
+        stopped?;
+        report
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report).context("writing the JSON report")?);
+    } else {
+        println!("{report}");
+    }
+    if !report.verified {
+        anyhow::bail!("the calibration is not verified: {}", report.failures().join("; "));
+    }
+    Ok(())
+}
+

@@ -77,7 +77,7 @@ fn dac_codes_are_bit_identical_to_the_host_core() {
         assert_eq!(got, want, "tick {k} differs");
     }
     let fw = status(&mut hil);
-    // 24,000 ticks at one update per 800 ticks, after the 2,000-tick window filled.
+    // 24,000 ticks at one update per 112 ticks (a 2,000-tick window), after the window filled.
     assert!(fw.counters.model_updates >= 25, "{:?}", fw.counters);
     assert_eq!(fw.counters.model_late, 0);
     assert_eq!(fw.counters.bus_underruns, 0);

@@ -2,11 +2,11 @@
 //!
 //! Two contexts share the work:
 //! - [`Servo::tick`] runs in the servo-rate interrupt: input health, the feature update, the
-//!   error synthesis and the feedforward. Every [`ServoConfig::model_interval_ticks`] it
+//!   error synthesis and the feedforward. Every model interval (see [`ModelTiming`]) it
 //!   hands out a [`ModelRequest`] (a snapshot of the features' state).
 //! - [`Models::compute`] runs at a lower priority: it finishes the features and evaluates the
 //!   active twin program. Its [`ModelResult`] is handed back with [`Servo::deliver`] and takes
-//!   effect exactly [`ServoConfig::model_latency_ticks`] after the request, whenever it was
+//!   effect exactly one model latency after the request, whenever it was
 //!   computed, so the output is a function of the input stream alone: the firmware and the
 //!   host produce the same DAC codes bit for bit. A result that comes later than that is
 //!   applied at once and counted as late.
@@ -42,10 +42,16 @@ pub const DEGRADED_RECOVERING: u16 = 1 << 4;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ServoConfig {
-    /// Ticks between model updates (800 = 10 Hz at 8 kHz).
+    /// Longest interval between model updates, ticks (800 = 10 Hz at 8 kHz). See
+    /// [`ModelTiming`] for the interval in force.
     pub model_interval_ticks: u32,
-    /// Ticks from a model request to its result taking effect.
+    /// Longest time from a model request to its result taking effect, ticks.
     pub model_latency_ticks: u32,
+    /// Shortest interval between model updates, ticks.
+    pub min_model_interval_ticks: u32,
+    /// Model updates per feature window (the interval is the window over this, within the
+    /// bounds above).
+    pub model_updates_per_window: u32,
     /// Ticks over which the synthesiser moves to a new model output.
     pub synth_ramp_ticks: u32,
     /// Unchanged accelerometer codes before the sensor counts as stuck or dead.
@@ -61,6 +67,8 @@ impl Default for ServoConfig {
         Self {
             model_interval_ticks: 800,
             model_latency_ticks: 400,
+            min_model_interval_ticks: 48,
+            model_updates_per_window: 16,
             synth_ramp_ticks: 80,
             stuck_limit_ticks: 800,
             saturation_limit_ticks: 16,
@@ -238,8 +246,41 @@ struct Health {
 /// requests (and the model results applied `model_latency_ticks` later, when that is a whole
 /// number of blocks) never fall on the tick that closes a 16-sample feature block, the most
 /// expensive tick of the feature update.
-fn first_request_countdown(config: &ServoConfig) -> u32 {
-    config.model_interval_ticks.max(1).saturating_add((crate::features::BLOCK_SAMPLES / 2) as u32)
+fn first_request_countdown(timing: &ModelTiming) -> u32 {
+    timing.interval_ticks.saturating_add((crate::features::BLOCK_SAMPLES / 2) as u32)
+}
+
+/// When model updates happen, for a feature window: the interval is the window over
+/// [`ServoConfig::model_updates_per_window`], within the configured bounds, and the latency
+/// half of it (at most [`ServoConfig::model_latency_ticks`]), both in whole 16-sample blocks
+/// so that requests and results avoid the block ends.
+///
+/// Why frequent updates for short windows: the accelerometer sees the compensated motion,
+/// so the twin's amplitude closes a loop through the machine, and a cut whose amplitude
+/// changes (the bicuspid's shrinks with the radius) is followed with this loop's delay
+/// (measured at 40 Hz with a 0.1 s window: 800/400 ticks left a 0.65 deg phase error,
+/// 96/48 ticks 0.30 deg, 48/16 ticks 0.29 deg; the window itself is the larger delay). A long window gains nothing from frequent updates and its
+/// feature computation costs more, so its interval stays long.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ModelTiming {
+    /// Ticks between model requests.
+    pub interval_ticks: u32,
+    /// Ticks from a request to its result taking effect.
+    pub latency_ticks: u32,
+}
+
+impl ModelTiming {
+    /// The timing for `window_samples` under `config`.
+    pub fn new(config: &ServoConfig, window_samples: u32) -> Self {
+        let block = crate::features::BLOCK_SAMPLES as u32;
+        let whole_blocks = |ticks: u32| (ticks / block).max(1) * block;
+        let longest = config.model_interval_ticks.max(1);
+        let shortest = config.min_model_interval_ticks.clamp(1, longest);
+        let per_window = window_samples / config.model_updates_per_window.max(1);
+        let interval_ticks = whole_blocks(per_window.clamp(shortest, longest));
+        let latency_ticks = whole_blocks(interval_ticks / 2).min(config.model_latency_ticks);
+        Self { interval_ticks, latency_ticks }
+    }
 }
 
 /// The servo-interrupt side of the twin. See the [module docs](self).
@@ -262,6 +303,8 @@ pub struct Servo {
     model_countdown: u32,
     /// The previous tick's command phase, u32 turns.
     prev_cmd_phase_turns: u32,
+    /// Model interval and latency for the feature window in force.
+    timing: ModelTiming,
 }
 
 impl Servo {
@@ -278,6 +321,7 @@ impl Servo {
                 Err(_) => unreachable!("the default feature configuration is valid"),
             },
         };
+        let timing = ModelTiming::new(&config, feature_config.window_samples);
         let servo = Self {
             features,
             feature_config,
@@ -293,7 +337,8 @@ impl Servo {
             last_output: ModelOutput::default(),
             last_features: [0.0; 12],
             last_dac: 0,
-            model_countdown: first_request_countdown(&config),
+            model_countdown: first_request_countdown(&timing),
+            timing,
             prev_cmd_phase_turns: 0,
         };
         let check = params_check.map_err(InitError::Params).and(features_check);
@@ -305,9 +350,16 @@ impl Servo {
     pub fn set_feature_config(&mut self, config: FeatureConfig) -> Result<(), FeatureError> {
         self.features.reconfigure(config)?;
         self.feature_config = config;
+        self.timing = ModelTiming::new(&self.config, config.window_samples);
+        self.model_countdown = first_request_countdown(&self.timing);
         self.pending = None;
         self.awaiting_due = None;
         Ok(())
+    }
+
+    /// The model interval and latency in force.
+    pub fn model_timing(&self) -> ModelTiming {
+        self.timing
     }
 
     /// The feature settings in force.
@@ -330,11 +382,11 @@ impl Servo {
         // hundred instructions on a Cortex-M4, every tick.
         self.model_countdown = self.model_countdown.saturating_sub(1);
         if self.model_countdown == 0 {
-            self.model_countdown = self.config.model_interval_ticks.max(1);
+            self.model_countdown = self.timing.interval_ticks;
             let capture = self.features.capture(rings);
             // Only a full window gives the features the model was trained on.
             if capture.samples >= self.feature_config.window_samples {
-                let due_tick = tick + self.config.model_latency_ticks as u64;
+                let due_tick = tick + self.timing.latency_ticks as u64;
                 let cmd_step_turns = input.cmd_phase_turns.wrapping_sub(prev_cmd_phase_turns) as i32;
                 request = Some(ModelRequest { capture, tick, due_tick, cmd_step_turns });
                 self.awaiting_due = Some(due_tick);
@@ -538,6 +590,18 @@ mod tests {
 
     /// 40 Hz at 8 kHz as the command's phase step.
     const STEP_40HZ: i32 = (4_294_967_296.0f64 * 40.0 / 8000.0) as i64 as i32;
+
+    #[test]
+    fn model_timing_follows_the_window_within_bounds_in_whole_blocks() {
+        let config = ServoConfig::default();
+        assert_eq!(ModelTiming::new(&config, 40_000), ModelTiming { interval_ticks: 800, latency_ticks: 400 });
+        assert_eq!(ModelTiming::new(&config, 2_000), ModelTiming { interval_ticks: 112, latency_ticks: 48 });
+        assert_eq!(ModelTiming::new(&config, 800), ModelTiming { interval_ticks: 48, latency_ticks: 16 });
+        assert_eq!(ModelTiming::new(&config, 16), ModelTiming { interval_ticks: 48, latency_ticks: 16 });
+        let odd = ServoConfig { model_interval_ticks: 7, min_model_interval_ticks: 0, model_updates_per_window: 0, ..config };
+        let timing = ModelTiming::new(&odd, 40_000);
+        assert!(timing.interval_ticks >= 1 && timing.latency_ticks >= 1);
+    }
 
     #[test]
     fn the_path_phase_is_taken_off_the_fundamental_and_each_harmonic_once() {

@@ -90,12 +90,13 @@ fn a_late_computed_model_gives_bit_identical_output() {
     models.upload(rms_program(7), true).unwrap();
     servo.set_enabled(true);
     let mut queue = Vec::new();
+    let latency = servo.model_timing().latency_ticks;
     for k in 0..6000u32 {
         let (output, request) = servo.tick(&rings, &input(k));
         assert_eq!(output, expected[k as usize], "tick {k}");
         if let Some(request) = request {
-            // Computed 1..=150 ticks later, while the servo keeps pushing samples.
-            queue.push((k + 1 + (k * 7919) % 150, request));
+            // Computed 1..=latency ticks later, while the servo keeps pushing samples.
+            queue.push((k + 1 + (k * 7919) % latency, request));
         }
         while let Some(pos) = queue.iter().position(|(at, _)| *at == k) {
             let (_, request) = queue.remove(pos);

@@ -28,11 +28,12 @@ pub struct Args {
     /// Seed of the measurement, the fit and the cut.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Feature window in the co-processor during the cut, seconds. The twin is trained on
-    /// 5 s windows of steady motion, whose features hardly depend on the window; during a
-    /// cut the amplitude changes with the radius, and a short window follows it.
-    #[arg(long, default_value_t = 0.5)]
-    pub window_s: f64,
+    /// Feature window in the co-processor during the cut, seconds (default: four periods of
+    /// the Z motion, at least 0.1 s). The twin is trained on 5 s windows of steady motion,
+    /// whose features hardly depend on the window; during a cut the amplitude changes with
+    /// the radius, and a short window follows it.
+    #[arg(long)]
+    pub window_s: Option<f64>,
     /// Do not measure the analogue path's phase before the twin's cut (Eq. 5 as the paper
     /// applies it, uncorrected for the path's lag).
     #[arg(long)]
@@ -69,7 +70,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
     eprintln!("3/3 cutting the bicuspid surface at {} Hz with {which} in the loop ...", args.freq);
     let params = machine_params(&plant, plant.interface.offset_v);
-    let window_samples = Some(((args.window_s * 8000.0) as u32 / 16) * 16);
+    let window_samples = args.window_s.map(|s| ((s * 8000.0) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut reports = Vec::new();
     for twin in [None, Some(&model)] {

@@ -36,7 +36,8 @@ pub struct Args {
     /// Seed of the machine's noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Feature window in the co-processor, seconds (default: the model's).
+    /// Feature window in the co-processor, seconds (default: four periods of the Z motion, at
+    /// least 0.1 s).
     #[arg(long)]
     pub window_s: Option<f64>,
     /// Do not measure the analogue path's phase before the twin's cut (Eq. 5 as the paper

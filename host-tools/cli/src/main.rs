@@ -31,6 +31,8 @@ enum Command {
     PaperTable(cmd::paper_table::Args),
     /// Symbolic regression on any numeric CSV table.
     Regress(cmd::regress::Args),
+    /// The bicuspid cut at several Z frequencies, without and with the twin (Markdown table).
+    TrialTable(cmd::trial_table::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -45,6 +47,7 @@ fn main() -> std::process::ExitCode {
         Command::Measure(args) => cmd::measure::run(args),
         Command::PaperTable(args) => cmd::paper_table::run(args),
         Command::Regress(args) => cmd::regress::run(args),
+        Command::TrialTable(args) => cmd::trial_table::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -45,27 +45,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let plant = PlantParams::default();
     let model = match &args.twin {
         Some(path) => crate::model::ModelFile::read(path)?,
-        None => {
-            eprintln!("1/3 measuring the emulated machine: 99 groups, 1-40 Hz x 1-11 um, 6 s each ...");
-            let measure = MeasureConfig { seed: args.seed, ..MeasureConfig::default() };
-            let dataset = sts_emulator::measure::run(&measure, &|_| {})?;
-            eprintln!("2/3 fitting the twin (symbolic regression, cross-validated) ...");
-            let model = fit(&dataset, "demo: default emulated machine", &FitConfig { seed: args.seed, ..FitConfig::default() }, &mut |_| {})?;
-            if let Some(dir) = args.out.parent() {
-                std::fs::create_dir_all(dir)?;
-            }
-            model.write(&args.out)?;
-            println!("amplitude (um) = {}", model.amplitude.formula);
-            println!("phase (deg)    = {}", model.phase.formula);
-            println!(
-                "held-out: amplitude R^2 {:.4}, phase R^2 {:.4}, waveform error {:.1} nm mean absolute ({} written)",
-                model.validation.amplitude_r2,
-                model.validation.phase_r2,
-                model.validation.waveform_mae_um * 1e3,
-                args.out.display()
-            );
-            model
-        }
+        None => measure_and_fit(args.seed, &args.out)?,
     };
     let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
     eprintln!("3/3 cutting the bicuspid surface at {} Hz with {which} in the loop ...", args.freq);
@@ -96,4 +76,28 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         twin.phase_error_deg
     );
     Ok(())
+}
+
+/// Measures the default emulated machine (the 99-group test), fits the twin, writes it to
+/// `out` and prints its formulas and held-out errors.
+pub fn measure_and_fit(seed: u64, out: &std::path::Path) -> anyhow::Result<crate::model::ModelFile> {
+    eprintln!("measuring the emulated machine: 99 groups, 1-40 Hz x 1-11 um, 6 s each ...");
+    let measure = MeasureConfig { seed, ..MeasureConfig::default() };
+    let dataset = sts_emulator::measure::run(&measure, &|_| {})?;
+    eprintln!("fitting the twin (symbolic regression, cross-validated) ...");
+    let model = fit(&dataset, "demo: default emulated machine", &FitConfig { seed, ..FitConfig::default() }, &mut |_| {})?;
+    if let Some(dir) = out.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    model.write(out)?;
+    println!("amplitude (um) = {}", model.amplitude.formula);
+    println!("phase (deg)    = {}", model.phase.formula);
+    println!(
+        "held-out: amplitude R^2 {:.4}, phase R^2 {:.4}, waveform error {:.1} nm mean absolute ({} written)",
+        model.validation.amplitude_r2,
+        model.validation.phase_r2,
+        model.validation.waveform_mae_um * 1e3,
+        out.display()
+    );
+    Ok(model)
 }

@@ -9,3 +9,4 @@ pub mod machine;
 pub mod measure;
 pub mod paper_table;
 pub mod regress;
+pub mod trial_table;

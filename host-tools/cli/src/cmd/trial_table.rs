@@ -1,0 +1,92 @@
+//! `sts-twin trial-table`: the bicuspid cut at several Z frequencies, without and with the
+//! twin, as a Markdown table (the README's table is this command's output).
+
+use std::path::PathBuf;
+
+use serde::Serialize;
+
+use crate::model::ModelFile;
+use crate::trial::{machine_params, run_trial, with_measured_path, TrialConfig, TrialReport};
+
+use super::machine::{coprocessor, load_plant};
+
+/// Arguments of `sts-twin trial-table`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Z operational frequencies, Hz, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "5,10,20,30,40,60,80")]
+    pub freqs: Vec<f64>,
+    /// Model file of the twin; without it the default machine is measured and a twin fitted
+    /// (as `sts-twin demo` does) and written to `--out`.
+    #[arg(long)]
+    pub twin: Option<PathBuf>,
+    /// Where a fitted model is written.
+    #[arg(long, default_value = "target/demo-twin.json")]
+    pub out: PathBuf,
+    /// Plant parameters (TOML); default: the built-in machine.
+    #[arg(long)]
+    pub plant: Option<PathBuf>,
+    /// A physical effect in the machine, `NAME[:k=v,...]` (repeatable).
+    #[arg(long = "effect")]
+    pub effects: Vec<String>,
+    /// Run the core on the host instead of the firmware in QEMU (bit-identical, faster).
+    #[arg(long)]
+    pub sim: bool,
+    /// Seed of the machine's noise (and of the fit, without `--twin`).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print the rows as JSON instead of a Markdown table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One frequency of the table.
+#[derive(Debug, Serialize)]
+pub struct Row {
+    /// The bare machine's cut.
+    pub bare: TrialReport,
+    /// The cut with the twin.
+    pub twin: TrialReport,
+    /// Form error reduction, percent.
+    pub reduction_pct: f64,
+}
+
+/// Runs `sts-twin trial-table`.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let (plant, effects) = load_plant(args.plant.as_ref(), &args.effects)?;
+    if let Some(bad) = args.freqs.iter().find(|f| !(f.is_finite() && **f > 0.0 && **f < 4000.0)) {
+        anyhow::bail!("--freqs: {bad} Hz is not a Z frequency the servo can follow (0 < f < 4000)");
+    }
+    let model = match &args.twin {
+        Some(path) => ModelFile::read(path)?,
+        None => super::demo::measure_and_fit(args.seed, &args.out)?,
+    };
+    let params = machine_params(&plant, plant.interface.offset_v);
+    let mut rows = Vec::new();
+    for &freq_hz in &args.freqs {
+        let config = TrialConfig { freq_hz, seed: args.seed, ..TrialConfig::default() };
+        eprintln!("{freq_hz} Hz: bare machine ...");
+        let bare = run_trial(coprocessor(args.sim)?.as_mut(), &plant, &effects, None, params, &config)?;
+        eprintln!("{freq_hz} Hz: analogue path, then the twin ...");
+        let mut cop = coprocessor(args.sim)?;
+        let (twin_params, _) = with_measured_path(cop.as_mut(), &plant, &effects, params, args.seed)?;
+        let twin = run_trial(cop.as_mut(), &plant, &effects, Some(&model), twin_params, &config)?;
+        let reduction_pct = 100.0 * (1.0 - twin.form_error_pv_um / bare.form_error_pv_um);
+        rows.push(Row { bare, twin, reduction_pct });
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+        return Ok(());
+    }
+    let which = if args.sim { "sim (the core on the host)" } else { "hil (the firmware in QEMU)" };
+    println!("| Z frequency | form error PV, bare | with the twin | reduction | phase error, bare | with the twin |");
+    println!("|---|---|---|---|---|---|");
+    for row in &rows {
+        println!(
+            "| {:.0} Hz | {:.3} um | {:.3} um | {:.1}% | {:+.2} deg | {:+.2} deg |",
+            row.bare.freq_hz, row.bare.form_error_pv_um, row.twin.form_error_pv_um, row.reduction_pct, row.bare.phase_error_deg, row.twin.phase_error_deg
+        );
+    }
+    println!("\nCo-processor: {which}; model: {}; machine seed {}.", model.description, args.seed);
+    Ok(())
+}

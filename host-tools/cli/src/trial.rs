@@ -70,6 +70,10 @@ pub struct TrialReport {
     pub form_error_rms_um: f64,
     /// Machine time of the cut (without the air cut), s.
     pub cut_time_s: f64,
+    /// Machine time of the whole trial (air cut and cut), s.
+    pub machine_time_s: f64,
+    /// Wall time of the whole trial (configuration, air cut and cut), s.
+    pub wall_time_s: f64,
     /// Points evaluated.
     pub points: usize,
     /// Firmware fault counters' sum at the end.
@@ -145,6 +149,7 @@ pub fn run_trial(
     params: FeedforwardParams,
     config: &TrialConfig,
 ) -> anyhow::Result<TrialReport> {
+    let started = std::time::Instant::now();
     let mut machine = Machine::new(plant, effects, config.seed)?;
     expect_ack("the feedforward parameters", coprocessor.request(Request::SetParams(params))?)?;
     let window_s = match model {
@@ -203,6 +208,8 @@ pub fn run_trial(
         phase_error_deg: lag_deg,
         form_error_rms_um: rms,
         cut_time_s: cut.duration_s(),
+        machine_time_s: ticks as f64 / 8000.0,
+        wall_time_s: started.elapsed().as_secs_f64(),
         points: deviations.len(),
         fault_count: last_fault,
     })

@@ -76,7 +76,7 @@ pub fn print_path(points: &[PathPoint]) {
 /// Prints a trial report for people.
 pub fn print_report(report: &TrialReport) {
     println!(
-        "{:>5.1} Hz  twin {:<5}  form error (PV) {:>7.3} um  RMS {:>6.3} um  phase error {:>6.2} deg  ({}, {} points, cut {:.1} s; {:.1} s of machine time in {:.1} s)",
+        "{:>5.1} Hz  twin {:<5}  form error (PV) {:>7.3} um  RMS {:>6.3} um  phase error {:>6.2} deg  ({}, {} points, cut {:.1} s; {:.1} s of machine time in {:.2} s)",
         report.freq_hz,
         report.twin,
         report.form_error_pv_um,

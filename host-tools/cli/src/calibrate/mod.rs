@@ -18,3 +18,7 @@ pub use offset::{measure_offset, OffsetConfig, OffsetPoint, OffsetReport};
 pub use path::{measure_path, path_table, PathConfig, PathPoint};
 pub use procedure::{calibrate, describe_config_source, BootState, CalibrationConfig, CalibrationReport, StoreCheck};
 pub use rest::{RestAverage, RestRig};
+
+/// The emulated machine's types the calibration takes, for callers without the emulator
+/// crate (the HIL tests).
+pub use sts_emulator::{EffectSpec, Machine, PlantParams};

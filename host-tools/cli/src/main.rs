@@ -25,6 +25,8 @@ enum Command {
     Diagnose(cmd::diagnose::Args),
     /// Train the explainable twin (amplitude and phase formulas) on a dataset.
     Fit(cmd::fit::Args),
+    /// The firmware under QEMU on its own: status, benchmarks.
+    Hil(cmd::hil::Args),
     /// Run the offline dynamic-error measurement test on the emulated machine.
     Measure(cmd::measure::Args),
     /// The emulated machine's measurement test against the paper's figures.
@@ -43,6 +45,7 @@ fn main() -> std::process::ExitCode {
         Command::Demo(args) => cmd::demo::run(args),
         Command::Diagnose(args) => cmd::diagnose::run(args),
         Command::Fit(args) => cmd::fit::run(args),
+        Command::Hil(args) => cmd::hil::run(args),
         Command::Machine(args) => cmd::machine::run(args),
         Command::Measure(args) => cmd::measure::run(args),
         Command::PaperTable(args) => cmd::paper_table::run(args),

@@ -5,6 +5,7 @@ pub mod compare;
 pub mod demo;
 pub mod diagnose;
 pub mod fit;
+pub mod hil;
 pub mod machine;
 pub mod measure;
 pub mod paper_table;

@@ -1,0 +1,130 @@
+//! `sts-twin hil`: the firmware under QEMU on its own: boot it and read its status, or
+//! benchmark the rig (instructions per servo tick, lockstep and open-loop throughput).
+
+use std::path::PathBuf;
+
+use sts_twin_core::wire::{Request, Response};
+
+use crate::hil::{bench_instructions_prepared, bench_throughput, FirmwareVariant, HilConfig};
+use crate::rig::{request_on, Coprocessor, HilCoprocessor};
+
+/// Arguments of `sts-twin hil`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// What to do.
+    #[command(subcommand)]
+    pub action: Action,
+    /// The firmware ELF (default: `STS_TWIN_FIRMWARE_ELF`, or built from this workspace).
+    #[arg(long, global = true)]
+    pub firmware: Option<PathBuf>,
+    /// Boot the platform's bring-up application instead of the twin.
+    #[arg(long, global = true)]
+    pub bringup: bool,
+    /// Print the firmware's decoded log lines as they arrive.
+    #[arg(long, global = true)]
+    pub logs: bool,
+}
+
+/// `sts-twin hil` actions.
+#[derive(Debug, clap::Subcommand)]
+pub enum Action {
+    /// Boot the firmware, print its status (counters, parameters, config source), end QEMU.
+    Status {
+        /// A named bus file whose config store is kept across runs (default: a fresh one).
+        #[arg(long)]
+        bus_file: Option<PathBuf>,
+        /// Print the status as JSON-like debug output instead of a summary.
+        #[arg(long)]
+        raw: bool,
+    },
+    /// Measure instructions per servo tick and HIL throughput.
+    Bench {
+        /// Ticks per measurement.
+        #[arg(long, default_value_t = 20_000)]
+        ticks: u32,
+        /// Upload this model's program and enable compensation before counting instructions
+        /// (with a 2,000-sample feature window, so that model updates happen during the run).
+        #[arg(long)]
+        model: Option<PathBuf>,
+    },
+}
+
+fn config(args: &Args) -> HilConfig {
+    HilConfig {
+        elf: args.firmware.clone(),
+        variant: if args.bringup { FirmwareVariant::BringUp } else { FirmwareVariant::Twin },
+        echo_logs: args.logs || HilConfig::default().echo_logs,
+        ..HilConfig::default()
+    }
+}
+
+/// Runs `sts-twin hil`.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    match &args.action {
+        Action::Status { bus_file, raw } => {
+            if args.bringup {
+                anyhow::bail!("`hil status` needs the twin firmware (the bring-up application has no control protocol)");
+            }
+            let mut cop = HilCoprocessor::start(HilConfig { bus_path: bus_file.clone(), ..config(args) })?;
+            let answer = cop.request(Request::GetStatus);
+            let diagnostics = cop.hil().diagnostics();
+            cop.shutdown()?;
+            let Response::Status(status) = answer? else {
+                anyhow::bail!("the firmware did not answer GetStatus with a status");
+            };
+            if *raw {
+                println!("{status:#?}");
+                println!("{diagnostics:#?}");
+                return Ok(());
+            }
+            let c = &status.counters;
+            println!("config: {:?}", status.config_source);
+            println!(
+                "compensation: {} (gain {:.3}), program {:?} (staged {:?}), inputs {}",
+                if status.enabled { "enabled" } else { "disabled" },
+                status.gain,
+                status.program_id,
+                status.staged_program_id,
+                if status.degraded == 0 { "trusted".to_string() } else { format!("degraded (bits {:#06b})", status.degraded) }
+            );
+            let p = &status.params;
+            println!(
+                "feedforward: K_dv {} um/V, K_vc {} pulses/V, offset {} V, slew {} V/tick, DAC full scale {} V, enable ramp {} ticks, analogue-path points {}",
+                p.k_dv_um_per_v, p.k_vc_pulses_per_v, p.offset_v, p.slew_v_per_tick, p.dac_full_scale_v, p.enable_ramp_ticks, p.analogue_path.count
+            );
+            println!(
+                "features: window {} samples at {} Hz, {} m/s^2 per LSB",
+                status.feature_config.window_samples, status.feature_config.sample_rate_hz, status.feature_config.acc_mps2_per_lsb
+            );
+            println!("counters: {c:?}");
+            Ok(())
+        }
+        Action::Bench { ticks, model } => {
+            let model = model.as_ref().map(|path| crate::model::ModelFile::read(path)).transpose()?;
+            let requests = match &model {
+                Some(model) => {
+                    let features = sts_twin_core::features::FeatureConfig { window_samples: 2000, ..model.feature_config };
+                    vec![
+                        Request::SetFeatureConfig(features),
+                        Request::UploadProgram { program: model.firmware_program()?, activate: true },
+                        Request::SetEnabled(true),
+                    ]
+                }
+                None => Vec::new(),
+            };
+            let report = bench_instructions_prepared(config(args), *ticks, |hil| {
+                for (seq, request) in requests.into_iter().enumerate() {
+                    match request_on(hil, seq as u16 + 1, request) {
+                        Ok(Response::Ack) => {}
+                        other => return Err(crate::hil::HilError::Protocol(format!("preparing the bench: {other:?}"))),
+                    }
+                }
+                Ok(())
+            })?;
+            println!("{report}");
+            let throughput = bench_throughput(config(args), *ticks)?;
+            println!("{throughput}");
+            Ok(())
+        }
+    }
+}

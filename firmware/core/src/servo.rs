@@ -13,7 +13,8 @@
 //!
 //! Faults never step the output and never stop the loop: a stuck or saturated accelerometer,
 //! or a missing host, marks the inputs untrusted ([`DEGRADED_STUCK`] ...) and the feedforward
-//! ramps to zero compensation until the inputs have been healthy for a whole feature window.
+//! ramps to zero compensation until the inputs have been healthy for a whole feature window
+//! and a model result computed on such a window is in force.
 
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
@@ -428,7 +429,19 @@ impl Servo {
             self.counters.degraded_entries += 1;
         }
         self.health.degraded |= reason;
-        self.health.recovering_ticks = self.feature_config.window_samples;
+        self.health.recovering_ticks = self.recovery_ticks();
+    }
+
+    /// Healthy ticks before the inputs are trusted again: a window without bad samples, then
+    /// the first model result computed on such a window (an interval and the latency) and
+    /// the synthesiser's ramp to it, so that compensation resumes with a prediction made from
+    /// healthy samples only (not one from a window that still held the fault).
+    fn recovery_ticks(&self) -> u32 {
+        self.feature_config
+            .window_samples
+            .saturating_add(self.timing.interval_ticks)
+            .saturating_add(self.timing.latency_ticks)
+            .saturating_add(self.config.synth_ramp_ticks)
     }
 
     fn check_input(&mut self, code: i16) {
@@ -445,13 +458,14 @@ impl Servo {
             self.counters.input_saturated += 1;
             self.degrade(DEGRADED_SATURATED);
         }
+        let recovery_ticks = self.recovery_ticks();
         let h = &mut self.health;
         let bad_now = h.same_run >= self.config.stuck_limit_ticks || h.saturated_run > 0;
         if h.degraded != 0 {
             if bad_now {
-                h.recovering_ticks = self.feature_config.window_samples;
+                h.recovering_ticks = recovery_ticks;
             } else {
-                // Inputs are healthy again: wait until the window has none of the bad samples.
+                // Inputs are healthy again: wait for a model result from a window of them.
                 h.degraded = (h.degraded & DEGRADED_MODEL) | DEGRADED_RECOVERING;
                 h.recovering_ticks = h.recovering_ticks.saturating_sub(1);
                 if h.recovering_ticks == 0 {

@@ -5,11 +5,15 @@
 //! co-processor wrote at tick `k - 1`; its accelerometer code and the command phase go to the
 //! co-processor, whose DAC code for tick `k` reaches the machine at tick `k + 1`.
 
+mod faults;
 mod hil;
+mod lossy;
 mod sim;
 mod trajectory;
 
+pub use faults::{degraded_reasons, fault_report, print_fault_report};
 pub use hil::{request_on, HilCoprocessor, REQUEST_TIMEOUT};
+pub use lossy::{FrameFate, FrameInjector, InjectedFaults, LinkFaults, LinkStats, LossyHilCoprocessor, RetryPolicy};
 pub use sim::SimCoprocessor;
 pub use trajectory::{turns_u32, Bicuspid, Sinusoid, Trajectory, TrajectoryPoint};
 

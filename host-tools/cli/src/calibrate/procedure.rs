@@ -15,6 +15,7 @@ use std::fmt;
 
 use serde::Serialize;
 use sts_emulator::{EffectSpec, Machine, PlantParams};
+use sts_twin_core::analogue_path::{PATH_MAX_FREQ_HZ, PATH_POINTS};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::{ConfigSource, Rejection, Request, Response};
 
@@ -41,6 +42,25 @@ pub struct CalibrationConfig {
 }
 
 impl CalibrationConfig {
+    /// Checks the settings that would otherwise fail only after the first measurements.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        if let Some(path) = &self.path {
+            let freqs = &path.freqs_hz;
+            let nyquist_hz = (path.sample_rate_hz / 2.0).min(f64::from(PATH_MAX_FREQ_HZ));
+            let increasing = freqs.windows(2).all(|w| w[0] < w[1]);
+            let in_range = freqs.iter().all(|f| f.is_finite() && *f > 0.0 && *f < nyquist_hz);
+            if freqs.is_empty() || freqs.len() > PATH_POINTS || !increasing || !in_range {
+                anyhow::bail!(
+                    "the analogue path is measured at 1 to {PATH_POINTS} frequencies, increasing, each above 0 and below {nyquist_hz} Hz, not {freqs:?}"
+                );
+            }
+            if !(path.amp_um.is_finite() && path.amp_um > 0.0 && path.settle_s >= 0.0 && path.measure_s > 0.0) {
+                anyhow::bail!("the analogue path's amplitude and measuring time must be positive");
+            }
+        }
+        Ok(())
+    }
+
     /// The full calibration: every step with its default settings.
     pub fn full() -> Self {
         Self { path: Some(PathConfig::default()), ..Self::default() }
@@ -158,6 +178,7 @@ pub fn calibrate(
     config: &CalibrationConfig,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<CalibrationReport> {
+    config.validate()?;
     let mut machine = Machine::new(plant, effects, seed)?;
     let boot = BootState::read(board.coprocessor())?;
     progress(&boot.to_string());
@@ -206,7 +227,6 @@ pub fn calibrate(
         other => anyhow::bail!("the co-processor answered SaveConfig with {other:?}"),
     };
     let live_params_match = rig.status()?.params == params;
-    drop(rig);
 
     progress("step 5: rebooting the co-processor and reading back what it loaded");
     board.reboot()?;
@@ -389,6 +409,19 @@ mod tests {
         assert_eq!(check.added_pulses_max, 24, "{check:?}");
         assert!((check.tcp_true_move_nm - 24.0).abs() < 1.0, "{check:?}");
         assert!(!check.passed());
+    }
+
+    #[test]
+    fn bad_path_frequencies_are_refused_before_measuring() {
+        let plant = PlantParams::default();
+        for freqs_hz in [vec![], vec![40.0, 10.0], vec![10.0, f64::NAN], vec![5000.0], vec![1.0; 9], vec![0.0, 10.0]] {
+            let config = CalibrationConfig { path: Some(PathConfig { freqs_hz: freqs_hz.clone(), ..PathConfig::default() }), ..CalibrationConfig::quick() };
+            let mut board = SimCoprocessor::boot(&[]);
+            let mut heard = 0;
+            let err = calibrate(&mut board, &plant, &[], 1, &config, &mut |_| heard += 1).unwrap_err();
+            assert!(err.to_string().contains("analogue path"), "{freqs_hz:?}: {err}");
+            assert_eq!(heard, 0, "{freqs_hz:?}");
+        }
     }
 
     #[test]

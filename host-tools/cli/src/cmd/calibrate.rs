@@ -1,6 +1,7 @@
 //! `sts-twin calibrate-offset`: the calibration before a cut (offset, `K_dv`, analogue path),
 //! stored in the co-processor's config and verified after a reboot.
 
+use std::io::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context as _;
@@ -69,11 +70,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         stopped?;
         report
     };
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&report).context("writing the JSON report")?);
-    } else {
-        println!("{report}");
-    }
+    let text = if args.json { serde_json::to_string_pretty(&report).context("encoding the JSON report")? } else { report.to_string() };
+    writeln!(std::io::stdout().lock(), "{text}").context("writing the report")?;
     if !report.verified {
         anyhow::bail!("the calibration is not verified: {}", report.failures().join("; "));
     }

@@ -113,5 +113,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     } else {
         print_report(&report);
     }
+    if model.is_some() {
+        crate::rig::print_fault_report(cop.as_mut())?; // every fault the co-processor counted, on stderr
+    }
     Ok(())
 }

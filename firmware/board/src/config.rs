@@ -118,7 +118,11 @@ impl<M: RecordMedium> ConfigStore for AbStore<M> {
     }
 
     fn read(&mut self, buf: &mut [u8]) -> Result<usize, ConfigError> {
-        let (slot, h) = self.newest().ok_or(ConfigError::Empty)?;
+        let Some((slot, h)) = self.newest() else {
+            // A slot with a record header but no intact record anywhere: corrupt, not blank.
+            let written = (0..2).any(|slot| self.header(slot).is_some());
+            return Err(if written { ConfigError::Corrupt } else { ConfigError::Empty });
+        };
         if buf.len() < h.len {
             return Err(ConfigError::TooLarge { needed: h.len });
         }
@@ -249,5 +253,21 @@ mod tests {
         let mut buf = [0u8; 64];
         assert_eq!(s.read(&mut buf), Ok(4));
         assert_eq!(&buf[..4], b"good");
+    }
+
+    #[test]
+    fn a_store_with_no_intact_copy_is_corrupt_not_empty() {
+        let mut mem = vec![0u8; 512];
+        {
+            let mut s = store(&mut mem);
+            s.write(b"only").unwrap();
+        }
+        mem[HEADER_BYTES] ^= 0x01;
+        let mut s = store(&mut mem);
+        let mut buf = [0u8; 64];
+        assert_eq!(s.read(&mut buf), Err(ConfigError::Corrupt));
+        // A new write repairs it.
+        s.write(b"again").unwrap();
+        assert_eq!(s.read(&mut buf), Ok(5));
     }
 }

@@ -81,8 +81,11 @@ pub trait TickSource {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ConfigError {
-    /// Nothing valid is stored (fresh or corrupted storage).
+    /// Nothing is stored (fresh or erased storage).
     Empty,
+    /// Something was stored but no copy of it is intact (bit rot, or every copy torn): the
+    /// firmware boots on defaults and says so.
+    Corrupt,
     /// The blob does not fit in the store (or in the caller's buffer on read): `needed` bytes.
     TooLarge {
         /// Bytes the operation needed.

@@ -125,7 +125,9 @@ impl BackgroundApp for TwinBackground {
         let mut record = [0u8; MAX_CONFIG_BYTES];
         let loaded = match ctx.config.read(&mut record) {
             Ok(len) => PersistentConfig::decode(&record[..len.min(MAX_CONFIG_BYTES)]),
-            Err(_) => Err(RecordError::Blank),
+            Err(crate::ConfigError::Empty) => Err(RecordError::Blank),
+            // Stored but damaged, or unreadable: defaults, reported as corrupt.
+            Err(_) => Err(RecordError::Crc),
         };
         self.config_source = match loaded {
             Ok(config) => match ctx.shared.with(|s| s.servo.set_params(config.params)) {

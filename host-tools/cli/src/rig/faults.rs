@@ -135,7 +135,8 @@ mod tests {
 
     #[test]
     fn every_fault_counter_is_reported_with_its_count() {
-        let set: [(fn(&mut Counters), &str); 12] = [
+        type SetCounter = fn(&mut Counters);
+        let set: [(SetCounter, &str); 12] = [
             (|c| c.input_stuck = 2, "2 episodes of a stuck or dead accelerometer"),
             (|c| c.input_saturated = 3, "3 episodes of accelerometer saturation"),
             (|c| c.bus_underruns = 40, "40 bus underruns"),

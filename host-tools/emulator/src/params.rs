@@ -29,7 +29,7 @@ pub enum ParamsError {
         reason: String,
     },
     /// The plant file could not be read.
-    #[error("{path}: {source}")]
+    #[error("cannot read the plant file {path}")]
     Io {
         /// The file.
         path: String,

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 
 use crate::calibrate::{calibrate, CalibrationConfig, HilBoard, PathConfig};
-use crate::cmd::machine::load_plant;
+use crate::cmd::machine::MachineArgs;
 use crate::hil::HilConfig;
 use crate::rig::SimCoprocessor;
 
@@ -18,12 +18,9 @@ pub struct Args {
     /// in memory and ends with the command).
     #[arg(long)]
     pub sim: bool,
-    /// Plant parameters (TOML); default: the built-in machine.
-    #[arg(long)]
-    pub plant: Option<PathBuf>,
-    /// A physical effect in the machine, `NAME[:k=v,...]` (repeatable).
-    #[arg(long = "effect")]
-    pub effects: Vec<String>,
+    /// The emulated machine.
+    #[command(flatten)]
+    pub machine: MachineArgs,
     /// Seed of the machine's noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -45,7 +42,7 @@ pub struct Args {
 
 /// Runs `sts-twin calibrate-offset`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let (plant, effects) = load_plant(args.plant.as_ref(), &args.effects)?;
+    let (plant, effects) = args.machine.load()?;
     let mut config = CalibrationConfig::full();
     if args.no_path {
         config.path = None;

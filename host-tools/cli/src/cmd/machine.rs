@@ -20,12 +20,9 @@ pub struct Args {
     /// Model file of the twin; without it the bare machine cuts.
     #[arg(long)]
     pub twin: Option<PathBuf>,
-    /// Plant parameters (TOML); default: the built-in machine.
-    #[arg(long)]
-    pub plant: Option<PathBuf>,
-    /// A physical effect in the machine, `NAME[:k=v,...]` (repeatable).
-    #[arg(long = "effect")]
-    pub effects: Vec<String>,
+    /// The emulated machine.
+    #[command(flatten)]
+    pub machine: MachineArgs,
     /// Run the core on the host instead of the firmware in QEMU (bit-identical, faster).
     #[arg(long)]
     pub sim: bool,
@@ -47,6 +44,24 @@ pub struct Args {
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
+}
+
+/// The emulated machine named on a command line: plant parameters and hidden effects.
+#[derive(Debug, clap::Args)]
+pub struct MachineArgs {
+    /// Plant parameters (TOML); default: the built-in machine.
+    #[arg(long)]
+    pub plant: Option<PathBuf>,
+    /// A physical effect in the machine, `NAME[:k=v,...]` (repeatable).
+    #[arg(long = "effect")]
+    pub effects: Vec<String>,
+}
+
+impl MachineArgs {
+    /// Loads the plant parameters and parses the effects.
+    pub fn load(&self) -> anyhow::Result<(PlantParams, Vec<EffectSpec>)> {
+        load_plant(self.plant.as_ref(), &self.effects)
+    }
 }
 
 /// Loads the plant parameters and effects named on a command line.
@@ -92,7 +107,7 @@ pub fn print_report(report: &TrialReport) {
 
 /// Runs `sts-twin machine`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let (plant, effects) = load_plant(args.plant.as_ref(), &args.effects)?;
+    let (plant, effects) = args.machine.load()?;
     let model = args.twin.as_ref().map(|p| ModelFile::read(p)).transpose()?;
     let params = machine_params(&plant, args.offset.unwrap_or(plant.interface.offset_v));
     let window_samples = args.window_s.map(|s| ((s * 8000.0) as u32 / 16) * 16);

@@ -8,7 +8,7 @@ use serde::Serialize;
 use crate::model::ModelFile;
 use crate::trial::{machine_params, run_trial, with_measured_path, TrialConfig, TrialReport};
 
-use super::machine::{coprocessor, load_plant};
+use super::machine::{coprocessor, MachineArgs};
 
 /// Arguments of `sts-twin trial-table`.
 #[derive(Debug, clap::Args)]
@@ -23,12 +23,9 @@ pub struct Args {
     /// Where a fitted model is written.
     #[arg(long, default_value = "target/demo-twin.json")]
     pub out: PathBuf,
-    /// Plant parameters (TOML); default: the built-in machine.
-    #[arg(long)]
-    pub plant: Option<PathBuf>,
-    /// A physical effect in the machine, `NAME[:k=v,...]` (repeatable).
-    #[arg(long = "effect")]
-    pub effects: Vec<String>,
+    /// The emulated machine.
+    #[command(flatten)]
+    pub machine: MachineArgs,
     /// Run the core on the host instead of the firmware in QEMU (bit-identical, faster).
     #[arg(long)]
     pub sim: bool,
@@ -53,7 +50,7 @@ pub struct Row {
 
 /// Runs `sts-twin trial-table`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let (plant, effects) = load_plant(args.plant.as_ref(), &args.effects)?;
+    let (plant, effects) = args.machine.load()?;
     if let Some(bad) = args.freqs.iter().find(|f| !(f.is_finite() && **f > 0.0 && **f < 4000.0)) {
         anyhow::bail!("--freqs: {bad} Hz is not a Z frequency the servo can follow (0 < f < 4000)");
     }

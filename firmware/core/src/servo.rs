@@ -24,7 +24,7 @@ use crate::bus::{InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_ENABLED, OUT
 use crate::features::{Capture, DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, Features};
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
 use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_PHASE_DEG};
-use crate::synth::Synth;
+use crate::synth::{Synth, SynthTargets};
 
 pub use crate::counters::Counters;
 
@@ -123,6 +123,9 @@ pub struct ModelResult {
     pub features: [f32; 12],
     /// The program's outputs and its per-tick terms, or why there are none.
     pub outcome: Result<(ModelOutput, Vec<TickTerm, MAX_TERMS>, u32), ModelFault>,
+    /// The outcome's output converted for the synthesiser (silent without one), so that
+    /// the servo tick applying it need not convert.
+    pub targets: SynthTargets,
 }
 
 /// The twin programs (active and staged) and the model computation: the low-priority side.
@@ -186,7 +189,7 @@ impl Models {
     /// the phases for the analogue path (`path`, see [`crate::analogue_path`]) at the command
     /// frequency of the request.
     pub fn compute(&mut self, rings: &DefaultSpectralRings, request: &ModelRequest, path: &AnaloguePath) -> ModelResult {
-        let mut result = ModelResult { due_tick: request.due_tick, features: [0.0; 12], outcome: Err(ModelFault::NoProgram) };
+        let mut result = ModelResult { due_tick: request.due_tick, features: [0.0; 12], outcome: Err(ModelFault::NoProgram), targets: SynthTargets::SILENT };
         let features: Features = match rings.finish(&request.capture, &mut self.scratch) {
             Ok(features) => features,
             Err(err) => {
@@ -199,6 +202,7 @@ impl Models {
             result.outcome = match program.evaluate(&result.features) {
                 Ok(mut output) => {
                     correct_for_path(&mut output, &program.terms, path, request.cmd_step_turns, request.capture.cfg.sample_rate_hz);
+                    result.targets = SynthTargets::new(&output, &program.terms);
                     Ok((output, program.terms.clone(), program.id))
                 }
                 Err(err) => Err(ModelFault::Eval(err)),
@@ -285,27 +289,32 @@ impl ModelTiming {
 }
 
 /// The servo-interrupt side of the twin. See the [module docs](self).
+///
+/// `repr(C)` with the 90 KB feature state last: the fields every tick touches then lie
+/// within 4 KB of the start, where a Cortex-M4 load or store needs one instruction (three
+/// beyond, with the offset built in a register).
+#[repr(C)]
 pub struct Servo {
-    features: DefaultFeatureState,
-    feature_config: FeatureConfig,
-    synth: Synth,
-    feedforward: Feedforward,
-    config: ServoConfig,
     counters: Counters,
     health: Health,
-    pending: Option<ModelResult>,
-    awaiting_due: Option<u64>,
-    model_active: bool,
-    program_id: Option<u32>,
-    last_output: ModelOutput,
-    last_features: [f32; 12],
-    last_dac: i16,
+    config: ServoConfig,
     /// Ticks until the next model request.
     model_countdown: u32,
     /// The previous tick's command phase, u32 turns.
     prev_cmd_phase_turns: u32,
     /// Model interval and latency for the feature window in force.
     timing: ModelTiming,
+    awaiting_due: Option<u64>,
+    model_active: bool,
+    last_dac: i16,
+    program_id: Option<u32>,
+    synth: Synth,
+    feedforward: Feedforward,
+    feature_config: FeatureConfig,
+    pending: Option<ModelResult>,
+    last_output: ModelOutput,
+    last_features: [f32; 12],
+    features: DefaultFeatureState,
 }
 
 impl Servo {
@@ -476,7 +485,9 @@ impl Servo {
     }
 
     fn apply_due(&mut self, tick: u64) {
-        let Some(result) = self.pending.take() else {
+        // Looked at in place: a result waiting for its tick is not moved (it is about 500
+        // bytes, and it waits for most ticks of an interval).
+        let Some(result) = &self.pending else {
             if self.awaiting_due.is_some_and(|due| tick > due) {
                 // The result is late; it will be applied when it arrives.
                 self.counters.model_late += 1;
@@ -485,19 +496,18 @@ impl Servo {
             return;
         };
         if tick < result.due_tick {
-            self.pending = Some(result);
             return;
         }
         self.awaiting_due = None;
         self.last_features = result.features;
-        match result.outcome {
+        match &result.outcome {
             Ok((output, terms, id)) => {
                 self.counters.model_updates += 1;
                 self.health.degraded &= !DEGRADED_MODEL;
-                self.synth.update(&output, &terms);
-                self.last_output = output;
+                self.synth.apply(&result.targets, terms);
+                self.last_output = *output;
                 self.model_active = true;
-                self.program_id = Some(id);
+                self.program_id = Some(*id);
             }
             Err(ModelFault::NoProgram) => {
                 self.synth.silence();
@@ -511,6 +521,7 @@ impl Servo {
                 self.synth.silence();
             }
         }
+        self.pending = None;
     }
 
     /// Hands back a model result computed for a request of this servo.

@@ -24,6 +24,9 @@ pub struct TickInput {
     pub spindle_turns: u32,
 }
 
+// The term slots are walked by the bits of a byte (`Synth::apply`).
+const _: () = assert!(MAX_TERMS == 8, "Synth::apply indexes term slots with 3 bits");
+
 /// Ticks between two steps of a [`TickTerm::Drift`]'s exponential (its value is held in between).
 pub const DRIFT_STEP_TICKS: u32 = 256;
 
@@ -32,7 +35,13 @@ const SINE_TABLE_BITS: u32 = 10;
 const SINE_TABLE_LEN: usize = 1 << SINE_TABLE_BITS;
 
 /// sin(2 pi i / 1024) in Q31, one extra entry so interpolation needs no wrap.
-static SINE_Q31: [i32; SINE_TABLE_LEN + 1] = sine_table();
+#[cfg(test)]
+const SINE_Q31: [i32; SINE_TABLE_LEN + 1] = sine_table();
+
+/// Each table entry with twice the step to the next: `[sin_i, 2 (sin_(i+1) - sin_i)]`, so that
+/// the interpolation is one load pair and one high-word multiply (`smmla` on a Cortex-M4).
+/// The doubled step (at most 2^24.7) and the fraction in Q31 keep the product exact.
+static SINE_SLOPE_Q31: [[i32; 2]; SINE_TABLE_LEN] = sine_slope_table();
 
 /// Builds the table at compile time (f64 in const fn is exact IEEE arithmetic).
 const fn sine_table() -> [i32; SINE_TABLE_LEN + 1] {
@@ -59,14 +68,32 @@ const fn sine_table() -> [i32; SINE_TABLE_LEN + 1] {
     table
 }
 
-/// sin of a phase in turns (2^32 = one turn), in Q31.
+const fn sine_slope_table() -> [[i32; 2]; SINE_TABLE_LEN] {
+    let sine = sine_table();
+    let mut table = [[0i32; 2]; SINE_TABLE_LEN];
+    let mut i = 0;
+    while i < SINE_TABLE_LEN {
+        table[i] = [sine[i], 2 * (sine[i + 1] - sine[i])];
+        i += 1;
+    }
+    table
+}
+
+/// `(a * b) >> 32`: one `smmul` on a Cortex-M4.
+#[inline(always)]
+fn mul_hi(a: i32, b: i32) -> i32 {
+    ((a as i64 * b as i64) >> 32) as i32
+}
+
+/// sin of a phase in turns (2^32 = one turn), in Q31: the table entry of the top 10 bits,
+/// linearly interpolated by the next 16, `a + ((b - a) * frac16) >> 16` (floor).
 #[inline]
 pub fn sin_q31(phase_turns: u32) -> i32 {
-    let index = (phase_turns >> (32 - SINE_TABLE_BITS)) as usize;
-    let frac = ((phase_turns >> (16 - SINE_TABLE_BITS)) & 0xffff) as i64;
-    let a = SINE_Q31[index] as i64;
-    let b = SINE_Q31[index + 1] as i64;
-    (a + (((b - a) * frac) >> 16)) as i32
+    let [a, slope2] = SINE_SLOPE_Q31[(phase_turns >> (32 - SINE_TABLE_BITS)) as usize];
+    // The 16 interpolation bits in Q31: frac16 << 15.
+    let frac_q31 = ((phase_turns << SINE_TABLE_BITS) >> 1) & 0x7fff_8000;
+    // (2 (b - a) * frac16 2^15) >> 32 = ((b - a) * frac16) >> 16, exactly.
+    a + mul_hi(slope2, frac_q31 as i32)
 }
 
 /// Micrometres (f32) to picometres, saturating at +-1 mm (NaN gives 0).
@@ -84,67 +111,106 @@ pub fn um_to_pm(value_um: f32) -> i32 {
 }
 
 /// Degrees (f32) to turns (2^32 per turn), wrapping; NaN gives 0.
+///
+/// The fraction of a turn is `turns - trunc(turns)` (truncation toward zero), times 2^32,
+/// truncated and wrapped. For `|turns| < 2^31`, the usual case, the truncations go through
+/// `i32` (single instructions on a Cortex-M4F; `i64` conversions are library calls of ~50
+/// instructions each) with the same results as through `i64`.
 pub fn deg_to_turns(value_deg: f32) -> u32 {
+    const TWO_POW_31: f32 = 2_147_483_648.0;
     if !value_deg.is_finite() {
         return 0;
     }
     let turns = value_deg / 360.0;
-    let whole = turns as i64 as f32; // truncation; |turns| < 2^24 keeps this exact enough
-    let frac = turns - whole; // in (-1, 1)
+    if !(-TWO_POW_31 < turns && turns < TWO_POW_31) {
+        return deg_to_turns_wide(turns);
+    }
+    // Exact: an integer below 2^24 in magnitude, or `turns` itself (already integral).
+    let whole = turns as i32 as f32;
+    let scaled = (turns - whole) * 4_294_967_296.0; // in (-2^32, 2^32), exact
+    if -TWO_POW_31 < scaled && scaled < TWO_POW_31 {
+        scaled as i32 as u32
+    } else {
+        // |scaled| >= 2^31 is a multiple of 2^8: halve exactly, convert, double (wrapping).
+        ((scaled * 0.5) as i32 as u32) << 1
+    }
+}
+
+/// [`deg_to_turns`] for `|turns| >= 2^31` (64-bit truncations, as defined).
+#[cold]
+fn deg_to_turns_wide(turns: f32) -> u32 {
+    let whole = turns as i64 as f32;
+    let frac = turns - whole;
     (frac * 4_294_967_296.0) as i64 as u32
 }
 
-/// `amp_pm * sin(phase)`, in picometres.
+/// `amp_pm * sin(phase)`, in picometres (any amplitude).
 #[inline]
 fn harmonic_pm(amp_pm: i32, phase_turns: u32) -> i32 {
     ((amp_pm as i64 * sin_q31(phase_turns) as i64) >> 31) as i32
 }
 
+/// Largest amplitude a [`Ramp`] holds, picometres: [`um_to_pm`] saturates at 1 mm.
+const RAMP_AMP_LIMIT_PM: i32 = 1_000_000_000;
+
+/// [`harmonic_pm`] for `|amp_pm| < 2^30` (every [`Ramp`]): `(2 amp * sin) >> 32`, the same
+/// value with one high-word multiply.
+#[inline(always)]
+fn ramp_harmonic_pm(amp_pm: i32, phase_turns: u32) -> i32 {
+    debug_assert!(amp_pm.unsigned_abs() <= RAMP_AMP_LIMIT_PM as u32);
+    mul_hi(amp_pm << 1, sin_q31(phase_turns))
+}
+
 /// A value moving linearly to a target over a number of ticks. The per-tick steps are
 /// computed once, at the retarget, with 32-bit division (a single instruction on a
-/// Cortex-M4; 64-bit division is a library call of a hundred), so a tick only adds.
+/// Cortex-M4; 64-bit division is a library call of a hundred), so a tick only adds. All
+/// ramps of a synthesiser are retargeted together, so one tick counter
+/// ([`Synth`]`::ramp_left`) serves them all and a settled tick skips them.
+///
+/// Amplitudes stay within +-[`RAMP_AMP_LIMIT_PM`]: targets come from [`um_to_pm`] and the
+/// steps never overshoot (`|k step| < |target - start|` for `k` below the ramp length).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct Ramp {
     amp_pm: i32,
-    amp_target_pm: i32,
-    amp_step_pm: i32,
     phase_turns: u32,
+    amp_target_pm: i32,
     phase_target_turns: u32,
+    amp_step_pm: i32,
     phase_step_turns: i32,
-    ticks_left: u32,
 }
 
 impl Ramp {
+    const IDLE: Self = Self { amp_pm: 0, phase_turns: 0, amp_target_pm: 0, phase_target_turns: 0, amp_step_pm: 0, phase_step_turns: 0 };
+
+    /// Sets the target, reached after `ramp_ticks` steps (at once for 0).
     fn retarget(&mut self, amp_pm: i32, phase_turns: u32, ramp_ticks: u32) {
         self.amp_target_pm = amp_pm;
         self.phase_target_turns = phase_turns;
-        self.ticks_left = ramp_ticks;
         if ramp_ticks == 0 {
             self.amp_pm = amp_pm;
             self.phase_turns = phase_turns;
             return;
         }
         let n = ramp_ticks.min(i32::MAX as u32) as i32;
-        // |amp| <= 1e9 pm, so the difference fits in i32 after a halving at worst; clamp.
+        // |amp| <= 1e9 pm, so the difference fits in i32; clamp anyway.
         let amp_delta = (amp_pm as i64 - self.amp_pm as i64).clamp(i32::MIN as i64, i32::MAX as i64) as i32;
         self.amp_step_pm = amp_delta / n;
         // Shorter way round: the wrapped difference read as signed.
         self.phase_step_turns = (phase_turns.wrapping_sub(self.phase_turns) as i32) / n;
     }
 
+    /// One step of a ramp with more than one tick left.
     #[inline]
-    fn advance(&mut self) {
-        if self.ticks_left == 0 {
-            return;
-        }
-        self.ticks_left -= 1;
-        if self.ticks_left == 0 {
-            self.amp_pm = self.amp_target_pm;
-            self.phase_turns = self.phase_target_turns;
-        } else {
-            self.amp_pm = self.amp_pm.saturating_add(self.amp_step_pm);
-            self.phase_turns = self.phase_turns.wrapping_add(self.phase_step_turns as u32);
-        }
+    fn step(&mut self) {
+        self.amp_pm = self.amp_pm.saturating_add(self.amp_step_pm);
+        self.phase_turns = self.phase_turns.wrapping_add(self.phase_step_turns as u32);
+    }
+
+    /// The last step: exactly onto the target.
+    #[inline]
+    fn finish(&mut self) {
+        self.amp_pm = self.amp_target_pm;
+        self.phase_turns = self.phase_target_turns;
     }
 }
 
@@ -166,17 +232,6 @@ struct KernelState {
     /// Whether the command history is valid.
     primed: bool,
 }
-
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct TermState {
-    order: u8,
-    ramp: Ramp,
-    /// The term in force (`None`: an idle or harmonic slot).
-    kernel: Option<TickTerm>,
-    state: KernelState,
-}
-
-impl Eq for TermState {}
 
 /// `exp(-x)` for the drift's set-up (not per tick).
 fn exp_neg(x: f64) -> f64 {
@@ -273,39 +328,98 @@ fn isqrt_u64(v: u64) -> u64 {
     x
 }
 
+/// A model output converted for the synthesiser: the fundamental's and each harmonic
+/// term's amplitude (picometres) and phase offset (turns), from the output registers the
+/// terms name. Computing these is most of the cost of a model update (float conversions),
+/// so the firmware does it with the model evaluation at low priority, and the servo tick
+/// that applies the result ([`Synth::apply`]) only starts the ramps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SynthTargets {
+    amp_pm: i32,
+    phase_turns: u32,
+    term_amp_pm: [i32; MAX_TERMS],
+    term_phase_turns: [u32; MAX_TERMS],
+    /// Harmonic order of each term (0 for kernel terms and beyond the terms).
+    term_orders: [u32; MAX_TERMS],
+    /// Bit `i` set: term `i` is a kernel term.
+    kernel_mask: u32,
+}
+
+impl SynthTargets {
+    /// Silence: every amplitude zero (what [`ModelOutput::default`] gives).
+    pub const SILENT: Self = Self { amp_pm: 0, phase_turns: 0, term_amp_pm: [0; MAX_TERMS], term_phase_turns: [0; MAX_TERMS], term_orders: [0; MAX_TERMS], kernel_mask: 0 };
+
+    /// The targets of `output` for the tick terms `terms` (kernel terms have none).
+    pub fn new(output: &ModelOutput, terms: &[TickTerm]) -> Self {
+        let mut targets = Self { amp_pm: um_to_pm(output.amp_um()), phase_turns: deg_to_turns(output.phase_deg()), ..Self::SILENT };
+        for (i, term) in terms.iter().take(MAX_TERMS).enumerate() {
+            if let TickTerm::Harmonic { order, amp_reg, phase_reg } = *term {
+                let register = |r: u8| output.registers.get(r as usize).copied().unwrap_or(0.0);
+                targets.term_amp_pm[i] = um_to_pm(register(amp_reg));
+                targets.term_phase_turns[i] = deg_to_turns(register(phase_reg));
+                targets.term_orders[i] = u32::from(order);
+            } else {
+                targets.kernel_mask |= 1 << i;
+            }
+        }
+        targets
+    }
+}
+
 /// The error synthesiser. See the [module docs](self).
-#[derive(Clone, Debug, PartialEq, Eq)]
+///
+/// Term slot `i` holds the `i`-th tick term of the program in force: a harmonic (its order
+/// and ramp) or a kernel term (its kind and filter state; its ramp stays idle at zero, so
+/// the harmonic loop may run over it and add exactly nothing).
+#[derive(Clone, Debug, PartialEq)]
 pub struct Synth {
     fundamental: Ramp,
-    terms: [TermState; MAX_TERMS],
+    /// Amplitude and phase offset of each slot's harmonic.
+    ramps: [Ramp; MAX_TERMS],
+    /// Harmonic order of each slot (0 for kernel slots).
+    orders: [u32; MAX_TERMS],
+    /// The kernel term of each slot (`None`: an idle or harmonic slot).
+    kernels: [Option<TickTerm>; MAX_TERMS],
+    states: [KernelState; MAX_TERMS],
+    /// Bit `i` set: slot `i` holds a kernel term.
+    kernel_mask: u32,
+    /// Slots the tick visits.
     term_count: usize,
+    /// Ticks left on the ramps (all of them were retargeted together).
+    ramp_left: u32,
+    /// Slots from here on are settled silent (amplitude, target and steps zero, phase at its
+    /// target, no kernel): retargeting them to silence again would change nothing.
+    idle_from: usize,
     /// Machine time: ticks since the synthesiser started (or [`Synth::set_time_ticks`]).
     ticks: u64,
     /// Ticks over which a model update moves amplitude and phase to their new values.
     pub ramp_ticks: u32,
 }
 
+impl Eq for Synth {}
+
 impl Synth {
     /// A silent synthesiser (amplitude zero) that ramps model updates over `ramp_ticks`.
     pub const fn new(ramp_ticks: u32) -> Self {
-        const IDLE: TermState = TermState {
-            order: 0,
-            ramp: Ramp { amp_pm: 0, amp_target_pm: 0, amp_step_pm: 0, phase_turns: 0, phase_target_turns: 0, phase_step_turns: 0, ticks_left: 0 },
-            kernel: None,
-            state: KernelState {
-                stages: [0; LAGUERRE_STAGES],
-                pos_hist: [0; 4],
-                dahl_q30: 0,
-                drift_q8: 0,
-                drift_step_q23: 0,
-                g_q30: 0,
-                primed: false,
-            },
+        const IDLE_STATE: KernelState = KernelState {
+            stages: [0; LAGUERRE_STAGES],
+            pos_hist: [0; 4],
+            dahl_q30: 0,
+            drift_q8: 0,
+            drift_step_q23: 0,
+            g_q30: 0,
+            primed: false,
         };
         Self {
-            fundamental: IDLE.ramp,
-            terms: [IDLE; MAX_TERMS],
+            fundamental: Ramp::IDLE,
+            ramps: [Ramp::IDLE; MAX_TERMS],
+            orders: [0; MAX_TERMS],
+            kernels: [None; MAX_TERMS],
+            states: [IDLE_STATE; MAX_TERMS],
+            kernel_mask: 0,
             term_count: 0,
+            ramp_left: 0,
+            idle_from: 0,
             ticks: 0,
             ramp_ticks,
         }
@@ -313,49 +427,99 @@ impl Synth {
 
     /// Takes a new model output: the fundamental from its amplitude and phase registers and
     /// the tick terms' coefficients from theirs. Terms that disappear ramp to zero first.
+    /// The same as [`Synth::apply`] of [`SynthTargets::new`].
     pub fn update(&mut self, output: &ModelOutput, terms: &[TickTerm]) {
+        self.apply(&SynthTargets::new(output, terms), terms);
+    }
+
+    /// Takes a new model output, converted beforehand ([`SynthTargets::new`] of the same
+    /// `terms`): starts the ramps to it.
+    pub fn apply(&mut self, targets: &SynthTargets, terms: &[TickTerm]) {
         let ramp = self.ramp_ticks;
-        self.fundamental.retarget(um_to_pm(output.amp_um()), deg_to_turns(output.phase_deg()), ramp);
+        self.fundamental.retarget(targets.amp_pm, targets.phase_turns, ramp);
         let count = terms.len().min(MAX_TERMS);
-        let ticks = self.ticks;
-        for (slot, term) in self.terms.iter_mut().zip(terms.iter()) {
-            let TickTerm::Harmonic { order, amp_reg, phase_reg } = *term else {
-                // Kernel terms carry their own coefficients; a changed term restarts its state.
-                if slot.kernel != Some(*term) {
-                    *slot = TermState { order: 0, ramp: Ramp::default(), kernel: Some(*term), state: KernelState::default() };
-                    match *term {
-                        TickTerm::Drift { decay_pm, tau_ticks, .. } => drift_at(&mut slot.state, decay_pm, tau_ticks, ticks),
-                        TickTerm::Laguerre { pole_q30, .. } => {
-                            let one = 1i64 << 30;
-                            let a = i64::from(pole_q30);
-                            slot.state.g_q30 = isqrt_u64(((one - a) * (one + a)) as u64) as i64;
-                        }
-                        _ => {}
-                    }
-                }
-                continue;
-            };
-            let amp = output.registers.get(amp_reg as usize).copied().unwrap_or(0.0);
-            let phase = output.registers.get(phase_reg as usize).copied().unwrap_or(0.0);
-            if slot.order != order || slot.kernel.is_some() {
-                // A new kind of term starts from silence at its own phase.
-                *slot = TermState { order, ramp: Ramp::default(), kernel: None, state: KernelState::default() };
-                slot.ramp.phase_turns = deg_to_turns(phase);
+        if targets.kernel_mask != 0 {
+            self.apply_kernels(targets.kernel_mask, &terms[..count]);
+        }
+        // Last slot holding a harmonic that is or will be audible.
+        let mut audible_to = 0;
+        // The harmonic slots, by their bits (masked to MAX_TERMS = 8 slots, so no index
+        // can be out of bounds).
+        let mut harmonics = !targets.kernel_mask & ((1u32 << count) - 1) & 0xff;
+        while harmonics != 0 {
+            let i = (harmonics.trailing_zeros() & 7) as usize;
+            harmonics &= harmonics - 1;
+            let order = targets.term_orders[i];
+            let phase = targets.term_phase_turns[i];
+            if self.orders[i] != order || self.kernel_mask & (1 << i) != 0 {
+                // A new kind of term starts from silence at its own phase. (Its kernel state
+                // is not read while it is a harmonic, and is reset when it becomes a kernel.)
+                self.orders[i] = order;
+                self.ramps[i] = Ramp { phase_turns: phase, ..Ramp::IDLE };
+                self.kernels[i] = None;
             }
-            slot.ramp.retarget(um_to_pm(amp), deg_to_turns(phase), ramp);
+            let slot = &mut self.ramps[i];
+            slot.retarget(targets.term_amp_pm[i], phase, ramp);
+            if order != 0 && (slot.amp_pm != 0 || slot.amp_target_pm != 0) {
+                audible_to = i + 1;
+            }
         }
-        for slot in self.terms.iter_mut().skip(count) {
-            // Kernel terms stop at once (they have no ramp); harmonics ramp out.
-            slot.kernel = None;
-            let phase = slot.ramp.phase_turns;
-            slot.ramp.retarget(0, phase, ramp);
+        // Harmonics that disappear ramp out; kernel terms stop at once (they have no ramp).
+        let mut idle_from = count;
+        for i in count..self.idle_from.max(count) {
+            self.kernels[i] = None;
+            let slot = &mut self.ramps[i];
+            let phase = slot.phase_turns;
+            slot.retarget(0, phase, ramp);
+            if slot.amp_pm != 0 {
+                idle_from = i + 1;
+                if self.orders[i] != 0 {
+                    audible_to = i + 1;
+                }
+            }
         }
-        self.term_count = self.terms.iter().rposition(|t| t.order != 0 && (t.ramp.amp_pm != 0 || t.ramp.amp_target_pm != 0)).map_or(0, |i| i + 1).max(count);
+        self.idle_from = idle_from;
+        self.ramp_left = ramp;
+        self.kernel_mask = targets.kernel_mask;
+        self.term_count = audible_to.max(count);
+    }
+
+    /// The kernel terms of an update (bits of `mask`): a changed one restarts from rest, an
+    /// unchanged one keeps its state (kernel terms carry their own coefficients).
+    #[inline(never)]
+    fn apply_kernels(&mut self, mask: u32, terms: &[TickTerm]) {
+        let ticks = self.ticks;
+        for (i, term) in terms.iter().enumerate() {
+            if mask & (1 << i) != 0 && self.kernels[i] != Some(*term) {
+                self.start_kernel(i, term, ticks);
+            }
+        }
+    }
+
+    /// Puts kernel term `term` into slot `i`, from rest. Out of line: its 64-bit float set-up
+    /// (software arithmetic on a Cortex-M4F) must not be hoisted into every model update.
+    #[cold]
+    #[inline(never)]
+    fn start_kernel(&mut self, i: usize, term: &TickTerm, ticks: u64) {
+        self.orders[i] = 0;
+        self.ramps[i] = Ramp::IDLE;
+        self.kernels[i] = Some(*term);
+        let state = &mut self.states[i];
+        *state = KernelState::default();
+        match *term {
+            TickTerm::Drift { decay_pm, tau_ticks, .. } => drift_at(state, decay_pm, tau_ticks, ticks),
+            TickTerm::Laguerre { pole_q30, .. } => {
+                let one = 1i64 << 30;
+                let a = i64::from(pole_q30);
+                state.g_q30 = isqrt_u64(((one - a) * (one + a)) as u64) as i64;
+            }
+            _ => {}
+        }
     }
 
     /// Ramps everything to silence (no model in force).
     pub fn silence(&mut self) {
-        self.update(&ModelOutput::default(), &[]);
+        self.apply(&SynthTargets::SILENT, &[]);
     }
 
     /// The predicted dynamic error at this tick, picometres, for command phase `cmd_phase_turns`
@@ -369,39 +533,75 @@ impl Synth {
     #[inline]
     pub fn next_input(&mut self, input: &TickInput) -> i32 {
         let cmd_phase_turns = input.cmd_phase_turns;
-        self.fundamental.advance();
-        let mut total = harmonic_pm(self.fundamental.amp_pm, cmd_phase_turns.wrapping_add(self.fundamental.phase_turns)) as i64;
-        let ticks = self.ticks;
-        for term in self.terms[..self.term_count].iter_mut() {
-            if let Some(kernel) = &term.kernel {
-                total += kernel_pm(kernel, &mut term.state, input, ticks);
-                continue;
+        let count = self.term_count.min(MAX_TERMS);
+        // Kernel slots have an idle ramp (amplitude 0, steps 0) and add 0 in the harmonic sum.
+        let mut total = if self.ramp_left > 1 {
+            // Ramping: step and synthesise in one pass.
+            self.ramp_left -= 1;
+            self.fundamental.step();
+            let mut total = ramp_harmonic_pm(self.fundamental.amp_pm, cmd_phase_turns.wrapping_add(self.fundamental.phase_turns)) as i64;
+            for (ramp, &order) in self.ramps[..count].iter_mut().zip(&self.orders[..count]) {
+                ramp.step();
+                let phase = cmd_phase_turns.wrapping_mul(order).wrapping_add(ramp.phase_turns);
+                total += ramp_harmonic_pm(ramp.amp_pm, phase) as i64;
             }
-            term.ramp.advance();
-            let phase = cmd_phase_turns.wrapping_mul(term.order as u32).wrapping_add(term.ramp.phase_turns);
-            total += harmonic_pm(term.ramp.amp_pm, phase) as i64;
+            total
+        } else {
+            if self.ramp_left == 1 {
+                self.finish_ramps(count);
+            }
+            let mut total = ramp_harmonic_pm(self.fundamental.amp_pm, cmd_phase_turns.wrapping_add(self.fundamental.phase_turns)) as i64;
+            for (ramp, &order) in self.ramps[..count].iter().zip(&self.orders[..count]) {
+                let phase = cmd_phase_turns.wrapping_mul(order).wrapping_add(ramp.phase_turns);
+                total += ramp_harmonic_pm(ramp.amp_pm, phase) as i64;
+            }
+            total
+        };
+        let ticks = self.ticks;
+        if self.kernel_mask != 0 {
+            total = total.wrapping_add(self.kernels_pm(count, input, ticks));
         }
         self.ticks = ticks.wrapping_add(1);
         total.clamp(i32::MIN as i64, i32::MAX as i64) as i32
+    }
+
+    /// The ramps' last tick: every value onto its target.
+    #[inline(never)]
+    fn finish_ramps(&mut self, count: usize) {
+        self.ramp_left = 0;
+        self.fundamental.finish();
+        self.ramps[..count].iter_mut().for_each(Ramp::finish);
+    }
+
+    /// The kernel terms' sum for this tick, picometres.
+    #[inline(never)]
+    fn kernels_pm(&mut self, count: usize, input: &TickInput, ticks: u64) -> i64 {
+        let mut total = 0i64;
+        for (kernel, state) in self.kernels[..count].iter().zip(self.states[..count].iter_mut()) {
+            if let Some(kernel) = kernel {
+                total = total.wrapping_add(kernel_pm(kernel, state, input, ticks));
+            }
+        }
+        total
     }
 
     /// Sets the machine time (ticks since the machine started), e.g. to replay a measurement
     /// group that started at a known machine time; drift terms jump to their value then.
     pub fn set_time_ticks(&mut self, ticks: u64) {
         self.ticks = ticks;
-        for term in self.terms.iter_mut() {
-            if let Some(TickTerm::Drift { decay_pm, tau_ticks, .. }) = term.kernel {
-                drift_at(&mut term.state, decay_pm, tau_ticks, ticks);
+        for (kernel, state) in self.kernels.iter().zip(self.states.iter_mut()) {
+            if let Some(TickTerm::Drift { decay_pm, tau_ticks, .. }) = *kernel {
+                drift_at(state, decay_pm, tau_ticks, ticks);
             }
         }
     }
 
     /// Restarts the kernel terms' filter states (a new motion from rest), keeping the model.
     pub fn restart_kernels(&mut self) {
-        for term in self.terms.iter_mut() {
-            if term.kernel.is_some() {
-                let keep = term.state;
-                term.state = KernelState { drift_q8: keep.drift_q8, drift_step_q23: keep.drift_step_q23, g_q30: keep.g_q30, ..KernelState::default() };
+        for (kernel, state) in self.kernels.iter().zip(self.states.iter_mut()) {
+            if kernel.is_some() {
+                let keep = *state;
+                *state = KernelState { drift_q8: keep.drift_q8, drift_step_q23: keep.drift_step_q23, g_q30: keep.g_q30, ..KernelState::default() };
             }
         }
     }
@@ -438,6 +638,64 @@ mod tests {
             worst = worst.max((exact - got).abs());
         }
         assert!(worst < 5e-6, "worst sine error {worst}");
+    }
+
+    fn rng(seed: &mut u64) -> u64 {
+        *seed ^= *seed << 13;
+        *seed ^= *seed >> 7;
+        *seed ^= *seed << 17;
+        *seed
+    }
+
+    #[test]
+    fn the_sine_interpolation_is_the_plain_one_bit_for_bit() {
+        let plain = |phase: u32| {
+            let index = (phase >> 22) as usize;
+            let frac = ((phase >> 6) & 0xffff) as i64;
+            let a = SINE_Q31[index] as i64;
+            let b = SINE_Q31[index + 1] as i64;
+            (a + (((b - a) * frac) >> 16)) as i32
+        };
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        for k in 0..200_000u64 {
+            let phase = if k < 4096 { (k as u32) << 20 | (k as u32 & 0x3f) } else { rng(&mut seed) as u32 };
+            assert_eq!(sin_q31(phase), plain(phase), "phase {phase:#x}");
+        }
+        for phase in [0u32, u32::MAX, 0x7fff_ffff, 0x8000_0000, 0x003f_ffc0, 0xffc0_0000] {
+            assert_eq!(sin_q31(phase), plain(phase));
+        }
+    }
+
+    #[test]
+    fn the_ramp_harmonic_is_the_plain_one_bit_for_bit() {
+        let mut seed = 7u64;
+        for k in 0..200_000 {
+            let amp = match k % 4 {
+                0 => RAMP_AMP_LIMIT_PM,
+                1 => -RAMP_AMP_LIMIT_PM,
+                _ => (rng(&mut seed) % (2 * RAMP_AMP_LIMIT_PM as u64 + 1)) as i64 as i32 - RAMP_AMP_LIMIT_PM,
+            };
+            let phase = rng(&mut seed) as u32;
+            assert_eq!(ramp_harmonic_pm(amp, phase), harmonic_pm(amp, phase), "amp {amp} phase {phase:#x}");
+        }
+    }
+
+    #[test]
+    fn degrees_convert_as_through_64_bits() {
+        let wide = |value_deg: f32| if value_deg.is_finite() { deg_to_turns_wide(value_deg / 360.0) } else { 0 };
+        let mut seed = 11u64;
+        let mut values = std::vec![0.0f32, -0.0, 1e-30, -1e-30, 359.99997, -359.99997, 180.0, -180.0, 7.7e11, -7.7e11, 3e12, f32::MAX, f32::MIN];
+        for k in 0..300_000 {
+            let bits = rng(&mut seed) as u32;
+            values.push(match k % 3 {
+                0 => f32::from_bits(bits),
+                1 => (bits as i32 as f32) * 1e-3,
+                _ => (bits as i32 as f32) * 400.0,
+            });
+        }
+        for v in values {
+            assert_eq!(deg_to_turns(v), wide(v), "{v:e}");
+        }
     }
 
     #[test]

@@ -95,7 +95,7 @@
 //!
 //! # Memory
 //!
-//! `FeatureState<WB>`: `36 * WB + 96` bytes (i16 raw ring of `16 WB` samples plus an i32
+//! `FeatureState<WB>`: `36 * WB` bytes plus about 100 (i16 raw ring of `16 WB` samples plus an i32
 //! DC reference per block). `SpectralRings<RB>`: `8 * RB + 4` bytes. `Scratch<H>`:
 //! `16 * H` bytes. Defaults (40,000 samples): 90 KB + 22 KB + 32 KB.
 //!

@@ -6,14 +6,14 @@ use fixed::types::I24F8;
 /// Interrupt-owned feature state for a window of up to `16 * WINDOW_BLOCKS` samples.
 ///
 /// `WINDOW_BLOCKS` must be within [`MIN_WINDOW_BLOCKS`]..=[`MAX_WINDOW_BLOCKS`] (checked at
-/// compile time). Memory: `36 * WINDOW_BLOCKS + 96` bytes.
+/// compile time). Memory: `36 * WINDOW_BLOCKS` bytes plus about 100.
+///
+/// `repr(C)`, the large rings last: the per-sample fields then sit at small offsets, which
+/// a Cortex-M4 load or store reaches with one instruction (beyond 4 KB it takes three).
 #[derive(Clone, Debug)]
+#[repr(C)]
 pub struct FeatureState<const WINDOW_BLOCKS: usize> {
     cfg: FeatureConfig,
-    /// Raw codes of the window, oldest overwritten first.
-    raw: [[i16; BLOCK_SAMPLES]; WINDOW_BLOCKS],
-    /// DC reference (Q24.8 codes) that each block of `raw` was accumulated with.
-    dc_ref: [I24F8; WINDOW_BLOCKS],
     /// Block slot of `raw` / `dc_ref` being written (0 .. window blocks).
     raw_block: u32,
     /// Sample index within the block being written (0 .. 16).
@@ -36,6 +36,18 @@ pub struct FeatureState<const WINDOW_BLOCKS: usize> {
     /// Complete blocks ever written to the rings (wrapping), and the ring slot of the next.
     blocks_written: u32,
     ring_slot: u32,
+    /// Sum, largest and smallest code of the block being written so far (0, `i16::MIN`,
+    /// `i16::MAX` when it is empty), kept per sample so that the block end and a capture
+    /// need not scan the block.
+    block_sum: i32,
+    block_max: i16,
+    block_min: i16,
+    /// DC reference (Q24.8 codes) that each block of `raw` was accumulated with.
+    dc_ref: [I24F8; WINDOW_BLOCKS],
+    /// Raw codes of the window, oldest overwritten first. Only the first `filled` positions
+    /// (in write order) hold codes of the current configuration: `reconfigure` leaves the
+    /// rest as it was, and `push` ignores what it overwrites until the window is full.
+    raw: [[i16; BLOCK_SAMPLES]; WINDOW_BLOCKS],
 }
 
 /// A snapshot of the interrupt-owned state, taken in O(1); [`SpectralRings::finish`] turns it
@@ -89,8 +101,6 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         }
         Ok(Self {
             cfg,
-            raw: [[0; BLOCK_SAMPLES]; WINDOW_BLOCKS],
-            dc_ref: [I24F8::ZERO; WINDOW_BLOCKS],
             raw_block: 0,
             in_block: 0,
             filled: 0,
@@ -104,6 +114,11 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
             dc_old: I24F8::ZERO,
             blocks_written: 0,
             ring_slot: 0,
+            block_sum: 0,
+            block_max: i16::MIN,
+            block_min: i16::MAX,
+            dc_ref: [I24F8::ZERO; WINDOW_BLOCKS],
+            raw: [[0; BLOCK_SAMPLES]; WINDOW_BLOCKS],
         })
     }
 
@@ -112,14 +127,13 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         &self.cfg
     }
 
-    /// Switches to `cfg` and empties the window (O(capacity): not for the interrupt).
-    /// The ring write position continues, so the same [`SpectralRings`] stays valid. On
-    /// error the old configuration and window stay in force.
+    /// Switches to `cfg` and empties the window, in O(1) (the raw codes are not cleared:
+    /// `push` ignores the old ones until the window has filled again), so that it may run
+    /// inside a short critical section. The ring write position continues, so the same
+    /// [`SpectralRings`] stays valid. On error the old configuration and window stay in force.
     pub fn reconfigure(&mut self, cfg: FeatureConfig) -> Result<(), FeatureError> {
         cfg.validate(Self::CAPACITY_SAMPLES)?;
         self.cfg = cfg;
-        self.raw = [[0; BLOCK_SAMPLES]; WINDOW_BLOCKS];
-        self.dc_ref = [I24F8::ZERO; WINDOW_BLOCKS];
         self.raw_block = 0;
         self.in_block = 0;
         self.filled = 0;
@@ -131,6 +145,9 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         self.sum_abs_q8 = 0;
         self.dc_new = I24F8::ZERO;
         self.dc_old = I24F8::ZERO;
+        self.block_sum = 0;
+        self.block_max = i16::MIN;
+        self.block_min = i16::MAX;
         Ok(())
     }
 
@@ -148,7 +165,13 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         block[in_block] = code;
 
         let x = code as i32;
-        let o = old as i32;
+        // Until the window is full the overwritten position holds no sample of it (written
+        // before the last reconfiguration, or never).
+        let full = self.filled >= self.cfg.window_samples;
+        let (o, dc_old) = if full { (old as i32, self.dc_old) } else { (0, I24F8::ZERO) };
+        self.block_sum += x;
+        self.block_max = self.block_max.max(code);
+        self.block_min = self.block_min.min(code);
         if self.filled == 0 {
             // No window mean yet: the first block is referenced to its first sample.
             self.dc_new = I24F8::from_bits(x << 8);
@@ -166,10 +189,10 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         let o4 = (o2 as u64) * (o2 as u64);
         self.s4 += (x4 as i64 - o4 as i64) as i128;
         let a_new = (I24F8::from_bits(x << 8) - self.dc_new).abs().to_bits();
-        let a_old = (I24F8::from_bits(o << 8) - self.dc_old).abs().to_bits();
+        let a_old = (I24F8::from_bits(o << 8) - dc_old).abs().to_bits();
         self.sum_abs_q8 += (a_new - a_old) as i64;
 
-        if self.filled < self.cfg.window_samples {
+        if !full {
             self.filled += 1;
         }
         if in_block + 1 < BLOCK_SAMPLES {
@@ -182,16 +205,10 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
     /// Block end: publish the block, advance the ring positions, set the next DC reference.
     #[inline(never)]
     fn end_block<const RING_BLOCKS: usize>(&mut self, rings: &SpectralRings<RING_BLOCKS>) {
-        let block = self.raw.get(self.raw_block as usize).copied().unwrap_or([0; BLOCK_SAMPLES]);
-        let mut sum = 0i32;
-        let mut max = i16::MIN;
-        let mut min = i16::MAX;
-        for &c in &block {
-            sum += c as i32;
-            max = max.max(c);
-            min = min.min(c);
-        }
-        rings.publish(self.ring_slot as usize, self.blocks_written, sum, max, min);
+        rings.publish(self.ring_slot as usize, self.blocks_written, self.block_sum, self.block_max, self.block_min);
+        self.block_sum = 0;
+        self.block_max = i16::MIN;
+        self.block_min = i16::MAX;
         self.blocks_written = self.blocks_written.wrapping_add(1);
         self.ring_slot = if self.ring_slot as usize + 1 >= RING_BLOCKS { 0 } else { self.ring_slot + 1 };
         let window_blocks = self.cfg.window_blocks() as u32;
@@ -214,17 +231,9 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         self.dc_new = dc;
     }
 
-    /// Takes a snapshot for [`SpectralRings::finish`]: O(1) (scans the current block only).
+    /// Takes a snapshot for [`SpectralRings::finish`]: O(1), a copy of a few fields.
     pub fn capture<const RING_BLOCKS: usize>(&self, _rings: &SpectralRings<RING_BLOCKS>) -> Capture {
         let partial_len = self.in_block.min(BLOCK_SAMPLES as u32);
-        let mut max = i16::MIN;
-        let mut min = i16::MAX;
-        if let Some(block) = self.raw.get(self.raw_block as usize) {
-            for &c in &block[..partial_len as usize] {
-                max = max.max(c);
-                min = min.min(c);
-            }
-        }
         Capture {
             cfg: self.cfg,
             samples: self.filled,
@@ -237,8 +246,47 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
             ring_slot: self.ring_slot,
             blocks: self.blocks_filled,
             partial_len,
-            partial_max: max,
-            partial_min: min,
+            partial_max: self.block_max,
+            partial_min: self.block_min,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::FeatureConfig;
+
+    fn codes(seed: &mut u64, n: usize) -> impl Iterator<Item = i16> + '_ {
+        (0..n).map(move |_| {
+            *seed ^= *seed << 13;
+            *seed ^= *seed >> 7;
+            *seed ^= *seed << 17;
+            (*seed >> 48) as i16
+        })
+    }
+
+    /// The window restarts empty without clearing the raw ring: what `push` overwrites
+    /// until the window is full again must not count.
+    #[test]
+    fn a_reconfigured_state_equals_a_fresh_one() {
+        let cfg = |window_samples| FeatureConfig { window_samples, ..FeatureConfig::DEFAULT };
+        let mut seed = 0x5eed_u64;
+        for (before, after, pushed) in [(256u32, 128u32, 700usize), (128, 256, 1000), (512, 512, 333), (256, 256, 7)] {
+            let rings = SpectralRings::<300>::new();
+            let mut state = FeatureState::<32>::new(cfg(before)).unwrap();
+            for code in codes(&mut seed, 1500) {
+                state.push(&rings, code);
+            }
+            state.reconfigure(cfg(after)).unwrap();
+            let fresh_rings = SpectralRings::<300>::new();
+            let mut fresh = FeatureState::<32>::new(cfg(after)).unwrap();
+            for code in codes(&mut seed, pushed) {
+                state.push(&rings, code);
+                fresh.push(&fresh_rings, code);
+                let (a, b) = (state.capture(&rings), fresh.capture(&fresh_rings));
+                assert_eq!(Capture { blocks_written: 0, ring_slot: 0, ..a }, Capture { blocks_written: 0, ring_slot: 0, ..b });
+            }
         }
     }
 }

@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 use sts_twin::rig::{expect_ack, Coprocessor, HilCoprocessor, SimCoprocessor};
-use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
+use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::features::FeatureConfig;
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
@@ -27,20 +27,7 @@ fn program(id: u32, gain: f32) -> Program {
     b.finish().unwrap()
 }
 
-/// A recorded-like stream: a 40 Hz motion whose amplitude changes, with pseudo-noise.
-fn input(k: u32) -> InputSlot {
-    let t = k as f64 / 8000.0;
-    let amp = 4000.0 + 2000.0 * (2.0 * std::f64::consts::PI * 0.3 * t).sin();
-    let phase = 2.0 * std::f64::consts::PI * 40.0 * t;
-    let noise = ((k.wrapping_mul(2_654_435_761) >> 16) % 9) as f64 - 4.0;
-    InputSlot {
-        tick: k,
-        acc_code: (-amp * phase.sin() + noise).round() as i16,
-        flags: IN_FLAG_PHASE_VALID,
-        cmd_phase_turns: ((40.0 * t).fract() * 4_294_967_296.0) as u64 as u32,
-        cmd_pos_nm: (3000.0 * phase.sin()) as i32,
-    }
-}
+use sts_hil_tests::tone_input as input;
 
 fn configure(cop: &mut dyn Coprocessor, program: Program) {
     expect_ack("feature config", cop.request(Request::SetFeatureConfig(feature_config())).unwrap()).unwrap();

@@ -14,6 +14,10 @@ static SERIAL: Mutex<()> = Mutex::new(());
 
 const TIMEOUT: Duration = Duration::from_secs(10);
 
+fn hil_shift() -> u32 {
+    sts_hil_tests::bringup_config().icount_shift
+}
+
 fn status(hil: &mut Hil) -> (u32, u32, u32, u32, i16) {
     let reply = hil.transact(b"?", TIMEOUT, |r| r.len() >= 19).expect("status reply");
     assert_eq!(reply[0], b's', "status reply {reply:?}");
@@ -43,6 +47,10 @@ fn boots_and_serves_ticks_bit_identical_to_the_reference_and_across_runs() {
     assert!(diag.booted);
     assert_eq!(diag.model_requests, TICKS / 64);
     assert!(diag.busy_max_counts > 0 && diag.busy_max_counts < diag.period_counts, "{diag:?}");
+    // One evaluation of the paper program, timed at boot: within the 20,000-instruction budget
+    // (at the default -icount shift=2 one 25 MHz timer count is 10 instructions).
+    let eval_instructions = diag.paper_eval_counts * 40 / (1 << hil_shift());
+    assert!(eval_instructions > 100 && eval_instructions <= 20_000, "{diag:?}");
 
     // Run 2: a fresh QEMU, pipelined through the ring: the same bits.
     let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("boot");

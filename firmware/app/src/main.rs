@@ -154,6 +154,20 @@ fn fail() -> ! {
     }
 }
 
+/// Timer counts of one evaluation of the built-in paper program on typical features (those
+/// of a 40 Hz, 3 um motion), the mean of 16, for the benchmark of one model evaluation.
+fn paper_eval_counts() -> u32 {
+    const RUNS: u32 = 16;
+    let program = sts_twin_core::program::paper_program();
+    let features = [40.0f32, 0.112, 0.0155, 0.181, 0.124, 1.50, 0.0007, 1.46, 1.62, 1.11, 40.0, 0.0152];
+    let (_, counts) = Timer0::count(|| {
+        for _ in 0..RUNS {
+            let _ = core::hint::black_box(program.evaluate(core::hint::black_box(&features)));
+        }
+    });
+    counts / RUNS
+}
+
 #[entry]
 fn main() -> ! {
     let mut core = cortex_m::Peripherals::take().unwrap();
@@ -164,6 +178,7 @@ fn main() -> ! {
     }
     diag_write(qemu::DIAG_MAGIC, qemu::DIAG_MAGIC_VALUE);
     diag_write(qemu::DIAG_PERIOD_COUNTS, qemu::SERVO_PERIOD_COUNTS);
+    diag_write(qemu::DIAG_PAPER_EVAL_COUNTS, paper_eval_counts());
 
     let (app, background, shared) = make_app();
     // SAFETY: no interrupt is enabled yet.

@@ -19,7 +19,7 @@ pub const PSRAM_BYTES: usize = 16 * 1024 * 1024;
 /// Byte offset of the diagnostics block.
 pub const DIAG_OFFSET: usize = 0x4000;
 /// Words in the diagnostics block.
-pub const DIAG_WORDS: usize = 16;
+pub const DIAG_WORDS: usize = 17;
 /// Diagnostics word: [`DIAG_MAGIC_VALUE`] once the firmware has booted.
 pub const DIAG_MAGIC: usize = 0;
 /// Diagnostics word: servo period in timer counts.
@@ -55,6 +55,9 @@ pub const DIAG_HANDLER_MAX: usize = 14;
 /// at each completion of model work: where the background finished, relative to the
 /// ticks. Under `-icount` it must not depend on the host's pace (docs/firmware.md).
 pub const DIAG_MODEL_TIMING_HASH: usize = 15;
+/// Diagnostics word: timer counts of one evaluation of the built-in paper program
+/// (Eqs. 2-3) on typical features, measured at boot before the tick starts (the mean of 16).
+pub const DIAG_PAPER_EVAL_COUNTS: usize = 16;
 /// Value of [`DIAG_MAGIC`]: "DIAG".
 pub const DIAG_MAGIC_VALUE: u32 = 0x4741_4944;
 

@@ -58,6 +58,9 @@ pub struct InstructionReport {
     pub handler_max: f64,
     /// Largest instructions from the tick edge to the start of the input wait (entry).
     pub entry_max: f64,
+    /// Instructions of one evaluation of the built-in paper program (Eqs. 2-3), measured by
+    /// the firmware at boot.
+    pub paper_eval: f64,
     /// Underruns and overruns seen (should be 0).
     pub underruns: u32,
     /// Overruns seen.
@@ -71,6 +74,7 @@ impl std::fmt::Display for InstructionReport {
         writeln!(f, "  input arrival -> handler end (+ counters, diagnostics): median {:.0}, worst {:.0}", self.handler_median, self.handler_max)?;
         writeln!(f, "  tick edge -> input wait (entry): worst {:.0}", self.entry_max)?;
         writeln!(f, "  whole servo handler excluding the wait: typical {:.0}, worst {:.0}", self.typical_per_tick(), self.worst_per_tick())?;
+        writeln!(f, "one model evaluation (the paper's Eqs. 2-3, measured at boot): {:.0}", self.paper_eval)?;
         write!(f, "  underruns {}, overruns {}", self.underruns, self.overruns)
     }
 }
@@ -134,6 +138,7 @@ pub fn bench_instructions_prepared(
         handler_median: quantile(&handler, 0.5),
         handler_max: f64::from(diag.handler_max_counts) * per_count,
         entry_max: f64::from(diag.entry_max_counts) * per_count,
+        paper_eval: f64::from(diag.paper_eval_counts) * per_count,
         underruns: counters.underruns,
         overruns: counters.overruns,
     })

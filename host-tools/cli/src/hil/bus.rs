@@ -190,6 +190,7 @@ impl BusFile {
             handler_last_counts: d(map::DIAG_HANDLER_LAST),
             handler_max_counts: d(map::DIAG_HANDLER_MAX),
             model_timing_hash: d(map::DIAG_MODEL_TIMING_HASH),
+            paper_eval_counts: d(map::DIAG_PAPER_EVAL_COUNTS),
         }
     }
 }
@@ -242,4 +243,6 @@ pub struct Diagnostics {
     /// Hash of where in the tick periods the model work completed (see
     /// [`sts_twin_board::qemu::DIAG_MODEL_TIMING_HASH`]).
     pub model_timing_hash: u32,
+    /// Timer counts of one evaluation of the paper program, measured at boot.
+    pub paper_eval_counts: u32,
 }

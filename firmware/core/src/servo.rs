@@ -504,13 +504,13 @@ impl Servo {
             Ok((output, terms, id)) => {
                 self.counters.model_updates += 1;
                 self.health.degraded &= !DEGRADED_MODEL;
-                self.synth.apply(&result.targets, terms);
+                self.synth.apply_prepared(&result.targets, terms);
                 self.last_output = *output;
                 self.model_active = true;
                 self.program_id = Some(*id);
             }
             Err(ModelFault::NoProgram) => {
-                self.synth.silence();
+                self.synth.apply_prepared(&SynthTargets::SILENT, &[]);
                 self.model_active = false;
                 self.program_id = None;
             }
@@ -518,14 +518,19 @@ impl Servo {
                 // A bad model or a torn snapshot: count, and ramp the prediction out.
                 self.counters.model_faults += 1;
                 self.health.degraded |= DEGRADED_MODEL;
-                self.synth.silence();
+                self.synth.apply_prepared(&SynthTargets::SILENT, &[]);
             }
         }
         self.pending = None;
     }
 
-    /// Hands back a model result computed for a request of this servo.
+    /// Hands back a model result computed for a request of this servo, and prepares the
+    /// synthesiser's ramps to it, so that the tick applying it has little to do.
     pub fn deliver(&mut self, result: ModelResult) {
+        match &result.outcome {
+            Ok((_, terms, _)) => self.synth.prepare(&result.targets, terms),
+            Err(_) => self.synth.prepare(&SynthTargets::SILENT, &[]),
+        }
         self.pending = Some(result);
     }
 

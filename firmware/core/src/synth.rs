@@ -366,6 +366,90 @@ impl SynthTargets {
     }
 }
 
+/// The harmonic part of a synthesiser: the fundamental's and each term slot's ramp and
+/// order. A [`Synth`] holds two: the live one and one where a model update is prepared
+/// ahead of its tick ([`Synth::prepare`]), so that applying it is a switch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Harmonics {
+    fundamental: Ramp,
+    /// Amplitude and phase offset of each slot's harmonic.
+    ramps: [Ramp; MAX_TERMS],
+    /// Harmonic order of each slot (0 for kernel slots).
+    orders: [u32; MAX_TERMS],
+    /// Slots the tick visits.
+    term_count: usize,
+    /// Slots from here on are settled silent (amplitude, target and steps zero, phase at its
+    /// target, no kernel): retargeting them to silence again would change nothing.
+    idle_from: usize,
+}
+
+impl Harmonics {
+    const IDLE: Self = Self { fundamental: Ramp::IDLE, ramps: [Ramp::IDLE; MAX_TERMS], orders: [0; MAX_TERMS], term_count: 0, idle_from: 0 };
+
+    /// What the ticks of a running ramp end in: every visited value on its target.
+    fn settle(&mut self) {
+        self.fundamental.finish();
+        let count = self.term_count.min(MAX_TERMS);
+        self.ramps[..count].iter_mut().for_each(Ramp::finish);
+    }
+
+    /// Starts the term slots' ramps to `targets` for `count` terms over `ramp` ticks;
+    /// `old_kernel_mask` marks the slots that held kernel terms. Returns the slots whose
+    /// kernel term must go.
+    fn retarget_terms(&mut self, targets: &SynthTargets, count: usize, old_kernel_mask: u32, ramp: u32) -> u32 {
+        let mut cleared = 0u32;
+        // Last slot holding a harmonic that is or will be audible.
+        let mut audible_to = 0;
+        // The harmonic slots, by their bits (masked to MAX_TERMS = 8 slots, so no index
+        // can be out of bounds).
+        let mut harmonics = !targets.kernel_mask & ((1u32 << count) - 1) & 0xff;
+        while harmonics != 0 {
+            let i = (harmonics.trailing_zeros() & 7) as usize;
+            harmonics &= harmonics - 1;
+            let order = targets.term_orders[i];
+            let phase = targets.term_phase_turns[i];
+            if self.orders[i] != order || old_kernel_mask & (1 << i) != 0 {
+                // A new kind of term starts from silence at its own phase. (Its kernel state
+                // is not read while it is a harmonic, and is reset when it becomes a kernel.)
+                self.orders[i] = order;
+                self.ramps[i] = Ramp { phase_turns: phase, ..Ramp::IDLE };
+                cleared |= 1 << i;
+            }
+            let slot = &mut self.ramps[i];
+            slot.retarget(targets.term_amp_pm[i], phase, ramp);
+            if order != 0 && (slot.amp_pm != 0 || slot.amp_target_pm != 0) {
+                audible_to = i + 1;
+            }
+        }
+        // Harmonics that disappear ramp out; kernel terms stop at once (they have no ramp).
+        let mut idle_from = count;
+        for i in count..self.idle_from.max(count) {
+            cleared |= 1 << i;
+            let slot = &mut self.ramps[i];
+            let phase = slot.phase_turns;
+            slot.retarget(0, phase, ramp);
+            if slot.amp_pm != 0 {
+                idle_from = i + 1;
+                if self.orders[i] != 0 {
+                    audible_to = i + 1;
+                }
+            }
+        }
+        self.idle_from = idle_from;
+        self.term_count = audible_to.max(count);
+        cleared
+    }
+}
+
+/// What a prepared model update was computed from (see [`Synth::prepare`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Prepared {
+    /// [`Synth`]`::generation` when it was prepared.
+    generation: u32,
+    /// The ramp length it used.
+    ramp_ticks: u32,
+}
+
 /// The error synthesiser. See the [module docs](self).
 ///
 /// Term slot `i` holds the `i`-th tick term of the program in force: a harmonic (its order
@@ -373,23 +457,21 @@ impl SynthTargets {
 /// the harmonic loop may run over it and add exactly nothing).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Synth {
-    fundamental: Ramp,
-    /// Amplitude and phase offset of each slot's harmonic.
-    ramps: [Ramp; MAX_TERMS],
-    /// Harmonic order of each slot (0 for kernel slots).
-    orders: [u32; MAX_TERMS],
+    /// The live harmonics (`banks[live]`) and a prepared update (the other one).
+    banks: [Harmonics; 2],
+    /// Index of the live bank, 0 or 1.
+    live: usize,
     /// The kernel term of each slot (`None`: an idle or harmonic slot).
     kernels: [Option<TickTerm>; MAX_TERMS],
     states: [KernelState; MAX_TERMS],
     /// Bit `i` set: slot `i` holds a kernel term.
     kernel_mask: u32,
-    /// Slots the tick visits.
-    term_count: usize,
     /// Ticks left on the ramps (all of them were retargeted together).
     ramp_left: u32,
-    /// Slots from here on are settled silent (amplitude, target and steps zero, phase at its
-    /// target, no kernel): retargeting them to silence again would change nothing.
-    idle_from: usize,
+    /// Model updates applied (wrapping): a prepared update is valid for one generation.
+    generation: u32,
+    /// The update prepared in the other bank, if any.
+    prepared: Option<Prepared>,
     /// Machine time: ticks since the synthesiser started (or [`Synth::set_time_ticks`]).
     ticks: u64,
     /// Ticks over which a model update moves amplitude and phase to their new values.
@@ -411,18 +493,27 @@ impl Synth {
             primed: false,
         };
         Self {
-            fundamental: Ramp::IDLE,
-            ramps: [Ramp::IDLE; MAX_TERMS],
-            orders: [0; MAX_TERMS],
+            banks: [Harmonics::IDLE; 2],
+            live: 0,
             kernels: [None; MAX_TERMS],
             states: [IDLE_STATE; MAX_TERMS],
             kernel_mask: 0,
-            term_count: 0,
             ramp_left: 0,
-            idle_from: 0,
+            generation: 0,
+            prepared: None,
             ticks: 0,
             ramp_ticks,
         }
+    }
+
+    #[inline(always)]
+    fn harmonics(&self) -> &Harmonics {
+        &self.banks[self.live & 1]
+    }
+
+    #[inline(always)]
+    fn harmonics_mut(&mut self) -> &mut Harmonics {
+        &mut self.banks[self.live & 1]
     }
 
     /// Takes a new model output: the fundamental from its amplitude and phase registers and
@@ -436,52 +527,62 @@ impl Synth {
     /// `terms`): starts the ramps to it.
     pub fn apply(&mut self, targets: &SynthTargets, terms: &[TickTerm]) {
         let ramp = self.ramp_ticks;
-        self.fundamental.retarget(targets.amp_pm, targets.phase_turns, ramp);
         let count = terms.len().min(MAX_TERMS);
+        self.harmonics_mut().fundamental.retarget(targets.amp_pm, targets.phase_turns, ramp);
         if targets.kernel_mask != 0 {
             self.apply_kernels(targets.kernel_mask, &terms[..count]);
         }
-        // Last slot holding a harmonic that is or will be audible.
-        let mut audible_to = 0;
-        // The harmonic slots, by their bits (masked to MAX_TERMS = 8 slots, so no index
-        // can be out of bounds).
-        let mut harmonics = !targets.kernel_mask & ((1u32 << count) - 1) & 0xff;
-        while harmonics != 0 {
-            let i = (harmonics.trailing_zeros() & 7) as usize;
-            harmonics &= harmonics - 1;
-            let order = targets.term_orders[i];
-            let phase = targets.term_phase_turns[i];
-            if self.orders[i] != order || self.kernel_mask & (1 << i) != 0 {
-                // A new kind of term starts from silence at its own phase. (Its kernel state
-                // is not read while it is a harmonic, and is reset when it becomes a kernel.)
-                self.orders[i] = order;
-                self.ramps[i] = Ramp { phase_turns: phase, ..Ramp::IDLE };
-                self.kernels[i] = None;
-            }
-            let slot = &mut self.ramps[i];
-            slot.retarget(targets.term_amp_pm[i], phase, ramp);
-            if order != 0 && (slot.amp_pm != 0 || slot.amp_target_pm != 0) {
-                audible_to = i + 1;
+        let old_kernel_mask = self.kernel_mask;
+        let cleared = self.harmonics_mut().retarget_terms(targets, count, old_kernel_mask, ramp);
+        for (i, kernel) in self.kernels.iter_mut().enumerate() {
+            if cleared & (1 << i) != 0 {
+                *kernel = None;
             }
         }
-        // Harmonics that disappear ramp out; kernel terms stop at once (they have no ramp).
-        let mut idle_from = count;
-        for i in count..self.idle_from.max(count) {
-            self.kernels[i] = None;
-            let slot = &mut self.ramps[i];
-            let phase = slot.phase_turns;
-            slot.retarget(0, phase, ramp);
-            if slot.amp_pm != 0 {
-                idle_from = i + 1;
-                if self.orders[i] != 0 {
-                    audible_to = i + 1;
-                }
-            }
-        }
-        self.idle_from = idle_from;
         self.ramp_left = ramp;
         self.kernel_mask = targets.kernel_mask;
-        self.term_count = audible_to.max(count);
+        self.generation = self.generation.wrapping_add(1);
+        self.prepared = None;
+    }
+
+    /// Prepares the model update `targets` of `terms` (as [`Synth::apply_prepared`] will
+    /// apply it) on the state the running ramps end in, so that the tick applying it has
+    /// little to do. Updates with kernel terms, before or after, are not prepared.
+    pub fn prepare(&mut self, targets: &SynthTargets, terms: &[TickTerm]) {
+        self.prepared = None;
+        if self.kernel_mask != 0 || targets.kernel_mask != 0 || self.kernels.iter().any(Option::is_some) {
+            return;
+        }
+        let ramp = self.ramp_ticks;
+        let count = terms.len().min(MAX_TERMS);
+        let live = self.live & 1;
+        let mut next = self.banks[live];
+        if self.ramp_left > 0 {
+            next.settle();
+        }
+        next.fundamental.retarget(targets.amp_pm, targets.phase_turns, ramp);
+        // No kernel terms anywhere: no kernel to clear.
+        next.retarget_terms(targets, count, 0, ramp);
+        self.banks[live ^ 1] = next;
+        self.prepared = Some(Prepared { generation: self.generation, ramp_ticks: ramp });
+    }
+
+    /// Applies a model update: the one [`Synth::prepare`]d, by switching banks, when nothing
+    /// changed since and the ramps have settled (the state it was prepared on); otherwise as
+    /// [`Synth::apply`]. Either way the result is that of [`Synth::apply`], bit for bit,
+    /// provided `targets` and `terms` are those last prepared (when something else is to be
+    /// applied, call [`Synth::apply`]).
+    #[inline]
+    pub fn apply_prepared(&mut self, targets: &SynthTargets, terms: &[TickTerm]) {
+        let ready = Some(Prepared { generation: self.generation, ramp_ticks: self.ramp_ticks });
+        if self.prepared == ready && self.ramp_left == 0 {
+            self.live ^= 1;
+            self.ramp_left = self.ramp_ticks;
+            self.generation = self.generation.wrapping_add(1);
+            self.prepared = None;
+        } else {
+            self.apply(targets, terms);
+        }
     }
 
     /// The kernel terms of an update (bits of `mask`): a changed one restarts from rest, an
@@ -501,8 +602,9 @@ impl Synth {
     #[cold]
     #[inline(never)]
     fn start_kernel(&mut self, i: usize, term: &TickTerm, ticks: u64) {
-        self.orders[i] = 0;
-        self.ramps[i] = Ramp::IDLE;
+        let harmonics = self.harmonics_mut();
+        harmonics.orders[i] = 0;
+        harmonics.ramps[i] = Ramp::IDLE;
         self.kernels[i] = Some(*term);
         let state = &mut self.states[i];
         *state = KernelState::default();
@@ -533,14 +635,16 @@ impl Synth {
     #[inline]
     pub fn next_input(&mut self, input: &TickInput) -> i32 {
         let cmd_phase_turns = input.cmd_phase_turns;
-        let count = self.term_count.min(MAX_TERMS);
+        let live = self.live & 1;
+        let count = self.banks[live].term_count.min(MAX_TERMS);
         // Kernel slots have an idle ramp (amplitude 0, steps 0) and add 0 in the harmonic sum.
         let mut total = if self.ramp_left > 1 {
             // Ramping: step and synthesise in one pass.
             self.ramp_left -= 1;
-            self.fundamental.step();
-            let mut total = ramp_harmonic_pm(self.fundamental.amp_pm, cmd_phase_turns.wrapping_add(self.fundamental.phase_turns)) as i64;
-            for (ramp, &order) in self.ramps[..count].iter_mut().zip(&self.orders[..count]) {
+            let h = &mut self.banks[live];
+            h.fundamental.step();
+            let mut total = ramp_harmonic_pm(h.fundamental.amp_pm, cmd_phase_turns.wrapping_add(h.fundamental.phase_turns)) as i64;
+            for (ramp, &order) in h.ramps[..count].iter_mut().zip(&h.orders[..count]) {
                 ramp.step();
                 let phase = cmd_phase_turns.wrapping_mul(order).wrapping_add(ramp.phase_turns);
                 total += ramp_harmonic_pm(ramp.amp_pm, phase) as i64;
@@ -548,10 +652,11 @@ impl Synth {
             total
         } else {
             if self.ramp_left == 1 {
-                self.finish_ramps(count);
+                self.finish_ramps();
             }
-            let mut total = ramp_harmonic_pm(self.fundamental.amp_pm, cmd_phase_turns.wrapping_add(self.fundamental.phase_turns)) as i64;
-            for (ramp, &order) in self.ramps[..count].iter().zip(&self.orders[..count]) {
+            let h = &self.banks[live];
+            let mut total = ramp_harmonic_pm(h.fundamental.amp_pm, cmd_phase_turns.wrapping_add(h.fundamental.phase_turns)) as i64;
+            for (ramp, &order) in h.ramps[..count].iter().zip(&h.orders[..count]) {
                 let phase = cmd_phase_turns.wrapping_mul(order).wrapping_add(ramp.phase_turns);
                 total += ramp_harmonic_pm(ramp.amp_pm, phase) as i64;
             }
@@ -567,10 +672,9 @@ impl Synth {
 
     /// The ramps' last tick: every value onto its target.
     #[inline(never)]
-    fn finish_ramps(&mut self, count: usize) {
+    fn finish_ramps(&mut self) {
         self.ramp_left = 0;
-        self.fundamental.finish();
-        self.ramps[..count].iter_mut().for_each(Ramp::finish);
+        self.harmonics_mut().settle();
     }
 
     /// The kernel terms' sum for this tick, picometres.
@@ -608,12 +712,12 @@ impl Synth {
 
     /// The amplitude currently in force (after ramping), picometres.
     pub fn amp_pm(&self) -> i32 {
-        self.fundamental.amp_pm
+        self.harmonics().fundamental.amp_pm
     }
 
     /// The phase offset currently in force, turns.
     pub fn phase_turns(&self) -> u32 {
-        self.fundamental.phase_turns
+        self.harmonics().fundamental.phase_turns
     }
 }
 
@@ -745,6 +849,48 @@ mod tests {
         // ramps over 80 ticks add well under that again.
         assert!(worst < 250_000, "largest per-tick change {worst} pm");
         assert_eq!(synth.amp_pm(), 5_000_000);
+    }
+
+    #[test]
+    fn prepared_updates_synthesise_what_applied_ones_do_bit_for_bit() {
+        let mut seed = 0x5eed_u64;
+        for round in 0..40 {
+            let ramp_ticks = [0, 1, 7, 80][round % 4];
+            let mut plain = Synth::new(ramp_ticks);
+            let mut prepared = Synth::new(ramp_ticks);
+            let mut theta = 0u32;
+            for update in 0..30 {
+                let term_count = (rng(&mut seed) % 9) as usize;
+                let mut out = output((rng(&mut seed) % 5000) as f32 * 1e-3, (rng(&mut seed) % 720) as f32 - 360.0);
+                let mut terms = std::vec::Vec::new();
+                for i in 0..term_count {
+                    let amp_reg = 2 + 2 * (i % 3) as u8;
+                    out.registers[amp_reg as usize] = (rng(&mut seed) % 3000) as f32 * 1e-3;
+                    out.registers[amp_reg as usize + 1] = (rng(&mut seed) % 720) as f32 - 360.0;
+                    // Orders change now and then: slots are recreated.
+                    let order = 2 + (rng(&mut seed) % 3) as u8;
+                    terms.push(TickTerm::Harmonic { order, amp_reg, phase_reg: amp_reg + 1 });
+                }
+                let targets = if update % 7 == 6 { SynthTargets::SILENT } else { SynthTargets::new(&out, &terms) };
+                let terms: &[TickTerm] = if update % 7 == 6 { &[] } else { &terms };
+                // Prepared some ticks before its tick, sometimes while the ramps still run,
+                // sometimes with a ramp longer than the wait (the fallback).
+                let wait = rng(&mut seed) % 120;
+                prepared.prepare(&targets, terms);
+                for _ in 0..wait {
+                    theta = theta.wrapping_add(0x0147_ae14);
+                    assert_eq!(plain.next(theta), prepared.next(theta));
+                }
+                plain.apply(&targets, terms);
+                prepared.apply_prepared(&targets, terms);
+                for _ in 0..(rng(&mut seed) % 100) {
+                    theta = theta.wrapping_add(0x0147_ae14);
+                    assert_eq!(plain.next(theta), prepared.next(theta), "round {round} update {update}");
+                }
+                assert_eq!(plain.harmonics(), prepared.harmonics());
+                assert_eq!(plain.ramp_left, prepared.ramp_left);
+            }
+        }
     }
 
     #[test]

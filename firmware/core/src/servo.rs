@@ -377,8 +377,11 @@ impl Servo {
         &self.feature_config
     }
 
-    /// One servo tick on `input`.
-    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: &InputSlot) -> (OutputSlot, Option<ModelRequest>) {
+    /// One servo tick on `input`. Every model interval it writes a [`ModelRequest`] into
+    /// `request` (a slot the caller owns, so that the snapshot is built in place rather than
+    /// copied on its way out) and returns true with the output; otherwise `request` is left
+    /// as it is.
+    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: &InputSlot, request: &mut Option<ModelRequest>) -> (OutputSlot, bool) {
         let tick = self.counters.ticks;
         self.counters.ticks += 1;
         self.health.underrun_run = 0;
@@ -387,7 +390,7 @@ impl Servo {
         let prev_cmd_phase_turns = self.prev_cmd_phase_turns;
         self.prev_cmd_phase_turns = input.cmd_phase_turns;
 
-        let mut request = None;
+        let mut requested = false;
         // A countdown, not `tick % interval`: a 64-bit remainder is a library call of a
         // hundred instructions on a Cortex-M4, every tick.
         self.model_countdown = self.model_countdown.saturating_sub(1);
@@ -398,7 +401,8 @@ impl Servo {
             if capture.samples >= self.feature_config.window_samples {
                 let due_tick = tick + self.timing.latency_ticks as u64;
                 let cmd_step_turns = input.cmd_phase_turns.wrapping_sub(prev_cmd_phase_turns) as i32;
-                request = Some(ModelRequest { capture, tick, due_tick, cmd_step_turns });
+                *request = Some(ModelRequest { capture, tick, due_tick, cmd_step_turns });
+                requested = true;
                 self.awaiting_due = Some(due_tick);
             }
         }
@@ -417,7 +421,7 @@ impl Servo {
             | (ff.slewing as u16 * OUT_FLAG_SLEWING)
             | (self.model_active as u16 * OUT_FLAG_MODEL_ACTIVE);
         let output = OutputSlot { tick: tick as u32, dac_code: ff.dac_code, flags, de_pred_pm: de_pm, fault_count: self.fault_count() };
-        (output, request)
+        (output, requested)
     }
 
     /// A tick period without input (the host's sample did not arrive): the output holds,
@@ -498,6 +502,16 @@ impl Servo {
         if tick < result.due_tick {
             return;
         }
+        self.apply_pending();
+    }
+
+    /// Applies the pending result. Out of line: inlined, its register needs made every
+    /// tick dearer.
+    #[inline(never)]
+    fn apply_pending(&mut self) {
+        let Some(result) = &self.pending else {
+            return;
+        };
         self.awaiting_due = None;
         self.last_features = result.features;
         match &result.outcome {

@@ -91,10 +91,12 @@ fn a_late_computed_model_gives_bit_identical_output() {
     servo.set_enabled(true);
     let mut queue = Vec::new();
     let latency = servo.model_timing().latency_ticks;
+    let mut slot = None;
     for k in 0..6000u32 {
-        let (output, request) = servo.tick(&rings, &input(k));
+        let (output, requested) = servo.tick(&rings, &input(k), &mut slot);
         assert_eq!(output, expected[k as usize], "tick {k}");
-        if let Some(request) = request {
+        assert_eq!(requested, slot.is_some(), "tick {k}");
+        if let Some(request) = slot.take() {
             // Computed 1..=latency ticks later, while the servo keeps pushing samples.
             queue.push((k + 1 + (k * 7919) % latency, request));
         }

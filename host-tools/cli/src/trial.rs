@@ -53,6 +53,30 @@ pub fn cut_window_samples(freq_hz: f64, sample_rate_hz: f64) -> u32 {
     ((seconds * sample_rate_hz / block).ceil() * block).min(sts_twin_core::features::MAX_WINDOW_SAMPLES as f64) as u32
 }
 
+/// A cut binned over the disc (radius x spindle angle), for the report's maps.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CutMaps {
+    /// Outer radius of the maps, mm.
+    pub r_max_mm: f64,
+    /// Mean true TCP height per bin, um, `[radial][angular]` (`None`: no point there).
+    pub surface_um: Vec<Vec<Option<f64>>>,
+    /// Mean deviation of the TCP from the design surface per bin, um.
+    pub deviation_um: Vec<Vec<Option<f64>>>,
+}
+
+/// Most radial bins of [`CutMaps`] (fewer when the cut is short: each ring spans at least
+/// two revolutions of the feed, so that every bin of it is cut).
+pub const MAP_RADIAL_BINS: usize = 25;
+/// Angular bins of [`CutMaps`] (4 degrees each).
+pub const MAP_ANGULAR_BINS: usize = 90;
+
+#[derive(Clone, Copy, Default)]
+struct Bin {
+    tcp_um: f64,
+    dev_um: f64,
+    points: u32,
+}
+
 /// What a trial measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct TrialReport {
@@ -78,6 +102,9 @@ pub struct TrialReport {
     pub points: usize,
     /// Firmware fault counters' sum at the end.
     pub fault_count: u32,
+    /// The cut over the disc (not in the JSON).
+    #[serde(skip)]
+    pub maps: CutMaps,
 }
 
 /// The feedforward parameters matching the emulated controller's analogue interface.
@@ -172,6 +199,9 @@ pub fn run_trial(
     let mut deviations = Vec::new();
     let (mut s_tcp, mut c_tcp, mut s_des, mut c_des) = (0.0, 0.0, 0.0, 0.0);
     let mut last_fault = 0;
+    let radial_bins = ((config.r_eval_mm * 1e3 / (2.0 * config.feed_um_per_rev)).floor() as usize).clamp(1, MAP_RADIAL_BINS);
+    let angular_bins = MAP_ANGULAR_BINS;
+    let mut bins = vec![Bin::default(); radial_bins * angular_bins];
     run_loop(&mut machine, coprocessor, &trajectory, 0, ticks, f64::from(params.dac_full_scale_v), true, |s| {
         last_fault = s.output.fault_count;
         let t = s.machine.time_s;
@@ -181,6 +211,12 @@ pub fn run_trial(
         let design = s.point.z_cmd_um;
         let dev = s.machine.z_tcp_true_um - design;
         deviations.push(dev);
+        let ri = ((s.point.x_mm / config.r_eval_mm * radial_bins as f64) as usize).min(radial_bins - 1);
+        let ai = ((s.point.spindle_deg.rem_euclid(360.0) / 360.0 * angular_bins as f64) as usize).min(angular_bins - 1);
+        let bin = &mut bins[ri * angular_bins + ai];
+        bin.tcp_um += s.machine.z_tcp_true_um;
+        bin.dev_um += dev;
+        bin.points += 1;
         // Fundamental at 2C of the TCP and of the design (the ramp term is common to both
         // and nearly orthogonal over whole revolutions).
         let angle = 2.0 * s.point.spindle_deg.to_radians();
@@ -193,6 +229,10 @@ pub fn run_trial(
     if deviations.is_empty() {
         anyhow::bail!("no point of the cut lies within r <= {} mm", config.r_eval_mm);
     }
+    let mean = |f: fn(&Bin) -> f64| -> Vec<Vec<Option<f64>>> {
+        bins.chunks(angular_bins).map(|row| row.iter().map(|b| (b.points > 0).then(|| f(b) / f64::from(b.points))).collect()).collect()
+    };
+    let maps = CutMaps { r_max_mm: config.r_eval_mm, surface_um: mean(|b| b.tcp_um), deviation_um: mean(|b| b.dev_um) };
     let max = deviations.iter().cloned().fold(f64::MIN, f64::max);
     let min = deviations.iter().cloned().fold(f64::MAX, f64::min);
     let rms = (deviations.iter().map(|d| d * d).sum::<f64>() / deviations.len() as f64).sqrt();
@@ -212,5 +252,6 @@ pub fn run_trial(
         wall_time_s: started.elapsed().as_secs_f64(),
         points: deviations.len(),
         fault_count: last_fault,
+        maps,
     })
 }

@@ -44,6 +44,9 @@ pub struct Args {
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Write an HTML report (figures, surface map and error map over the disc) to this file.
+    #[arg(long)]
+    pub html: Option<PathBuf>,
 }
 
 /// The emulated machine named on a command line: plant parameters and hidden effects.
@@ -127,6 +130,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         print_report(&report);
+    }
+    if let Some(path) = &args.html {
+        let title = format!("bicuspid cut at {} Hz, {}", report.freq_hz, if report.twin { "with the twin" } else { "bare machine" });
+        std::fs::write(path, crate::report::trial::render(&title, std::slice::from_ref(&report))).with_context(|| format!("writing {}", path.display()))?;
+        if !args.json {
+            eprintln!("report written to {}", path.display());
+        }
     }
     if model.is_some() {
         crate::rig::print_fault_report(cop.as_mut())?; // every fault the co-processor counted, on stderr

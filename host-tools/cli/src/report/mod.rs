@@ -4,6 +4,7 @@
 //! diagnosis.
 
 pub mod svg;
+pub mod trial;
 
 use std::fmt::Write as _;
 
@@ -43,7 +44,7 @@ fn grid_of(c: &Comparison, value: impl Fn(usize) -> f64) -> (Vec<f64>, Vec<f64>,
     (fs, amps, cells)
 }
 
-const STYLE: &str = "body{font-family:sans-serif;max-width:1340px;margin:20px auto;color:#222}h1{font-size:22px}h2{font-size:18px;border-bottom:1px solid #ccc;margin-top:28px}table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}th{background:#f2f2f2}td.l,th.l{text-align:left}.charts{display:flex;flex-wrap:wrap;gap:10px}.verdict{font-size:18px;padding:8px 12px;background:#fff6d6;border:1px solid #e0c060;display:inline-block}.small{color:#666;font-size:12px}";
+pub(crate) const STYLE: &str = "body{font-family:sans-serif;max-width:1340px;margin:20px auto;color:#222}h1{font-size:22px}h2{font-size:18px;border-bottom:1px solid #ccc;margin-top:28px}table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}th{background:#f2f2f2}td.l,th.l{text-align:left}.charts{display:flex;flex-wrap:wrap;gap:10px}.verdict{font-size:18px;padding:8px 12px;background:#fff6d6;border:1px solid #e0c060;display:inline-block}.small{color:#666;font-size:12px}";
 
 /// The report as one HTML document.
 pub fn render(input: &ReportInput) -> String {

@@ -21,6 +21,7 @@ use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::{ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
 use sts_twin_core::wire::Request;
 
+use super::lsq::least_squares;
 use crate::rig::{expect_ack, turns_u32, Coprocessor};
 
 /// Program id of the calibration's constant program.
@@ -71,33 +72,10 @@ pub fn path_table(points: &[PathPoint]) -> anyhow::Result<AnaloguePath> {
 }
 
 /// Least-squares `a sin + b cos + c` of `values` against `angles`; returns `(a, b)`.
-fn phasor(angles: &[f64], values: &[f64]) -> (f64, f64) {
-    // Normal equations of the 3-parameter fit; whole periods make them nearly diagonal but
-    // the fit does not rely on it.
-    let mut m = [[0.0f64; 3]; 3];
-    let mut v = [0.0f64; 3];
-    for (&angle, &y) in angles.iter().zip(values) {
-        let row = [angle.sin(), angle.cos(), 1.0];
-        for i in 0..3 {
-            v[i] += row[i] * y;
-            for j in 0..3 {
-                m[i][j] += row[i] * row[j];
-            }
-        }
-    }
-    let det = |m: &[[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det(&m);
-    let solve = |col: usize| {
-        let mut mc = m;
-        for (row, value) in mc.iter_mut().zip(v) {
-            row[col] = value;
-        }
-        det(&mc) / d
-    };
-    (solve(0), solve(1))
+fn phasor(angles: &[f64], values: &[f64]) -> anyhow::Result<(f64, f64)> {
+    let rows: Vec<[f64; 3]> = angles.iter().map(|a| [a.sin(), a.cos(), 1.0]).collect();
+    let fit = least_squares(&rows, values).ok_or_else(|| anyhow::anyhow!("cannot fit a sine to {} points (too few, or not spread over the period)", angles.len()))?;
+    Ok((fit.coefficients[0], fit.coefficients[1]))
 }
 
 /// Measures `H` at each of `config.freqs_hz` with `coprocessor` driving `machine`'s analogue
@@ -168,8 +146,8 @@ pub fn measure_path(
                 pending = Some((TAU * next_turns.fract(), -f64::from(output.de_pred_pm) * 1e-6));
             }
         }
-        let (us, uc) = phasor(&angles, &requested_um);
-        let (ts, tc) = phasor(&angles, &tcp_um);
+        let (us, uc) = phasor(&angles, &requested_um)?;
+        let (ts, tc) = phasor(&angles, &tcp_um)?;
         let u_amp = us.hypot(uc);
         if u_amp < 0.1 * config.amp_um {
             anyhow::bail!(
@@ -199,7 +177,7 @@ mod tests {
     fn the_phasor_fit_recovers_amplitude_and_phase() {
         let angles: Vec<f64> = (0..400).map(|k| TAU * k as f64 / 200.0).collect();
         let values: Vec<f64> = angles.iter().map(|a| 2.0 * (a + 0.3).sin() + 5.0).collect();
-        let (s, c) = phasor(&angles, &values);
+        let (s, c) = phasor(&angles, &values).unwrap();
         assert!((s.hypot(c) - 2.0).abs() < 1e-9);
         assert!((c.atan2(s) - 0.3).abs() < 1e-9);
     }

@@ -38,3 +38,59 @@ pub fn tone_input(k: u32) -> InputSlot {
         cmd_pos_nm: (3000.0 * phase.sin()) as i32,
     }
 }
+
+/// The twin tests' common set-up: a short feature window, gentle ramps, a simple program.
+pub mod twin {
+    use sts_twin::rig::{expect_ack, Coprocessor, HilCoprocessor};
+    use sts_twin_core::features::FeatureConfig;
+    use sts_twin_core::feedforward::FeedforwardParams;
+    use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
+    use sts_twin_core::wire::{Request, Response, Status};
+
+    /// Feature window, samples: 0.25 s keeps model updates frequent in short runs.
+    pub const WINDOW: u32 = 2000;
+    /// Ticks over which the gain ramps between 0 and 1.
+    pub const ENABLE_RAMP_TICKS: u32 = 400;
+
+    /// The feature settings with [`WINDOW`].
+    pub fn feature_config() -> FeatureConfig {
+        FeatureConfig { window_samples: WINDOW, ..FeatureConfig::DEFAULT }
+    }
+
+    /// Feedforward parameters with [`ENABLE_RAMP_TICKS`] and a 0.05 V per tick slew limit.
+    pub fn params() -> FeedforwardParams {
+        FeedforwardParams { enable_ramp_ticks: ENABLE_RAMP_TICKS, slew_v_per_tick: 0.05, ..FeedforwardParams::default() }
+    }
+
+    /// amp = gain * RMS (um per m/s^2), phase = -0.2 * f1 degrees.
+    pub fn program(id: u32, gain: f32) -> Program {
+        let mut b = ProgramBuilder::new();
+        b.id(id).constant(gain).feature(4).mul().store(REG_AMP_UM);
+        b.constant(-0.2).feature(0).mul().store(REG_PHASE_DEG);
+        b.finish().unwrap()
+    }
+
+    /// Boots the twin firmware in QEMU.
+    pub fn boot() -> HilCoprocessor {
+        HilCoprocessor::start(super::twin_config()).expect("the twin firmware boots in QEMU")
+    }
+
+    /// Sets the features and parameters above, uploads and activates `program` if given, and
+    /// enables compensation.
+    pub fn configure(cop: &mut dyn Coprocessor, program: Option<Program>) {
+        expect_ack("feature config", cop.request(Request::SetFeatureConfig(feature_config())).unwrap()).unwrap();
+        expect_ack("params", cop.request(Request::SetParams(params())).unwrap()).unwrap();
+        if let Some(program) = program {
+            expect_ack("program", cop.request(Request::UploadProgram { program, activate: true }).unwrap()).unwrap();
+        }
+        expect_ack("enable", cop.request(Request::SetEnabled(true)).unwrap()).unwrap();
+    }
+
+    /// The co-processor's status.
+    pub fn status(cop: &mut dyn Coprocessor) -> Status {
+        match cop.request(Request::GetStatus).unwrap() {
+            Response::Status(status) => status,
+            other => panic!("unexpected answer {other:?}"),
+        }
+    }
+}

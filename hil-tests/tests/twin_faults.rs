@@ -11,16 +11,12 @@ use std::time::{Duration, Instant};
 
 use sts_twin::rig::{expect_ack, fault_report, Coprocessor, FrameInjector, HilCoprocessor, LinkFaults, LossyHilCoprocessor, RetryPolicy, SimCoprocessor};
 use sts_twin_core::bus::{InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_MODEL_ACTIVE};
-use sts_twin_core::features::FeatureConfig;
 use sts_twin_core::feedforward::{Feedforward, FeedforwardParams, ParamError};
 use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
 use sts_twin_core::servo::{ModelTiming, ServoConfig, DEGRADED_MODEL, DEGRADED_NO_INPUT, DEGRADED_SATURATED, DEGRADED_STUCK};
 use sts_twin_core::wire::{Rejection, Request, Response, Status};
 
-/// A 0.25 s feature window keeps the runs short.
-const WINDOW: u32 = 2000;
-/// Ticks over which the gain ramps between 0 and 1.
-const RAMP: u32 = 400;
+use sts_hil_tests::twin::{boot, configure, params, program, status, ENABLE_RAMP_TICKS as RAMP, WINDOW};
 
 /// Model interval and latency for the window.
 fn timing() -> ModelTiming {
@@ -33,25 +29,9 @@ fn recovery_ticks() -> u32 {
     WINDOW + timing().interval_ticks + timing().latency_ticks + ServoConfig::default().synth_ramp_ticks
 }
 
-fn feature_config() -> FeatureConfig {
-    FeatureConfig { window_samples: WINDOW, ..FeatureConfig::DEFAULT }
-}
-
-fn params() -> FeedforwardParams {
-    FeedforwardParams { enable_ramp_ticks: RAMP, slew_v_per_tick: 0.05, ..FeedforwardParams::default() }
-}
-
 /// The largest DAC step one tick may make under `params()`.
 fn slew_limit_codes() -> i32 {
     Feedforward::new(params()).0.max_step_codes()
-}
-
-/// amp = gain * RMS (um per m/s^2), phase = -0.2 * f1 degrees.
-fn program(id: u32, gain: f32) -> Program {
-    let mut b = ProgramBuilder::new();
-    b.id(id).constant(gain).feature(4).mul().store(REG_AMP_UM);
-    b.constant(-0.2).feature(0).mul().store(REG_PHASE_DEG);
-    b.finish().unwrap()
 }
 
 /// A program that validates but whose amplitude is 1/0 = inf at every evaluation.
@@ -63,26 +43,6 @@ fn non_finite_program(id: u32) -> Program {
 }
 
 use sts_hil_tests::tone_input as input;
-
-fn boot() -> HilCoprocessor {
-    HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots in QEMU")
-}
-
-fn configure(cop: &mut dyn Coprocessor, program: Option<Program>) {
-    expect_ack("feature config", cop.request(Request::SetFeatureConfig(feature_config())).unwrap()).unwrap();
-    expect_ack("params", cop.request(Request::SetParams(params())).unwrap()).unwrap();
-    if let Some(program) = program {
-        expect_ack("program", cop.request(Request::UploadProgram { program, activate: true }).unwrap()).unwrap();
-    }
-    expect_ack("enable", cop.request(Request::SetEnabled(true)).unwrap()).unwrap();
-}
-
-fn status(cop: &mut dyn Coprocessor) -> Status {
-    match cop.request(Request::GetStatus).unwrap() {
-        Response::Status(status) => status,
-        other => panic!("unexpected answer {other:?}"),
-    }
-}
 
 /// Streams ticks through the firmware and checks every output: in order, and never a DAC
 /// step beyond the slew limit, across all calls. With an oracle (the host core, configured

@@ -5,47 +5,11 @@ use std::time::Duration;
 
 use sts_twin::rig::{expect_ack, Coprocessor, HilCoprocessor, SimCoprocessor};
 use sts_twin_core::bus::{InputSlot, OutputSlot};
-use sts_twin_core::features::FeatureConfig;
 use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
-use sts_twin_core::wire::{encode_frame, Rejection, Request, Response, Status, MAX_ENCODED_FRAME};
-
-/// A 0.25 s window keeps model updates frequent in short runs.
-fn feature_config() -> FeatureConfig {
-    FeatureConfig { window_samples: 2000, ..FeatureConfig::DEFAULT }
-}
-
-fn params() -> FeedforwardParams {
-    FeedforwardParams { enable_ramp_ticks: 400, slew_v_per_tick: 0.05, ..FeedforwardParams::default() }
-}
-
-/// amp = gain * RMS (um per m/s^2), phase = -0.2 * f1 degrees.
-fn program(id: u32, gain: f32) -> Program {
-    let mut b = ProgramBuilder::new();
-    b.id(id).constant(gain).feature(4).mul().store(REG_AMP_UM);
-    b.constant(-0.2).feature(0).mul().store(REG_PHASE_DEG);
-    b.finish().unwrap()
-}
+use sts_twin_core::wire::{encode_frame, Rejection, Request, Response, MAX_ENCODED_FRAME};
 
 use sts_hil_tests::tone_input as input;
-
-fn configure(cop: &mut dyn Coprocessor, program: Program) {
-    expect_ack("feature config", cop.request(Request::SetFeatureConfig(feature_config())).unwrap()).unwrap();
-    expect_ack("params", cop.request(Request::SetParams(params())).unwrap()).unwrap();
-    expect_ack("program", cop.request(Request::UploadProgram { program, activate: true }).unwrap()).unwrap();
-    expect_ack("enable", cop.request(Request::SetEnabled(true)).unwrap()).unwrap();
-}
-
-fn status(cop: &mut dyn Coprocessor) -> Status {
-    match cop.request(Request::GetStatus).unwrap() {
-        Response::Status(status) => status,
-        other => panic!("unexpected answer {other:?}"),
-    }
-}
-
-fn boot() -> HilCoprocessor {
-    HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots in QEMU")
-}
+use sts_hil_tests::twin::{boot, configure, params, program, status};
 
 /// a) The firmware's DAC codes equal the host core's, bit for bit, on the same stream.
 #[test]
@@ -53,11 +17,11 @@ fn dac_codes_are_bit_identical_to_the_host_core() {
     let _serial = sts_hil_tests::serial();
     let inputs: Vec<InputSlot> = (0..24_000).map(input).collect();
     let mut sim = SimCoprocessor::boot(&[]);
-    configure(&mut sim, program(11, 2.0));
+    configure(&mut sim, Some(program(11, 2.0)));
     let expected: Vec<OutputSlot> = inputs.iter().map(|i| sim.tick(i).unwrap()).collect();
 
     let mut hil = boot();
-    configure(&mut hil, program(11, 2.0));
+    configure(&mut hil, Some(program(11, 2.0)));
     let outputs = hil.hil().run_open_loop(&inputs).expect("stream");
     assert_eq!(outputs.len(), expected.len());
     for (k, (got, want)) in outputs.iter().zip(&expected).enumerate() {
@@ -79,7 +43,7 @@ fn dac_codes_are_bit_identical_to_the_host_core() {
 fn uploads_change_the_prediction_and_malformed_programs_are_rejected() {
     let _serial = sts_hil_tests::serial();
     let mut hil = boot();
-    configure(&mut hil, program(21, 1.0));
+    configure(&mut hil, Some(program(21, 1.0)));
     let inputs: Vec<InputSlot> = (0..6000).map(input).collect();
     hil.hil().run_open_loop(&inputs).unwrap();
     let before = status(&mut hil);
@@ -112,7 +76,7 @@ fn uploads_change_the_prediction_and_malformed_programs_are_rejected() {
 fn corrupted_and_truncated_frames_are_counted_and_ignored() {
     let _serial = sts_hil_tests::serial();
     let mut hil = boot();
-    configure(&mut hil, program(31, 1.0));
+    configure(&mut hil, Some(program(31, 1.0)));
     let mut frame = [0u8; MAX_ENCODED_FRAME];
     let len = encode_frame(500, &Request::Ping { nonce: 77 }, &mut frame).unwrap();
     let mut flipped = frame;
@@ -136,7 +100,7 @@ fn corrupted_and_truncated_frames_are_counted_and_ignored() {
 fn a_million_ticks_without_a_fault_or_a_missed_tick() {
     let _serial = sts_hil_tests::serial();
     let mut hil = boot();
-    configure(&mut hil, program(41, 1.0));
+    configure(&mut hil, Some(program(41, 1.0)));
     let mut next = 0u32;
     let mut first_bad: Option<OutputSlot> = None;
     let served = hil
@@ -164,7 +128,7 @@ fn a_million_ticks_without_a_fault_or_a_missed_tick() {
 fn offset_changes_and_enable_never_step_the_dac() {
     let _serial = sts_hil_tests::serial();
     let mut hil = boot();
-    configure(&mut hil, program(51, 2.0));
+    configure(&mut hil, Some(program(51, 2.0)));
     expect_ack("disable", hil.request(Request::SetEnabled(false)).unwrap()).unwrap();
     let limit = 1 + (0.05f64 / (10.0 / 32767.0)).ceil() as i32;
     let mut last: Option<i16> = None;

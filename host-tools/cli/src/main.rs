@@ -39,6 +39,30 @@ enum Command {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    // `sts-twin compare ... | head` closes stdout early. Rust ignores SIGPIPE, so `println!`
+    // then panics; restoring SIGPIPE instead would kill the process before the QEMU it may
+    // have started is ended. So a closed stdout ends the command by unwinding (every guard
+    // runs) and exits quietly, as a pipeline expects.
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if !is_closed_stdout(info.payload()) {
+            default_hook(info);
+        }
+    }));
+    match std::panic::catch_unwind(|| run(&cli)) {
+        Ok(code) => code,
+        Err(payload) if is_closed_stdout(payload.as_ref()) => std::process::ExitCode::SUCCESS,
+        Err(payload) => std::panic::resume_unwind(payload),
+    }
+}
+
+/// Whether a panic is `println!` failing on a closed pipe.
+fn is_closed_stdout(payload: &(dyn std::any::Any + Send)) -> bool {
+    let text = payload.downcast_ref::<String>().map(String::as_str).or_else(|| payload.downcast_ref::<&str>().copied()).unwrap_or("");
+    text.starts_with("failed printing to stdout") && text.contains("Broken pipe")
+}
+
+fn run(cli: &Cli) -> std::process::ExitCode {
     let result = match &cli.command {
         Command::CalibrateOffset(args) => cmd::calibrate::run(args),
         Command::Compare(args) => cmd::compare::run(args),

@@ -71,6 +71,22 @@ fn compare_scores_the_firmware_prediction() {
     assert_eq!(v["groups"].as_array().unwrap().len(), 9);
     assert!((v["waveform_rms_um"].as_f64().unwrap() - c.waveform_rms_um).abs() < 1e-6);
 
+    // A reader that closes the pipe early (`| head -1`): a quiet, successful exit, no panic.
+    let mut child = Command::new(bin)
+        .args(["compare"])
+        .arg(dir.join("data"))
+        .arg("--model")
+        .arg(dir.join("model.json"))
+        .arg("--json")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && !stderr.contains("panicked"), "closed stdout: {:?}, {stderr}", out.status);
+
     // Bad input: a clear error, no panic.
     let out = Command::new(bin).args(["compare"]).arg(dir.join("data")).arg("--model").arg(dir.join("missing.json")).output().unwrap();
     assert!(!out.status.success());

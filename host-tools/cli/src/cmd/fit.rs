@@ -102,8 +102,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let prepared = if args.effect.is_empty() { None } else { Some(crate::effects::prepare(&dataset, &args.effect)?) };
     let dataset = prepared.as_ref().map_or(&dataset, |p| &p.dataset);
     let read_s = started.elapsed().as_secs_f64();
-    let feature_config = analysis::feature_config_for(&dataset, args.acc_scale);
-    let samples = analysis::group_samples_skipping(&dataset, &feature_config, args.skip_s)?;
+    let feature_config = analysis::feature_config_for(dataset, args.acc_scale);
+    let samples = analysis::group_samples_skipping(dataset, &feature_config, args.skip_s)?;
     if let Some(path) = &args.table {
         std::fs::write(path, analysis::training_table_csv(&samples)).with_context(|| format!("cannot write {}", path.display()))?;
     }
@@ -128,7 +128,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         }
     };
     let description = format!("fitted by sts-twin fit on {} (seed {})", dataset_name(&args.data), args.seed);
-    let model = fit_samples(&dataset, &samples, feature_config, &description, &config, &mut on_progress)?;
+    let model = fit_samples(dataset, &samples, feature_config, &description, &config, &mut on_progress)?;
     bar.finish_and_clear();
     let model = match &prepared { Some(p) => p.attach(model)?, None => model };
     model.write(out)?;

@@ -211,7 +211,7 @@ fn prepare(table: &Table, args: &Args) -> anyhow::Result<Problem> {
 fn config(args: &Args) -> anyhow::Result<SearchConfig> {
     let operators = OperatorSet::parse(&args.operators)?;
     let time_budget = match args.time_budget {
-        Some(s) if !(s > 0.0) || !s.is_finite() => bail!("--time-budget must be a positive number of seconds"),
+        Some(s) if !s.is_finite() || s <= 0.0 => bail!("--time-budget must be a positive number of seconds"),
         Some(s) => Some(Duration::from_secs_f64(s)),
         None => None,
     };

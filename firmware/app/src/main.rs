@@ -20,8 +20,6 @@
 
 mod hw;
 
-use core::cell::UnsafeCell;
-use core::mem::MaybeUninit;
 use core::sync::atomic::Ordering;
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
@@ -39,7 +37,7 @@ use sts_twin_board::servo::{
     background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickResult, TickState,
     EVENT_CONTROL_RX, EVENT_MODEL_WORK, EVENT_UNDERRUN,
 };
-use sts_twin_board::sync::{Events, SharedCell};
+use sts_twin_board::sync::{BootCell, Events, SharedCell};
 
 use hw::{Irq, Timer0, Uart0Link};
 use sts_twin_board::TickSource;
@@ -74,33 +72,6 @@ pub type AppShared = BringUpShared;
 #[cfg(feature = "bringup")]
 fn make_app() -> (App, AppBackground, AppShared) {
     (BringUpServo::new(), BringUpBackground::new(), BringUpShared::new())
-}
-
-/// A static initialised once at boot, before the interrupts that use it are enabled.
-struct BootCell<T>(UnsafeCell<MaybeUninit<T>>);
-
-// SAFETY: written once in `main` before any interrupt that reads it is unmasked; afterwards
-// each cell is used by one context only (documented at each static).
-unsafe impl<T> Sync for BootCell<T> {}
-
-impl<T> BootCell<T> {
-    const fn new() -> Self {
-        Self(UnsafeCell::new(MaybeUninit::uninit()))
-    }
-
-    /// # Safety
-    /// Call once, before any reader runs.
-    #[allow(clippy::mut_from_ref)]
-    unsafe fn init(&self, value: T) -> &mut T {
-        (*self.0.get()).write(value)
-    }
-
-    /// # Safety
-    /// After `init`, and from the one context that owns the cell (or shared-only use).
-    #[allow(clippy::mut_from_ref)]
-    unsafe fn get(&self) -> &mut T {
-        (*self.0.get()).assume_init_mut()
-    }
 }
 
 /// Everything the servo interrupt owns.

@@ -22,8 +22,6 @@
 #![no_main]
 #![deny(missing_docs)]
 
-use core::cell::UnsafeCell;
-use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use defmt_rtt as _;
@@ -43,7 +41,7 @@ use panic_probe as _;
 use sts_twin_board::bringup::{BringUpBackground, BringUpServo, BringUpShared};
 use sts_twin_board::config::{AbStore, RecordMedium, HEADER_BYTES};
 use sts_twin_board::servo::{background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickState, EVENT_CONTROL_RX};
-use sts_twin_board::sync::{Events, SharedCell};
+use sts_twin_board::sync::{BootCell, Events, SharedCell};
 use sts_twin_board::{AdcSource, ConfigError, ControlLink, DacSink, InputSlot, OutputSlot, SampleError, TickSource};
 use sts_twin_core::bus::IN_FLAG_PHASE_VALID;
 
@@ -71,33 +69,6 @@ const CONTROL_POLL_TICKS: u32 = 8;
 bind_interrupts!(struct Irqs {
     USART3 => usart::BufferedInterruptHandler<peripherals::USART3>;
 });
-
-/// A static initialised once at boot, before the interrupt that uses it is enabled.
-struct BootCell<T>(UnsafeCell<MaybeUninit<T>>);
-
-// SAFETY: written once in `main` before the interrupt that reads it is enabled; afterwards
-// used by one context only.
-unsafe impl<T> Sync for BootCell<T> {}
-
-impl<T> BootCell<T> {
-    const fn new() -> Self {
-        Self(UnsafeCell::new(MaybeUninit::uninit()))
-    }
-
-    /// # Safety
-    /// Call once, before any reader runs.
-    #[allow(clippy::mut_from_ref)]
-    unsafe fn init(&self, value: T) -> &mut T {
-        unsafe { (*self.0.get()).write(value) }
-    }
-
-    /// # Safety
-    /// After `init`, from the one owning context (or shared-only use).
-    #[allow(clippy::mut_from_ref)]
-    unsafe fn get(&self) -> &mut T {
-        unsafe { (*self.0.get()).assume_init_mut() }
-    }
-}
 
 /// Accelerometer, command position (ADC1) and command phase (spindle encoder on TIM3).
 struct H7Inputs {

@@ -1,13 +1,53 @@
 //! Sharing between the servo interrupt, the control-link interrupts and the background
 //! context, without a heap and without blocking the servo for more than a few instructions.
 
-use core::cell::RefCell;
+use core::cell::{RefCell, UnsafeCell};
 use core::future::poll_fn;
+use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 use core::task::Poll;
 
 use critical_section::Mutex;
 use embassy_sync::waitqueue::AtomicWaker;
+
+/// A static initialised once at boot, before the interrupts that use it are enabled: the
+/// contexts' own state (servo, background), too large or too hot for a [`SharedCell`].
+pub struct BootCell<T>(UnsafeCell<MaybeUninit<T>>);
+
+// SAFETY: written once in `main` before any interrupt that reads it is unmasked; afterwards
+// each cell is used by one context only (documented at each static).
+unsafe impl<T> Sync for BootCell<T> {}
+
+impl<T> BootCell<T> {
+    /// An empty cell, for a `static`.
+    pub const fn new() -> Self {
+        Self(UnsafeCell::new(MaybeUninit::uninit()))
+    }
+
+    /// Stores the value and returns it.
+    ///
+    /// # Safety
+    /// Call once, before any reader runs.
+    #[allow(clippy::mut_from_ref)]
+    pub unsafe fn init(&self, value: T) -> &mut T {
+        unsafe { (*self.0.get()).write(value) }
+    }
+
+    /// The value.
+    ///
+    /// # Safety
+    /// After `init`, and from the one context that owns the cell (or shared-only use).
+    #[allow(clippy::mut_from_ref)]
+    pub unsafe fn get(&self) -> &mut T {
+        unsafe { (*self.0.get()).assume_init_mut() }
+    }
+}
+
+impl<T> Default for BootCell<T> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
 
 /// State shared between the servo tick and the background context. Access happens inside
 /// a critical section, so keep each access short (copy values in or out, don't compute).

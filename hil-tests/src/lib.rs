@@ -36,6 +36,7 @@ pub fn tone_input(k: u32) -> InputSlot {
         flags: IN_FLAG_PHASE_VALID,
         cmd_phase_turns: ((40.0 * t).fract() * 4_294_967_296.0) as u64 as u32,
         cmd_pos_nm: (3000.0 * phase.sin()) as i32,
+        ..Default::default()
     }
 }
 

@@ -6,22 +6,47 @@ use std::time::Duration;
 use sts_twin::rig::{expect_ack, Coprocessor, HilCoprocessor, SimCoprocessor};
 use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::feedforward::FeedforwardParams;
+use sts_twin_core::program::TickTerm;
 use sts_twin_core::wire::{encode_frame, Rejection, Request, Response, MAX_ENCODED_FRAME};
 
 use sts_hil_tests::tone_input as input;
 use sts_hil_tests::twin::{boot, configure, params, program, status};
 
-/// a) The firmware's DAC codes equal the host core's, bit for bit, on the same stream.
+/// The tone stream with the other axes moving: X acceleration (3 Hz, 2 m/s^2) and the spindle
+/// (10 revolutions per second).
+fn input_with_axes(k: u32) -> InputSlot {
+    let t = f64::from(k) / 8000.0;
+    InputSlot {
+        x_acc_um_per_s2: (2e6 * (2.0 * std::f64::consts::PI * 3.0 * t).sin()) as i32,
+        spindle_turns: k.wrapping_mul(5_368_709), // 2^32 * 10 / 8000
+        ..input(k)
+    }
+}
+
+/// The test program plus an axis-coupling term (0.5 um per m/s^2, 80 nm once per revolution).
+fn program_with_coupling(id: u32) -> sts_twin_core::program::Program {
+    let mut p = program(id, 2.0);
+    p.terms.push(TickTerm::AxisCoupling { x_gain_pm_per_mps2: 500_000, spindle_amp_pm: 80_000, spindle_phase_turns: 1 << 30 }).unwrap();
+    p
+}
+
+/// a) The firmware's DAC codes equal the host core's, bit for bit, on the same stream, with
+/// every input word in use (the axis-coupling term reads the X acceleration and spindle words).
 #[test]
 fn dac_codes_are_bit_identical_to_the_host_core() {
     let _serial = sts_hil_tests::serial();
-    let inputs: Vec<InputSlot> = (0..24_000).map(input).collect();
+    let inputs: Vec<InputSlot> = (0..24_000).map(input_with_axes).collect();
     let mut sim = SimCoprocessor::boot(&[]);
-    configure(&mut sim, Some(program(11, 2.0)));
+    configure(&mut sim, Some(program_with_coupling(11)));
     let expected: Vec<OutputSlot> = inputs.iter().map(|i| sim.tick(i).unwrap()).collect();
+    // The other axes' words matter: without them the same core predicts something else.
+    let mut still = SimCoprocessor::boot(&[]);
+    configure(&mut still, Some(program_with_coupling(11)));
+    let differing = (0..24_000).map(input).zip(&expected).filter(|(i, e)| still.tick(i).unwrap().de_pred_pm != e.de_pred_pm).count();
+    assert!(differing > 20_000, "the axis-coupling term changed only {differing} predictions");
 
     let mut hil = boot();
-    configure(&mut hil, Some(program(11, 2.0)));
+    configure(&mut hil, Some(program_with_coupling(11)));
     let outputs = hil.hil().run_open_loop(&inputs).expect("stream");
     assert_eq!(outputs.len(), expected.len());
     for (k, (got, want)) in outputs.iter().zip(&expected).enumerate() {

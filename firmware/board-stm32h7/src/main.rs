@@ -85,12 +85,17 @@ impl AdcSource for H7Inputs {
         let acc = self.adc.blocking_read(&mut self.acc_pin, SampleTime::CYCLES16_5);
         let pos = self.adc.blocking_read(&mut self.pos_pin, SampleTime::CYCLES16_5);
         let count = u32::from(self.encoder.count()) % ENCODER_COUNTS_PER_REV;
+        let spindle_turns = count.wrapping_mul(u32::MAX / ENCODER_COUNTS_PER_REV + 1);
         Ok(InputSlot {
             tick,
             acc_code: (i32::from(acc) - 32_768) as i16,
             flags: IN_FLAG_PHASE_VALID,
-            cmd_phase_turns: count.wrapping_mul(u32::MAX / ENCODER_COUNTS_PER_REV + 1),
+            // The STS command is locked to the spindle: its phase is the spindle encoder's.
+            cmd_phase_turns: spindle_turns,
             cmd_pos_nm: (i32::from(pos) - 32_768) * CMD_POS_NM_PER_CODE,
+            // No X axis input on this board: axis-coupling terms see only the spindle.
+            x_acc_um_per_s2: 0,
+            spindle_turns,
         })
     }
 }

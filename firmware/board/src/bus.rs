@@ -5,7 +5,7 @@
 //! `dmb`.
 
 use core::sync::atomic::{fence, Ordering};
-use sts_twin_core::bus::{self as layout, InputSlot, OutputSlot, SLOT_WORDS};
+use sts_twin_core::bus::{self as layout, InputSlot, OutputSlot};
 
 use crate::{AdcSource, DacSink, SampleError};
 
@@ -74,7 +74,7 @@ impl BusView {
     #[inline(always)]
     pub fn read_input(&self, tick: u32) -> InputSlot {
         let word = layout::input_slot_word(tick);
-        let mut words = [0u32; SLOT_WORDS];
+        let mut words = [0u32; InputSlot::WORDS];
         for (i, w) in words.iter_mut().enumerate() {
             *w = self.read(word + i);
         }
@@ -170,7 +170,7 @@ mod tests {
         let bus = unsafe { BusView::new(base) };
         let mut adc = BusAdc::new(bus, 10);
         assert_eq!(adc.sample(0), Err(SampleError::Late));
-        let input = InputSlot { tick: 0, acc_code: -3, flags: 1, cmd_phase_turns: 7, cmd_pos_nm: -9 };
+        let input = InputSlot { tick: 0, acc_code: -3, flags: 1, cmd_phase_turns: 7, cmd_pos_nm: -9, x_acc_um_per_s2: -11, spindle_turns: 13 };
         let slot = sts_twin_core::bus::input_slot_word(0);
         for (i, w) in input.to_words().iter().enumerate() {
             poke(slot + i, *w);

@@ -3,7 +3,8 @@
 //!
 //! Under QEMU the bus lives in the mps2-an386 PSRAM (0x2100_0000), which QEMU maps to a file
 //! in `/dev/shm` that the host maps too. The layout is a header of sequence counters and two
-//! rings of [`RING_SLOTS`] slots of four little-endian `u32` words each:
+//! rings of [`RING_SLOTS`] slots of little-endian `u32` words ([`INPUT_SLOT_WORDS`] per
+//! input slot, [`OUTPUT_SLOT_WORDS`] per output slot):
 //!
 //! | byte offset | word | what | written by |
 //! |---|---|---|---|
@@ -15,8 +16,8 @@
 //! | 0x014 | `FW_UNDERRUNS` | ticks on which the host's input was late | firmware |
 //! | 0x018 | `FW_OVERRUNS` | ticks that started before the previous one ended | firmware |
 //! | 0x01C | `HOST_STOP` | non-zero: the host asks the firmware to stop waiting | host |
-//! | 0x100 | input ring | [`InputSlot`] `k` at `0x100 + 16 * (k % RING_SLOTS)` | host |
-//! | 0x100 + 16 * RING_SLOTS | output ring | [`OutputSlot`] `k` likewise | firmware |
+//! | 0x100 | input ring | [`InputSlot`] `k` at `0x100 + 32 * (k % RING_SLOTS)` | host |
+//! | 0x100 + 32 * RING_SLOTS | output ring | [`OutputSlot`] `k` at `+ 16 * (k % RING_SLOTS)` | firmware |
 //!
 //! Ordering: a writer fills a slot, then (after a memory barrier) bumps its sequence word; a
 //! reader reads the sequence word, then the slot. Fewer than [`RING_SLOTS`] ticks are ever
@@ -28,8 +29,8 @@
 
 /// Magic word at offset 0: "STSB".
 pub const MAGIC: u32 = 0x5354_5342;
-/// Layout version of this bus.
-pub const BUS_VERSION: u32 = 1;
+/// Layout version of this bus (2: input slots carry the X acceleration and spindle angle).
+pub const BUS_VERSION: u32 = 2;
 /// Value the firmware writes to [`FW_READY`] once it is serving the bus.
 pub const FW_READY_MAGIC: u32 = 0x5245_4459;
 
@@ -52,23 +53,25 @@ pub const WORD_HOST_STOP: usize = 7;
 
 /// Slots per ring. A power of two.
 pub const RING_SLOTS: usize = 256;
-/// Words per slot.
-pub const SLOT_WORDS: usize = 4;
+/// Words per input slot (six used, a power of two so that the slot address is a shift).
+pub const INPUT_SLOT_WORDS: usize = 8;
+/// Words per output slot.
+pub const OUTPUT_SLOT_WORDS: usize = 4;
 /// Word offset of the input ring.
 pub const WORD_INPUT_RING: usize = 0x100 / 4;
 /// Word offset of the output ring.
-pub const WORD_OUTPUT_RING: usize = WORD_INPUT_RING + RING_SLOTS * SLOT_WORDS;
+pub const WORD_OUTPUT_RING: usize = WORD_INPUT_RING + RING_SLOTS * INPUT_SLOT_WORDS;
 /// Total bytes of the bus layout.
-pub const BUS_BYTES: usize = (WORD_OUTPUT_RING + RING_SLOTS * SLOT_WORDS) * 4;
+pub const BUS_BYTES: usize = (WORD_OUTPUT_RING + RING_SLOTS * OUTPUT_SLOT_WORDS) * 4;
 
 /// Word offset of input slot `tick`.
 pub const fn input_slot_word(tick: u32) -> usize {
-    WORD_INPUT_RING + (tick as usize % RING_SLOTS) * SLOT_WORDS
+    WORD_INPUT_RING + (tick as usize % RING_SLOTS) * INPUT_SLOT_WORDS
 }
 
 /// Word offset of output slot `tick`.
 pub const fn output_slot_word(tick: u32) -> usize {
-    WORD_OUTPUT_RING + (tick as usize % RING_SLOTS) * SLOT_WORDS
+    WORD_OUTPUT_RING + (tick as usize % RING_SLOTS) * OUTPUT_SLOT_WORDS
 }
 
 /// Input flags: bit set when the motion controller's command phase is valid.
@@ -88,27 +91,38 @@ pub struct InputSlot {
     pub cmd_phase_turns: u32,
     /// Command position of the Z axis in nanometres.
     pub cmd_pos_nm: i32,
+    /// X slide acceleration, micrometres per s^2 (0 where the machine does not provide it).
+    pub x_acc_um_per_s2: i32,
+    /// Spindle angle, a full turn is 2^32 (0 where the machine does not provide it).
+    pub spindle_turns: u32,
 }
 
 impl InputSlot {
-    /// The slot as four bus words.
-    pub const fn to_words(&self) -> [u32; SLOT_WORDS] {
+    /// Bus words used by an input slot (the rest of [`INPUT_SLOT_WORDS`] is reserved, zero).
+    pub const WORDS: usize = 6;
+
+    /// The slot as its bus words.
+    pub const fn to_words(&self) -> [u32; Self::WORDS] {
         [
             self.tick,
             (self.acc_code as u16 as u32) | ((self.flags as u32) << 16),
             self.cmd_phase_turns,
             self.cmd_pos_nm as u32,
+            self.x_acc_um_per_s2 as u32,
+            self.spindle_turns,
         ]
     }
 
-    /// The slot from four bus words.
-    pub const fn from_words(words: [u32; SLOT_WORDS]) -> Self {
+    /// The slot from its bus words.
+    pub const fn from_words(words: [u32; Self::WORDS]) -> Self {
         Self {
             tick: words[0],
             acc_code: words[1] as u16 as i16,
             flags: (words[1] >> 16) as u16,
             cmd_phase_turns: words[2],
             cmd_pos_nm: words[3] as i32,
+            x_acc_um_per_s2: words[4] as i32,
+            spindle_turns: words[5],
         }
     }
 }
@@ -141,8 +155,8 @@ pub struct OutputSlot {
 }
 
 impl OutputSlot {
-    /// The slot as four bus words.
-    pub const fn to_words(&self) -> [u32; SLOT_WORDS] {
+    /// The slot as its four bus words.
+    pub const fn to_words(&self) -> [u32; OUTPUT_SLOT_WORDS] {
         [
             self.tick,
             (self.dac_code as u16 as u32) | ((self.flags as u32) << 16),
@@ -151,8 +165,8 @@ impl OutputSlot {
         ]
     }
 
-    /// The slot from four bus words.
-    pub const fn from_words(words: [u32; SLOT_WORDS]) -> Self {
+    /// The slot from its four bus words.
+    pub const fn from_words(words: [u32; OUTPUT_SLOT_WORDS]) -> Self {
         Self {
             tick: words[0],
             dac_code: words[1] as u16 as i16,
@@ -169,7 +183,7 @@ mod tests {
 
     #[test]
     fn slots_round_trip_through_words() {
-        let input = InputSlot { tick: 7, acc_code: -32768, flags: 1, cmd_phase_turns: u32::MAX, cmd_pos_nm: -5 };
+        let input = InputSlot { tick: 7, acc_code: -32768, flags: 1, cmd_phase_turns: u32::MAX, cmd_pos_nm: -5, x_acc_um_per_s2: i32::MIN, spindle_turns: 0x8000_0001 };
         assert_eq!(InputSlot::from_words(input.to_words()), input);
         let output = OutputSlot { tick: 9, dac_code: -1, flags: 0x1f, de_pred_pm: i32::MIN, fault_count: 3 };
         assert_eq!(OutputSlot::from_words(output.to_words()), output);
@@ -178,7 +192,8 @@ mod tests {
     #[test]
     fn rings_do_not_overlap_and_fit_the_psram() {
         assert!(WORD_INPUT_RING > WORD_HOST_STOP);
-        assert_eq!(output_slot_word(0), input_slot_word(RING_SLOTS as u32 - 1) + SLOT_WORDS);
+        assert_eq!(output_slot_word(0), input_slot_word(RING_SLOTS as u32 - 1) + INPUT_SLOT_WORDS);
+        assert!(InputSlot::WORDS <= INPUT_SLOT_WORDS && INPUT_SLOT_WORDS.is_power_of_two());
         assert!(BUS_BYTES <= 16 * 1024 * 1024);
         assert!(RING_SLOTS.is_power_of_two());
     }

@@ -408,8 +408,13 @@ impl Servo {
         }
         self.apply_due(tick);
 
-        // Kernel terms (effects) see the command position; X and spindle are not on the bus yet.
-        let de_pm = self.synth.next_input(&crate::synth::TickInput { cmd_phase_turns: input.cmd_phase_turns, cmd_pos_nm: input.cmd_pos_nm, ..Default::default() });
+        // Kernel terms (effects) see the command position, the X acceleration and the spindle.
+        let de_pm = self.synth.next_input(&crate::synth::TickInput {
+            cmd_phase_turns: input.cmd_phase_turns,
+            cmd_pos_nm: input.cmd_pos_nm,
+            x_acc_um_per_s2: input.x_acc_um_per_s2,
+            spindle_turns: input.spindle_turns,
+        });
         let trusted = self.health.degraded == 0;
         let ff = self.feedforward.tick(de_pm, trusted && self.model_active);
         self.counters.dac_saturations += ff.saturated as u32;

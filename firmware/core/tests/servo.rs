@@ -32,7 +32,7 @@ fn input(k: u32) -> InputSlot {
     let noise = ((k.wrapping_mul(2_654_435_761) >> 16) % 7) as f64 - 3.0;
     let acc_code = (-5000.0 * phase.sin() + noise).round() as i16;
     let cmd_phase_turns = ((40.0 * t).fract() * 4_294_967_296.0) as u64 as u32;
-    InputSlot { tick: k, acc_code, flags: IN_FLAG_PHASE_VALID, cmd_phase_turns, cmd_pos_nm: (3000.0 * phase.sin()) as i32 }
+    InputSlot { tick: k, acc_code, flags: IN_FLAG_PHASE_VALID, cmd_phase_turns, cmd_pos_nm: (3000.0 * phase.sin()) as i32, ..Default::default() }
 }
 
 /// A simple twin: amplitude = 2 * RMS (um per m/s^2), phase = -0.2 * f1 degrees.

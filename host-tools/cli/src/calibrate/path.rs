@@ -137,7 +137,7 @@ pub fn measure_path(
                 acc_code: out.acc_code,
                 flags: IN_FLAG_PHASE_VALID,
                 cmd_phase_turns: turns_u32(next_turns),
-                cmd_pos_nm: 0,
+                ..Default::default()
             };
             let output = coprocessor.tick(&input)?;
             analog_in_v = f64::from(output.dac_code) * volts_per_code;

@@ -67,7 +67,7 @@ impl<'a> RestRig<'a> {
     /// One tick.
     pub fn step(&mut self) -> anyhow::Result<(StepOutput, OutputSlot)> {
         let machine = self.machine.step(&StepInput { z_cmd_um: 0.0, x_mm: 0.0, spindle_deg: 0.0, analog_in_v: self.analog_in_v, analog_enabled: self.analog_enabled });
-        let input = InputSlot { tick: self.tick as u32, acc_code: machine.acc_code, flags: 0, cmd_phase_turns: 0, cmd_pos_nm: 0 };
+        let input = InputSlot { tick: self.tick as u32, acc_code: machine.acc_code, ..Default::default() };
         let output = self.coprocessor.tick(&input)?;
         self.analog_in_v = f64::from(output.dac_code) * self.volts_per_code;
         self.tick += 1;

@@ -2,8 +2,8 @@
 //!
 //! Each effect becomes per-tick terms of the firmware program ([`TickTerm`]) whose
 //! coefficients are estimated from the data, from inputs the firmware has every tick (the
-//! command position, machine time, and the X acceleration and spindle angle where the bus
-//! carries them):
+//! command position, machine time, and the X acceleration and spindle angle where the machine
+//! provides them):
 //!
 //! | effect | term(s) |
 //! |---|---|
@@ -281,7 +281,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
             }
             "axis-coupling" => {
                 let (term, params) = fit_coupling(dataset, &inputs)?;
-                (vec![term], params, "X acceleration gain and spindle once-per-revolution sine (the bus must carry X acceleration and spindle angle)".to_string())
+                (vec![term], params, "X acceleration gain and spindle once-per-revolution sine (the bus carries both; a machine without them sends zero)".to_string())
             }
             _ => (Vec::new(), Vec::new(), "linear change of the response at the command frequency: carried by the refitted amplitude and phase formulas".to_string()),
         };

@@ -28,6 +28,7 @@ pub fn bench_inputs(ticks: u32) -> Vec<InputSlot> {
                 flags: IN_FLAG_PHASE_VALID,
                 cmd_phase_turns: k.wrapping_mul(5_368_709), // 2^32 * 10 Hz / 8 kHz
                 cmd_pos_nm: (k as i32 % 4000) * 250,
+                ..Default::default()
             }
         })
         .collect()

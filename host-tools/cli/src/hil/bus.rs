@@ -7,7 +7,7 @@ use std::sync::atomic::{fence, AtomicU32, AtomicU64, Ordering};
 
 use memmap2::MmapRaw;
 use sts_twin_board::qemu::{self as map, DIAG_WORDS};
-use sts_twin_core::bus::{self as layout, InputSlot, OutputSlot, SLOT_WORDS};
+use sts_twin_core::bus::{self as layout, InputSlot, OutputSlot, OUTPUT_SLOT_WORDS};
 
 use super::HilError;
 
@@ -149,7 +149,7 @@ impl BusFile {
     /// Output slot `tick` (valid once `fw_seq() > tick`).
     pub(crate) fn read_output(&self, tick: u32) -> OutputSlot {
         let base = layout::output_slot_word(tick);
-        let mut words = [0u32; SLOT_WORDS];
+        let mut words = [0u32; OUTPUT_SLOT_WORDS];
         for (i, w) in words.iter_mut().enumerate() {
             *w = self.bus(base + i).load(Ordering::Acquire);
         }

@@ -74,14 +74,20 @@ pub fn run_loop(
             analog_in_v,
             analog_enabled,
         });
-        // The output of this tick acts at the next one: hand over the command phase there.
+        // The output of this tick acts at the next one: hand over the command phase, the X
+        // acceleration (as the machine computes it, from three X positions) and the spindle
+        // angle there.
         let next = trajectory.at((k + 1) as f64 / sample_rate_hz);
+        let before = if k == 0 { point } else { trajectory.at((k - 1) as f64 / sample_rate_hz) };
+        let x_acc_mps2 = (next.x_mm - 2.0 * point.x_mm + before.x_mm) * 1e-3 * sample_rate_hz * sample_rate_hz;
         let input = InputSlot {
             tick: k as u32,
             acc_code: machine_out.acc_code,
             flags: IN_FLAG_PHASE_VALID,
             cmd_phase_turns: next.phase_turns,
             cmd_pos_nm: (next.z_cmd_um * 1e3).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32,
+            x_acc_um_per_s2: (x_acc_mps2 * 1e6).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32,
+            spindle_turns: ((next.spindle_deg / 360.0).rem_euclid(1.0) * 4_294_967_296.0) as u64 as u32,
         };
         let output = coprocessor.tick(&input)?;
         analog_in_v = f64::from(output.dac_code) * dac_full_scale_v / 32767.0;

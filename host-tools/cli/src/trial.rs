@@ -4,7 +4,10 @@
 //! The cut faces from `r_start_mm` to the centre. Before it, the tool runs the same motion
 //! in air at the starting radius for one feature window plus a second, so that the twin's
 //! features are complete when the cut begins (a machinist's air cut; the twin is trained on
-//! full windows). The form error is the peak-to-peak deviation of the true TCP from the
+//! full windows). During the air cut's last half second the X slide accelerates smoothly
+//! from rest to the facing feed, reaching the starting radius at full feed as the cut begins
+//! (a velocity step there would be an acceleration impulse that deflects a tool post coupled
+//! to X). The form error is the peak-to-peak deviation of the true TCP from the
 //! design surface over all points cut within `r <= r_eval_mm`; the phase error is the lag
 //! of the TCP's fundamental (2C) behind the design's over the same points.
 
@@ -137,6 +140,16 @@ pub fn with_measured_path(
     Ok((FeedforwardParams { analogue_path, ..params }, points))
 }
 
+/// Time over which X accelerates to the facing feed before the cut, s.
+const X_APPROACH_S: f64 = 0.5;
+
+/// Distance of X from the starting radius `before_s` seconds before the cut: at rest, then a
+/// constant acceleration over `ramp_s` to the feed velocity `feed_mm_per_s` at the cut.
+fn approach_mm(before_s: f64, feed_mm_per_s: f64, ramp_s: f64) -> f64 {
+    let tau = before_s.clamp(0.0, ramp_s);
+    feed_mm_per_s * (tau - tau * tau / (2.0 * ramp_s))
+}
+
 /// The STS trajectory with an air cut before it.
 struct WithAirCut {
     cut: Bicuspid,
@@ -153,6 +166,7 @@ impl Trajectory for WithAirCut {
             p.spindle_deg = c_deg;
             p.z_cmd_um = Bicuspid::design_z_um(self.cut.r_start_mm, c_deg);
             p.phase_turns = crate::rig::turns_u32(2.0 * revs);
+            p.x_mm = self.cut.r_start_mm + approach_mm(self.air_s - t_s, self.cut.feed_mm_per_s(), (self.air_s / 2.0).min(X_APPROACH_S));
             p
         } else {
             self.cut.at(t_s - self.air_s)

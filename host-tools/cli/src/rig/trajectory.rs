@@ -77,6 +77,11 @@ impl Bicuspid {
         self.freq_hz / 2.0
     }
 
+    /// Speed of the X slide towards the centre, mm/s.
+    pub fn feed_mm_per_s(&self) -> f64 {
+        self.spindle_rev_per_s() * self.feed_um_per_rev * 1e-3
+    }
+
     /// The design surface height at radius `x_mm` and spindle angle `c_deg`, um.
     pub fn design_z_um(x_mm: f64, c_deg: f64) -> f64 {
         1e3 * (0.006 * x_mm * (2.0 * c_deg.to_radians()).sin() - 0.006 * x_mm)

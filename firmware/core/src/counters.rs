@@ -36,4 +36,6 @@ pub struct Counters {
     pub degraded_entries: u32,
     /// Config store reads or writes that failed.
     pub config_store_errors: u32,
+    /// Feature settings rejected (`SetFeatureConfig` with a zero or too long window).
+    pub rejected_feature_configs: u32,
 }

@@ -358,7 +358,10 @@ impl Servo {
     /// Replaces the feature settings; the window restarts empty and any model result in
     /// flight is dropped (it was computed on the old settings). Invalid settings change nothing.
     pub fn set_feature_config(&mut self, config: FeatureConfig) -> Result<(), FeatureError> {
-        self.features.reconfigure(config)?;
+        if let Err(e) = self.features.reconfigure(config) {
+            self.counters.rejected_feature_configs += 1;
+            return Err(e);
+        }
         self.feature_config = config;
         self.timing = ModelTiming::new(&self.config, config.window_samples);
         self.model_countdown = first_request_countdown(&self.timing);
@@ -626,6 +629,7 @@ impl Servo {
             .wrapping_add(c.frame_errors)
             .wrapping_add(c.rejected_programs)
             .wrapping_add(c.rejected_params)
+            .wrapping_add(c.rejected_feature_configs)
             .wrapping_add(c.model_faults)
             .wrapping_add(c.input_stuck)
             .wrapping_add(c.input_saturated)

@@ -215,6 +215,20 @@ fn bad_parameters_are_rejected_and_counted() {
 }
 
 #[test]
+fn bad_feature_settings_are_rejected_and_counted() {
+    let mut twin = booted_twin();
+    let faults = twin.servo().fault_count();
+    for window_samples in [0, u32::MAX] {
+        let bad = FeatureConfig { window_samples, ..feature_config() };
+        assert!(matches!(twin.handle(Request::SetFeatureConfig(bad)), Response::Rejected(_)), "window {window_samples}");
+    }
+    assert_eq!(twin.servo().counters().rejected_feature_configs, 2);
+    assert_eq!(twin.servo().fault_count(), faults + 2);
+    assert_eq!(twin.handle(Request::SetFeatureConfig(feature_config())), Response::Ack);
+    assert_eq!(twin.servo().counters().rejected_feature_configs, 2);
+}
+
+#[test]
 fn the_paper_program_runs_in_the_pipeline() {
     let mut twin = Box::new(Twin::boot(feature_config(), servo_config(), &[]));
     assert_eq!(twin.handle(Request::UploadProgram { program: paper_program(), activate: true }), Response::Ack);

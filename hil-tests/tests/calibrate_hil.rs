@@ -9,6 +9,7 @@ use sts_twin::calibrate::{calibrate, enable_check, Board, BootState, Calibration
 use sts_twin::hil::board::qemu::{CONFIG_OFFSET, CONFIG_SLOT_BYTES};
 use sts_twin::hil::HilConfig;
 use sts_twin::rig::{expect_ack, Coprocessor, SimCoprocessor};
+use sts_twin::trial::stored_params;
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::{frame_crc32, ConfigSource, Request};
 
@@ -106,6 +107,10 @@ fn calibration_in_qemu_is_stored_reloaded_and_enabling_moves_less_than_a_pulse()
     assert_eq!(check.added_pulses_max, 24, "{check:?}");
     assert!(check.tcp_true_move_nm > 20.0 * plant.interface.pulse_nm, "{check:?}");
     assert!(!check.passed());
+
+    // A cut later (`machine --bus`) boots on the same file and uses what was stored.
+    board.reboot().unwrap();
+    assert_eq!(stored_params(&mut board).unwrap(), report.params);
     board.shutdown().unwrap();
 }
 
@@ -159,5 +164,8 @@ fn a_corrupt_config_store_boots_on_safe_defaults_and_is_reported() {
     assert_ne!(state.config_source, ConfigSource::Stored, "{state}");
     assert_eq!(state.params, FeedforwardParams::default());
     assert!(!state.enabled);
+    // A cut asked to use the stored calibration refuses, and says what to run.
+    let refused = stored_params(&mut board).unwrap_err().to_string();
+    assert!(refused.contains("without a stored calibration") && refused.contains("calibrate-offset"), "{refused}");
     board.shutdown().unwrap();
 }

@@ -14,7 +14,7 @@
 use serde::Serialize;
 use sts_emulator::{EffectSpec, Machine, PlantParams};
 use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::wire::Request;
+use sts_twin_core::wire::{ConfigSource, Request, Response};
 
 use crate::calibrate::{measure_path, path_table, PathConfig, PathPoint};
 use crate::model::ModelFile;
@@ -177,6 +177,20 @@ impl Trajectory for WithAirCut {
     }
     fn duration_s(&self) -> f64 {
         self.air_s + self.cut.duration_s()
+    }
+}
+
+/// The feedforward parameters (offset, K_dv, analogue path, ...) the co-processor loaded from
+/// its config store at boot, as `calibrate-offset` stored them; an error that says what to run
+/// when it booted without a stored calibration.
+pub fn stored_params(coprocessor: &mut dyn Coprocessor) -> anyhow::Result<FeedforwardParams> {
+    let status = match coprocessor.request(Request::GetStatus)? {
+        Response::Status(status) => status,
+        other => anyhow::bail!("the co-processor answered its status request with {other:?}"),
+    };
+    match status.config_source {
+        ConfigSource::Stored => Ok(status.params),
+        other => anyhow::bail!("the co-processor booted without a stored calibration ({other:?}); calibrate first: sts-twin calibrate-offset --bus FILE"),
     }
 }
 

@@ -9,7 +9,7 @@ use crate::hil::HilConfig;
 use crate::model::ModelFile;
 use crate::rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
 use crate::calibrate::PathPoint;
-use crate::trial::{machine_params, run_trial, with_measured_path, TrialConfig, TrialReport};
+use crate::trial::{machine_params, run_trial, stored_params, with_measured_path, TrialConfig, TrialReport};
 
 /// Arguments of `sts-twin machine`.
 #[derive(Debug, clap::Args)]
@@ -47,6 +47,11 @@ pub struct Args {
     /// Write an HTML report (figures, surface map and error map over the disc) to this file.
     #[arg(long)]
     pub html: Option<PathBuf>,
+    /// Cut with the calibration stored in this QEMU board memory file by
+    /// `sts-twin calibrate-offset --bus FILE` (offset, K_dv, analogue path), as a machinist
+    /// calibrates once and then cuts, instead of the plant's offset and a path measured here.
+    #[arg(long, conflicts_with_all = ["sim", "offset", "no_path"])]
+    pub bus: Option<PathBuf>,
 }
 
 /// The emulated machine named on a command line: plant parameters and hidden effects.
@@ -85,6 +90,14 @@ pub fn coprocessor(sim: bool) -> anyhow::Result<Box<dyn Coprocessor>> {
     Ok(if sim { Box::new(SimCoprocessor::boot(&[])) } else { Box::new(HilCoprocessor::start(HilConfig::default())?) })
 }
 
+/// Boots the firmware in QEMU on an existing board memory file (its config store).
+fn stored_calibration_board(bus: &std::path::Path) -> anyhow::Result<Box<dyn Coprocessor>> {
+    if !bus.is_file() {
+        anyhow::bail!("--bus {}: no such board memory file; calibrate first: sts-twin calibrate-offset --bus {}", bus.display(), bus.display());
+    }
+    Ok(Box::new(HilCoprocessor::start(HilConfig { bus_path: Some(bus.to_path_buf()), ..HilConfig::default() })?))
+}
+
 /// Prints a measured analogue path for people.
 pub fn print_path(points: &[PathPoint]) {
     let cells: Vec<String> = points.iter().map(|p| format!("{:.0} Hz {:+.2} deg", p.freq_hz, p.phase_deg)).collect();
@@ -115,8 +128,23 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let params = machine_params(&plant, args.offset.unwrap_or(plant.interface.offset_v));
     let window_samples = args.window_s.map(|s| ((s * 8000.0) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
-    let mut cop = coprocessor(args.sim)?;
-    let params = if model.is_some() && !args.no_path {
+    let mut cop = match &args.bus {
+        Some(bus) => stored_calibration_board(bus)?,
+        None => coprocessor(args.sim)?,
+    };
+    let params = if let Some(bus) = &args.bus {
+        let stored = stored_params(cop.as_mut()).with_context(|| format!("--bus {}", bus.display()))?;
+        if !args.json {
+            let path: Vec<String> = stored.analogue_path.points().map(|(freq_hz, phase_deg)| format!("{freq_hz:.0} Hz {phase_deg:+.2} deg")).collect();
+            eprintln!(
+                "stored calibration: offset {:+.3} mV, K_dv {:.4} um/V, analogue path {}",
+                f64::from(stored.offset_v) * 1e3,
+                stored.k_dv_um_per_v,
+                if path.is_empty() { "none".to_string() } else { path.join(", ") }
+            );
+        }
+        stored
+    } else if model.is_some() && !args.no_path {
         let (params, points) = with_measured_path(cop.as_mut(), &plant, &effects, params, args.seed)?;
         if !args.json {
             print_path(&points);

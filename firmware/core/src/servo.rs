@@ -290,9 +290,10 @@ impl ModelTiming {
 
 /// The servo-interrupt side of the twin. See the [module docs](self).
 ///
-/// `repr(C)` with the 90 KB feature state last: the fields every tick touches then lie
-/// within 4 KB of the start, where a Cortex-M4 load or store needs one instruction (three
-/// beyond, with the offset built in a register).
+/// `repr(C)` with the fields every tick touches first and the 90 KB feature state (whose
+/// per-sample fields come first) after them: they then lie within 4 KB of the start, where
+/// a Cortex-M4 load or store needs one instruction (three beyond, with the offset built in a
+/// register). What only the ticks applying a model result touch comes last.
 #[repr(C)]
 pub struct Servo {
     counters: Counters,
@@ -305,16 +306,18 @@ pub struct Servo {
     /// Model interval and latency for the feature window in force.
     timing: ModelTiming,
     awaiting_due: Option<u64>,
+    /// Due tick of the pending result (`u64::MAX`: none), next to the other per-tick fields.
+    pending_due_tick: u64,
     model_active: bool,
     last_dac: i16,
     program_id: Option<u32>,
-    synth: Synth,
     feedforward: Feedforward,
     feature_config: FeatureConfig,
+    synth: Synth,
+    features: DefaultFeatureState,
     pending: Option<ModelResult>,
     last_output: ModelOutput,
     last_features: [f32; 12],
-    features: DefaultFeatureState,
 }
 
 impl Servo {
@@ -341,6 +344,7 @@ impl Servo {
             counters: Counters::default(),
             health: Health::default(),
             pending: None,
+            pending_due_tick: u64::MAX,
             awaiting_due: None,
             model_active: false,
             program_id: None,
@@ -363,6 +367,7 @@ impl Servo {
         self.timing = ModelTiming::new(&self.config, config.window_samples);
         self.model_countdown = first_request_countdown(&self.timing);
         self.pending = None;
+        self.pending_due_tick = u64::MAX;
         self.awaiting_due = None;
         Ok(())
     }
@@ -489,20 +494,15 @@ impl Servo {
     }
 
     fn apply_due(&mut self, tick: u64) {
-        // Looked at in place: a result waiting for its tick is not moved (it is about 500
-        // bytes, and it waits for most ticks of an interval).
-        let Some(result) = &self.pending else {
-            if self.awaiting_due.is_some_and(|due| tick > due) {
-                // The result is late; it will be applied when it arrives.
-                self.counters.model_late += 1;
-                self.awaiting_due = None;
-            }
-            return;
-        };
-        if tick < result.due_tick {
-            return;
+        // The pending result itself (about 600 bytes, waiting for most ticks of an interval)
+        // is neither moved nor looked at: its due tick is kept with the per-tick fields.
+        if tick >= self.pending_due_tick {
+            self.apply_pending();
+        } else if self.pending_due_tick == u64::MAX && self.awaiting_due.is_some_and(|due| tick > due) {
+            // The result is late; it will be applied when it arrives.
+            self.counters.model_late += 1;
+            self.awaiting_due = None;
         }
-        self.apply_pending();
     }
 
     /// Applies the pending result. Out of line: inlined, its register needs made every
@@ -536,15 +536,19 @@ impl Servo {
             }
         }
         self.pending = None;
+        self.pending_due_tick = u64::MAX;
     }
 
     /// Hands back a model result computed for a request of this servo, and prepares the
-    /// synthesiser's ramps to it, so that the tick applying it has little to do.
+    /// synthesiser's update to it for the tick that will apply it (its due tick, or the next
+    /// tick if that has passed), so that this tick has little to do.
     pub fn deliver(&mut self, result: ModelResult) {
+        let ticks_ahead = result.due_tick.saturating_sub(self.counters.ticks).min(u64::from(u32::MAX)) as u32;
         match &result.outcome {
-            Ok((_, terms, _)) => self.synth.prepare(&result.targets, terms),
-            Err(_) => self.synth.prepare(&SynthTargets::SILENT, &[]),
+            Ok((_, terms, _)) => self.synth.prepare(&result.targets, terms, ticks_ahead),
+            Err(_) => self.synth.prepare(&SynthTargets::SILENT, &[], ticks_ahead),
         }
+        self.pending_due_tick = result.due_tick;
         self.pending = Some(result);
     }
 

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::analogue_path::AnaloguePath;
 use crate::bus::{InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_ENABLED, OUT_FLAG_MODEL_ACTIVE, OUT_FLAG_SATURATED, OUT_FLAG_SLEWING};
-use crate::features::{Capture, DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, Features};
+use crate::features::{DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features};
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
 use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_PHASE_DEG};
 use crate::synth::{Synth, SynthTargets};
@@ -91,8 +91,9 @@ pub enum InitError {
 /// A snapshot handed from the servo tick to the model update.
 #[derive(Clone, Copy, Debug)]
 pub struct ModelRequest {
-    /// The features' state at the request.
-    pub capture: Capture,
+    /// The features' state at the request (its [`FeatureSnapshot::capture`] is what the
+    /// features are computed from).
+    pub snapshot: FeatureSnapshot,
     /// Tick of the request.
     pub tick: u64,
     /// Tick at which the result takes effect.
@@ -100,6 +101,33 @@ pub struct ModelRequest {
     /// The command phase's advance per tick at the request, u32 turns (as `i32`, signed):
     /// the command frequency, for the analogue-path correction.
     pub cmd_step_turns: i32,
+}
+
+impl ModelRequest {
+    /// A request for no real window (what an empty [`RequestSlot`] holds).
+    pub const EMPTY: Self = Self { snapshot: FeatureSnapshot::empty(FeatureConfig::DEFAULT), tick: 0, due_tick: 0, cmd_step_turns: 0 };
+}
+
+/// Where [`Servo::tick`] leaves a model request: written in place, field by field (block
+/// moves rather than a library `memcpy` of the ~110 bytes), and taken out at low priority.
+#[derive(Clone, Copy, Debug)]
+struct RequestSlot {
+    request: ModelRequest,
+    full: bool,
+}
+
+impl RequestSlot {
+    /// An empty slot.
+    const fn new() -> Self {
+        Self { request: ModelRequest::EMPTY, full: false }
+    }
+
+    /// Takes the request out, if there is one.
+    fn take(&mut self) -> Option<ModelRequest> {
+        let full = core::mem::replace(&mut self.full, false);
+        full.then_some(self.request)
+    }
+
 }
 
 /// Why a model update produced no output.
@@ -190,7 +218,8 @@ impl Models {
     /// frequency of the request.
     pub fn compute(&mut self, rings: &DefaultSpectralRings, request: &ModelRequest, path: &AnaloguePath) -> ModelResult {
         let mut result = ModelResult { due_tick: request.due_tick, features: [0.0; 12], outcome: Err(ModelFault::NoProgram), targets: SynthTargets::SILENT };
-        let features: Features = match rings.finish(&request.capture, &mut self.scratch) {
+        let capture = request.snapshot.capture();
+        let features: Features = match rings.finish(&capture, &mut self.scratch) {
             Ok(features) => features,
             Err(err) => {
                 result.outcome = Err(ModelFault::Features(err));
@@ -201,7 +230,7 @@ impl Models {
         if let Some(program) = &self.active {
             result.outcome = match program.evaluate(&result.features) {
                 Ok(mut output) => {
-                    correct_for_path(&mut output, &program.terms, path, request.cmd_step_turns, request.capture.cfg.sample_rate_hz);
+                    correct_for_path(&mut output, &program.terms, path, request.cmd_step_turns, capture.cfg.sample_rate_hz);
                     result.targets = SynthTargets::new(&output, &program.terms);
                     Ok((output, program.terms.clone(), program.id))
                 }
@@ -290,10 +319,10 @@ impl ModelTiming {
 
 /// The servo-interrupt side of the twin. See the [module docs](self).
 ///
-/// `repr(C)` with the fields every tick touches first and the 90 KB feature state (whose
-/// per-sample fields come first) after them: they then lie within 4 KB of the start, where
-/// a Cortex-M4 load or store needs one instruction (three beyond, with the offset built in a
-/// register). What only the ticks applying a model result touch comes last.
+/// `repr(C)` with the fields every tick touches first, then the 90 KB feature state (whose
+/// per-sample fields come first): they then lie within 4 KB of the start, where a Cortex-M4
+/// load or store needs one instruction (three beyond, with the offset built in a register).
+/// The model results, touched only when one is delivered or applied, come last.
 #[repr(C)]
 pub struct Servo {
     counters: Counters,
@@ -308,16 +337,22 @@ pub struct Servo {
     awaiting_due: Option<u64>,
     /// Due tick of the pending result (`u64::MAX`: none), next to the other per-tick fields.
     pending_due_tick: u64,
+    /// `results[applied]` is the result in force; the other one is pending when
+    /// `pending_due_tick` says so. Applying it is a switch.
+    applied: usize,
     model_active: bool,
     last_dac: i16,
     program_id: Option<u32>,
     feedforward: Feedforward,
     feature_config: FeatureConfig,
+    /// The model request waiting for the low-priority side ([`Servo::take_request`]).
+    request: RequestSlot,
     synth: Synth,
     features: DefaultFeatureState,
-    pending: Option<ModelResult>,
-    last_output: ModelOutput,
-    last_features: [f32; 12],
+    results: [Option<ModelResult>; 2],
+    /// The last model output applied, per result slot (an error result carries the previous
+    /// one over).
+    last_outputs: [ModelOutput; 2],
 }
 
 impl Servo {
@@ -343,13 +378,14 @@ impl Servo {
             config,
             counters: Counters::default(),
             health: Health::default(),
-            pending: None,
+            request: RequestSlot::new(),
+            results: [None, None],
+            applied: 0,
             pending_due_tick: u64::MAX,
             awaiting_due: None,
             model_active: false,
             program_id: None,
-            last_output: ModelOutput::default(),
-            last_features: [0.0; 12],
+            last_outputs: [ModelOutput::default(); 2],
             last_dac: 0,
             model_countdown: first_request_countdown(&timing),
             timing,
@@ -366,7 +402,6 @@ impl Servo {
         self.feature_config = config;
         self.timing = ModelTiming::new(&self.config, config.window_samples);
         self.model_countdown = first_request_countdown(&self.timing);
-        self.pending = None;
         self.pending_due_tick = u64::MAX;
         self.awaiting_due = None;
         Ok(())
@@ -382,11 +417,10 @@ impl Servo {
         &self.feature_config
     }
 
-    /// One servo tick on `input`. Every model interval it writes a [`ModelRequest`] into
-    /// `request` (a slot the caller owns, so that the snapshot is built in place rather than
-    /// copied on its way out) and returns true with the output; otherwise `request` is left
-    /// as it is.
-    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: &InputSlot, request: &mut Option<ModelRequest>) -> (OutputSlot, bool) {
+    /// One servo tick on `input`. Every model interval it leaves a [`ModelRequest`] for the
+    /// low-priority side ([`Servo::take_request`]; one not yet taken is replaced) and returns
+    /// true with the output.
+    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: &InputSlot) -> (OutputSlot, bool) {
         let tick = self.counters.ticks;
         self.counters.ticks += 1;
         self.health.underrun_run = 0;
@@ -401,12 +435,18 @@ impl Servo {
         self.model_countdown = self.model_countdown.saturating_sub(1);
         if self.model_countdown == 0 {
             self.model_countdown = self.timing.interval_ticks;
-            let capture = self.features.capture(rings);
+            let snapshot = self.features.snapshot();
             // Only a full window gives the features the model was trained on.
-            if capture.samples >= self.feature_config.window_samples {
+            if snapshot.samples() >= self.feature_config.window_samples {
                 let due_tick = tick + self.timing.latency_ticks as u64;
                 let cmd_step_turns = input.cmd_phase_turns.wrapping_sub(prev_cmd_phase_turns) as i32;
-                *request = Some(ModelRequest { capture, tick, due_tick, cmd_step_turns });
+                // Block moves; the capture is made from the snapshot at low priority.
+                let slot = &mut self.request;
+                snapshot.copy_to(&mut slot.request.snapshot);
+                slot.request.tick = tick;
+                slot.request.due_tick = due_tick;
+                slot.request.cmd_step_turns = cmd_step_turns;
+                slot.full = true;
                 requested = true;
                 self.awaiting_due = Some(due_tick);
             }
@@ -476,13 +516,14 @@ impl Servo {
             self.counters.input_saturated += 1;
             self.degrade(DEGRADED_SATURATED);
         }
-        let recovery_ticks = self.recovery_ticks();
-        let h = &mut self.health;
+        let h = &self.health;
         let bad_now = h.same_run >= self.config.stuck_limit_ticks || h.saturated_run > 0;
         if h.degraded != 0 {
             if bad_now {
-                h.recovering_ticks = recovery_ticks;
+                // (Computed only here: three saturating additions on every tick otherwise.)
+                self.health.recovering_ticks = self.recovery_ticks();
             } else {
+                let h = &mut self.health;
                 // Inputs are healthy again: wait for a model result from a window of them.
                 h.degraded = (h.degraded & DEGRADED_MODEL) | DEGRADED_RECOVERING;
                 h.recovering_ticks = h.recovering_ticks.saturating_sub(1);
@@ -505,21 +546,20 @@ impl Servo {
         }
     }
 
-    /// Applies the pending result. Out of line: inlined, its register needs made every
-    /// tick dearer.
+    /// Applies the pending result: a switch of result slots (nothing is copied). Out of
+    /// line: inlined, its register needs made every tick dearer.
     #[inline(never)]
     fn apply_pending(&mut self) {
-        let Some(result) = &self.pending else {
+        let slot = (self.applied ^ 1) & 1;
+        let Some(result) = &self.results[slot] else {
             return;
         };
         self.awaiting_due = None;
-        self.last_features = result.features;
         match &result.outcome {
-            Ok((output, terms, id)) => {
+            Ok((_, terms, id)) => {
                 self.counters.model_updates += 1;
                 self.health.degraded &= !DEGRADED_MODEL;
                 self.synth.apply_prepared(&result.targets, terms);
-                self.last_output = *output;
                 self.model_active = true;
                 self.program_id = Some(*id);
             }
@@ -535,8 +575,13 @@ impl Servo {
                 self.synth.apply_prepared(&SynthTargets::SILENT, &[]);
             }
         }
-        self.pending = None;
+        self.applied = slot;
         self.pending_due_tick = u64::MAX;
+    }
+
+    /// The model request the last request tick left, if not taken yet (at low priority).
+    pub fn take_request(&mut self) -> Option<ModelRequest> {
+        self.request.take()
     }
 
     /// Hands back a model result computed for a request of this servo, and prepares the
@@ -544,12 +589,19 @@ impl Servo {
     /// tick if that has passed), so that this tick has little to do.
     pub fn deliver(&mut self, result: ModelResult) {
         let ticks_ahead = result.due_tick.saturating_sub(self.counters.ticks).min(u64::from(u32::MAX)) as u32;
-        match &result.outcome {
-            Ok((_, terms, _)) => self.synth.prepare(&result.targets, terms, ticks_ahead),
-            Err(_) => self.synth.prepare(&SynthTargets::SILENT, &[], ticks_ahead),
-        }
+        let (applied, slot) = (self.applied & 1, (self.applied ^ 1) & 1);
+        self.last_outputs[slot] = match &result.outcome {
+            Ok((output, terms, _)) => {
+                self.synth.prepare(&result.targets, terms, ticks_ahead);
+                *output
+            }
+            Err(_) => {
+                self.synth.prepare(&SynthTargets::SILENT, &[], ticks_ahead);
+                self.last_outputs[applied]
+            }
+        };
         self.pending_due_tick = result.due_tick;
-        self.pending = Some(result);
+        self.results[slot] = Some(result);
     }
 
     /// The analogue-path table in force (part of the feedforward parameters).
@@ -603,12 +655,12 @@ impl Servo {
 
     /// The last model output applied.
     pub fn last_output(&self) -> &ModelOutput {
-        &self.last_output
+        &self.last_outputs[self.applied & 1]
     }
 
     /// The features of the last model update.
     pub fn last_features(&self) -> &[f32; 12] {
-        &self.last_features
+        self.results[self.applied & 1].as_ref().map_or(&[0.0; 12], |result| &result.features)
     }
 
     /// Id of the program whose output is in force.

@@ -133,7 +133,7 @@ impl BackgroundApp for TwinBackground {
             Err(_) => ConfigSource::DefaultsAfterCorrupt,
         };
         if self.config_source == ConfigSource::DefaultsAfterCorrupt {
-            ctx.shared.with(|s| s.servo.counters_mut().config_store_errors += 1);
+            ctx.shared.with(|s| s.servo.update_counters(|c| c.config_store_errors += 1));
         }
     }
 
@@ -153,7 +153,7 @@ impl BackgroundApp for TwinBackground {
             let envelope = match frame {
                 Ok(envelope) => envelope,
                 Err(_) => {
-                    ctx.shared.with(|s| s.servo.counters_mut().frame_errors += 1);
+                    ctx.shared.with(|s| s.servo.update_counters(|c| c.frame_errors += 1));
                     continue;
                 }
             };

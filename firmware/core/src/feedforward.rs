@@ -243,8 +243,9 @@ impl Feedforward {
         let target = target.clamp(CODE_MIN_Q16, CODE_MAX_Q16);
         let delta = target - self.output_q16 as i64;
         let slewing = delta.abs() > s.slew_q16;
-        // Moved by at most |delta| towards a target in the range: still in it.
-        self.output_q16 += delta.clamp(-s.slew_q16, s.slew_q16) as i32;
+        // Moved by at most |delta| towards a target in the range: still in it. (`max`/`min`
+        // rather than `clamp`: the same for a slew limit of at least 1, without its check.)
+        self.output_q16 += delta.max(-s.slew_q16).min(s.slew_q16) as i32;
         // In the range [-2^31, 2^31 - 2^16], (output + 2^15) >> 16 is always an i16: no clamp.
         let code = ((self.output_q16 + (1 << 15)) >> 16) as i16;
         FeedforwardTick { dac_code: code, saturated, slewing }

@@ -335,6 +335,8 @@ pub struct Servo {
     /// Model interval and latency for the feature window in force.
     timing: ModelTiming,
     awaiting_due: Option<u64>,
+    /// [`Counters::fault_sum`] of `counters`, kept up to date where they change.
+    fault_total: u32,
     /// Due tick of the pending result (`u64::MAX`: none), next to the other per-tick fields.
     pending_due_tick: u64,
     /// `results[applied]` is the result in force; the other one is pending when
@@ -383,6 +385,7 @@ impl Servo {
             applied: 0,
             pending_due_tick: u64::MAX,
             awaiting_due: None,
+            fault_total: 0,
             model_active: false,
             program_id: None,
             last_outputs: [ModelOutput::default(); 2],
@@ -458,6 +461,7 @@ impl Servo {
         let trusted = self.health.degraded == 0;
         let ff = self.feedforward.tick(de_pm, trusted && self.model_active);
         self.counters.dac_saturations += ff.saturated as u32;
+        self.fault_total = self.fault_total.wrapping_add(ff.saturated as u32);
         self.counters.slew_limited_ticks += ff.slewing as u32;
         self.last_dac = ff.dac_code;
         let flags = (self.feedforward.enabled() as u16 * OUT_FLAG_ENABLED)
@@ -475,6 +479,7 @@ impl Servo {
     /// itself is not consumed: the next input is still tick `counters().ticks`.
     pub fn underrun(&mut self) -> OutputSlot {
         self.counters.bus_underruns += 1;
+        self.fault_total = self.fault_total.wrapping_add(1);
         self.health.underrun_run += 1;
         if self.health.underrun_run >= self.config.underrun_limit_ticks {
             self.degrade(DEGRADED_NO_INPUT);
@@ -510,10 +515,12 @@ impl Servo {
         h.saturated_run = if full_scale { h.saturated_run.saturating_add(1) } else { 0 };
         if h.same_run == self.config.stuck_limit_ticks {
             self.counters.input_stuck += 1;
+            self.fault_total = self.fault_total.wrapping_add(1);
             self.degrade(DEGRADED_STUCK);
         }
         if self.health.saturated_run == self.config.saturation_limit_ticks {
             self.counters.input_saturated += 1;
+            self.fault_total = self.fault_total.wrapping_add(1);
             self.degrade(DEGRADED_SATURATED);
         }
         let h = &self.health;
@@ -571,6 +578,7 @@ impl Servo {
             Err(_) => {
                 // A bad model or a torn snapshot: count, and ramp the prediction out.
                 self.counters.model_faults += 1;
+                self.fault_total = self.fault_total.wrapping_add(1);
                 self.health.degraded |= DEGRADED_MODEL;
                 self.synth.apply_prepared(&SynthTargets::SILENT, &[]);
             }
@@ -614,6 +622,7 @@ impl Servo {
         let result = self.feedforward.set_params(params);
         if result.is_err() {
             self.counters.rejected_params += 1;
+            self.fault_total = self.fault_total.wrapping_add(1);
         }
         result
     }
@@ -643,9 +652,12 @@ impl Servo {
         &self.counters
     }
 
-    /// The counters, for the board to add what it sees (overruns, frame errors, store errors).
-    pub fn counters_mut(&mut self) -> &mut Counters {
-        &mut self.counters
+    /// Changes the counters (the board adds what it sees: overruns, frame errors, store
+    /// errors; a reset clears them), keeping the servo's running sum of the fault counters.
+    pub fn update_counters<R>(&mut self, f: impl FnOnce(&mut Counters) -> R) -> R {
+        let result = f(&mut self.counters);
+        self.fault_total = self.counters.fault_sum();
+        result
     }
 
     /// `DEGRADED_*` bits in force.
@@ -668,19 +680,11 @@ impl Servo {
         self.program_id
     }
 
-    /// Sum of the fault counters, as reported in every output slot.
+    /// Sum of the fault counters, as reported in every output slot ([`Counters::fault_sum`],
+    /// kept as the counters change rather than summed on every tick).
     pub fn fault_count(&self) -> u32 {
-        let c = &self.counters;
-        c.bus_underruns
-            .wrapping_add(c.bus_overruns)
-            .wrapping_add(c.dac_saturations)
-            .wrapping_add(c.frame_errors)
-            .wrapping_add(c.rejected_programs)
-            .wrapping_add(c.rejected_params)
-            .wrapping_add(c.model_faults)
-            .wrapping_add(c.input_stuck)
-            .wrapping_add(c.input_saturated)
-            .wrapping_add(c.config_store_errors)
+        debug_assert_eq!(self.fault_total, self.counters.fault_sum());
+        self.fault_total
     }
 }
 

@@ -9,7 +9,8 @@
 //!   effect exactly one model latency after the request, whenever it was
 //!   computed, so the output is a function of the input stream alone: the firmware and the
 //!   host produce the same DAC codes bit for bit. A result that comes later than that is
-//!   applied at once and counted as late.
+//!   applied at once (or up to two ticks later, not to fall on a tick that ends or starts a
+//!   feature block or requests a model update) and counted as late.
 //!
 //! Faults never step the output and never stop the loop: a stuck or saturated accelerometer,
 //! or a missing host, marks the inputs untrusted ([`DEGRADED_STUCK`] ...) and the feedforward
@@ -264,6 +265,18 @@ fn correct_for_path(output: &mut ModelOutput, terms: &[TickTerm], path: &Analogu
     }
 }
 
+/// What applying a pending result does besides the synthesiser's update (decided when it
+/// is delivered, so that the tick applying it need not look at it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PendingEffect {
+    /// The program's output takes effect.
+    Output { program_id: u32 },
+    /// No program is active: silence.
+    NoProgram,
+    /// The evaluation failed: silence, counted.
+    Fault,
+}
+
 /// Input-health tracking of the accelerometer and the bus.
 #[derive(Clone, Copy, Debug, Default)]
 struct Health {
@@ -342,6 +355,8 @@ pub struct Servo {
     /// `results[applied]` is the result in force; the other one is pending when
     /// `pending_due_tick` says so. Applying it is a switch.
     applied: usize,
+    /// What applying the pending result does besides the synthesiser's update.
+    pending_effect: PendingEffect,
     model_active: bool,
     last_dac: i16,
     program_id: Option<u32>,
@@ -383,6 +398,7 @@ impl Servo {
             request: RequestSlot::new(),
             results: [None, None],
             applied: 0,
+            pending_effect: PendingEffect::NoProgram,
             pending_due_tick: u64::MAX,
             awaiting_due: None,
             fault_total: 0,
@@ -436,7 +452,8 @@ impl Servo {
         // A countdown, not `tick % interval`: a 64-bit remainder is a library call of a
         // hundred instructions on a Cortex-M4, every tick.
         self.model_countdown = self.model_countdown.saturating_sub(1);
-        if self.model_countdown == 0 {
+        let countdown_hit = self.model_countdown == 0;
+        if countdown_hit {
             self.model_countdown = self.timing.interval_ticks;
             let snapshot = self.features.snapshot();
             // Only a full window gives the features the model was trained on.
@@ -454,7 +471,10 @@ impl Servo {
                 self.awaiting_due = Some(due_tick);
             }
         }
-        self.apply_due(tick);
+        // This tick's own extra work: a feature block's end or start, or a model request
+        // (see `Servo::next_tick_is_busy`).
+        let busy = countdown_hit || self.features.last_push_was_busy();
+        self.apply_due(tick, busy);
 
         // Kernel terms (effects) see the command position; X and spindle are not on the bus yet.
         let de_pm = self.synth.next_input(&crate::synth::TickInput { cmd_phase_turns: input.cmd_phase_turns, cmd_pos_nm: input.cmd_pos_nm, ..Default::default() });
@@ -541,11 +561,18 @@ impl Servo {
         }
     }
 
-    fn apply_due(&mut self, tick: u64) {
+    /// Applies the pending result at its due tick. A result that came late is applied at
+    /// once, or a tick or two later while a tick ends or starts a feature block or requests
+    /// a model update (`busy`): on time it never falls on such a tick (requests and results
+    /// come half a block away from the block ends, in whole blocks), and so the most
+    /// expensive ticks never add up.
+    fn apply_due(&mut self, tick: u64, busy: bool) {
         // The pending result itself (about 600 bytes, waiting for most ticks of an interval)
         // is neither moved nor looked at: its due tick is kept with the per-tick fields.
         if tick >= self.pending_due_tick {
-            self.apply_pending();
+            if tick == self.pending_due_tick || !busy {
+                self.apply_pending();
+            }
         } else if self.pending_due_tick == u64::MAX && self.awaiting_due.is_some_and(|due| tick > due) {
             // The result is late; it will be applied when it arrives.
             self.counters.model_late += 1;
@@ -558,33 +585,56 @@ impl Servo {
     #[inline(never)]
     fn apply_pending(&mut self) {
         let slot = (self.applied ^ 1) & 1;
-        let Some(result) = &self.results[slot] else {
-            return;
-        };
         self.awaiting_due = None;
-        match &result.outcome {
-            Ok((_, terms, id)) => {
+        // Prepared at delivery for this tick (see `deliver`): a switch.
+        if !self.synth.switch_prepared() {
+            self.apply_unprepared(slot);
+        }
+        match self.pending_effect {
+            PendingEffect::Output { program_id } => {
                 self.counters.model_updates += 1;
                 self.health.degraded &= !DEGRADED_MODEL;
-                self.synth.apply_prepared(&result.targets, terms);
                 self.model_active = true;
-                self.program_id = Some(*id);
+                self.program_id = Some(program_id);
             }
-            Err(ModelFault::NoProgram) => {
-                self.synth.apply_prepared(&SynthTargets::SILENT, &[]);
+            PendingEffect::NoProgram => {
                 self.model_active = false;
                 self.program_id = None;
             }
-            Err(_) => {
+            PendingEffect::Fault => {
                 // A bad model or a torn snapshot: count, and ramp the prediction out.
                 self.counters.model_faults += 1;
                 self.fault_total = self.fault_total.wrapping_add(1);
                 self.health.degraded |= DEGRADED_MODEL;
-                self.synth.apply_prepared(&SynthTargets::SILENT, &[]);
             }
         }
         self.applied = slot;
         self.pending_due_tick = u64::MAX;
+    }
+
+    /// The synthesiser's update to result `slot` when it was not prepared for this tick.
+    #[cold]
+    #[inline(never)]
+    fn apply_unprepared(&mut self, slot: usize) {
+        // `deliver` prepares every result for the tick that applies it.
+        debug_assert!(false, "a model result applied without its prepared update");
+        match &self.results[slot & 1] {
+            Some(ModelResult { outcome: Ok((_, terms, _)), targets, .. }) => self.synth.apply(targets, terms),
+            _ => self.synth.apply(&SynthTargets::SILENT, &[]),
+        }
+    }
+
+    /// Whether the tick `ahead` ticks after the next one will end or start a feature block
+    /// or hit the model countdown (the ticks a late result is not applied on; see
+    /// `apply_due`), for `ahead` of 0 or 1.
+    fn tick_is_busy(&self, ahead: u32) -> bool {
+        let countdown_hit = self.model_countdown.max(1) == ahead + 1;
+        let block = match ahead {
+            0 => self.features.next_push_is_busy(),
+            // The next push ends a block, so the one after starts the next; or the one after ends one.
+            _ => self.features.next_push_ends_block() || self.features.pushes_to_block_end() == 2,
+        };
+        countdown_hit || block
     }
 
     /// The model request the last request tick left, if not taken yet (at low priority).
@@ -596,8 +646,21 @@ impl Servo {
     /// synthesiser's update to it for the tick that will apply it (its due tick, or the next
     /// tick if that has passed), so that this tick has little to do.
     pub fn deliver(&mut self, result: ModelResult) {
-        let ticks_ahead = result.due_tick.saturating_sub(self.counters.ticks).min(u64::from(u32::MAX)) as u32;
+        // The tick that will apply it (see `apply_due`).
+        let next = self.counters.ticks;
+        let apply_tick = if result.due_tick >= next {
+            result.due_tick
+        } else {
+            // Late: the first tick from now that is not busy (at most two are in a row).
+            next + u64::from((0..2).find(|&j| !self.tick_is_busy(j)).unwrap_or(2))
+        };
+        let ticks_ahead = (apply_tick - next).min(u64::from(u32::MAX)) as u32;
         let (applied, slot) = (self.applied & 1, (self.applied ^ 1) & 1);
+        self.pending_effect = match &result.outcome {
+            Ok((_, _, program_id)) => PendingEffect::Output { program_id: *program_id },
+            Err(ModelFault::NoProgram) => PendingEffect::NoProgram,
+            Err(_) => PendingEffect::Fault,
+        };
         self.last_outputs[slot] = match &result.outcome {
             Ok((output, terms, _)) => {
                 self.synth.prepare(&result.targets, terms, ticks_ahead);
@@ -705,6 +768,50 @@ mod tests {
         let odd = ServoConfig { model_interval_ticks: 7, min_model_interval_ticks: 0, model_updates_per_window: 0, ..config };
         let timing = ModelTiming::new(&odd, 40_000);
         assert!(timing.interval_ticks >= 1 && timing.latency_ticks >= 1);
+    }
+
+    /// Results delivered late, some on the tick before a block end or a model request: each
+    /// is applied on the next tick that is neither, with the update prepared for that tick
+    /// (`apply_unprepared` asserts it is never needed), and counted as late.
+    #[test]
+    fn late_results_avoid_the_busy_ticks_and_are_prepared_for_their_tick() {
+        use crate::bus::IN_FLAG_PHASE_VALID;
+        use crate::program::{ProgramBuilder, REG_AMP_UM};
+        let features = FeatureConfig { window_samples: 800, ..FeatureConfig::DEFAULT };
+        let (servo, check) = Servo::new(features, ServoConfig::default(), FeedforwardParams::default());
+        assert_eq!(check, Ok(()));
+        let mut servo = std::boxed::Box::new(servo);
+        let rings = std::boxed::Box::new(DefaultSpectralRings::new());
+        let mut models = std::boxed::Box::new(Models::new());
+        let mut b = ProgramBuilder::new();
+        b.constant(2.0).feature(4).mul().store(REG_AMP_UM).constant(0.0).store(REG_PHASE_DEG);
+        b.term(TickTerm::Harmonic { order: 3, amp_reg: 0, phase_reg: 1 });
+        models.upload(b.finish().unwrap(), true).unwrap();
+        let mut waiting: Option<(u64, ModelRequest)> = None;
+        let mut applied_on = std::vec::Vec::new();
+        let mut updates = 0;
+        for k in 0..6000u32 {
+            let input = InputSlot { tick: k, acc_code: ((k * 7919) % 4001) as i16 - 2000, flags: IN_FLAG_PHASE_VALID, cmd_phase_turns: k.wrapping_mul(STEP_40HZ as u32), cmd_pos_nm: 0 };
+            let busy = servo.tick_is_busy(0);
+            servo.tick(&rings, &input);
+            if servo.counters().model_updates != updates {
+                updates = servo.counters().model_updates;
+                applied_on.push((k, busy));
+            }
+            if let Some(request) = servo.take_request() {
+                // Late by 17..=23 ticks: past the due tick (16 later), on every phase.
+                waiting = Some((u64::from(k) + 17 + u64::from(k % 7), request));
+            }
+            if let Some((at, request)) = waiting.filter(|(at, _)| *at == u64::from(k)) {
+                let path = *servo.analogue_path();
+                servo.deliver(models.compute(&rings, &request, &path));
+                let _ = at;
+                waiting = None;
+            }
+        }
+        assert!(applied_on.len() > 50, "{}", applied_on.len());
+        assert!(applied_on.iter().all(|(_, busy)| !busy), "{applied_on:?}");
+        assert_eq!(servo.counters().model_late, servo.counters().model_updates);
     }
 
     #[test]

@@ -99,15 +99,8 @@ pub fn sin_q31(phase_turns: u32) -> i32 {
 /// Micrometres (f32) to picometres, saturating at +-1 mm (NaN gives 0).
 pub fn um_to_pm(value_um: f32) -> i32 {
     const LIMIT_UM: f32 = 1000.0;
-    let clamped = if value_um > LIMIT_UM {
-        LIMIT_UM
-    } else if value_um < -LIMIT_UM {
-        -LIMIT_UM
-    } else {
-        value_um
-    };
-    // `as` maps NaN to 0.
-    (clamped * 1.0e6) as i32
+    // `clamp` keeps NaN, and `as` maps NaN to 0.
+    (value_um.clamp(-LIMIT_UM, LIMIT_UM) * 1.0e6) as i32
 }
 
 /// Degrees (f32) to turns (2^32 per turn), wrapping; NaN gives 0.
@@ -238,8 +231,7 @@ impl Stages {
     /// All stages at rest, in the representation that the pole `pole_q30` and the gains
     /// `gains_pm` allow.
     fn at_rest(pole_q30: i32, gains_pm: &[i32; LAGUERRE_STAGES]) -> Self {
-        let gain_sum: u64 = gains_pm.iter().map(|g| u64::from(g.unsigned_abs())).sum();
-        if pole_q30 > 0 && pole_q30 <= NARROW_POLE_MAX_Q30 && gain_sum <= 1 << 32 {
+        if laguerre_stages_are_narrow(pole_q30, gains_pm) {
             Self::Narrow([0; LAGUERRE_STAGES])
         } else {
             Self::Wide([0; LAGUERRE_STAGES])
@@ -267,6 +259,17 @@ impl Stages {
 /// 64-bit ones' output bit for bit (`narrow_and_wide_laguerre_banks_agree_bit_for_bit`
 /// checks it at the limits).
 pub const NARROW_POLE_MAX_Q30: i32 = (1 << 30) / 200 * 199;
+
+/// Whether a Laguerre bank with pole `pole_q30` and gains `gains_pm` runs on 32-bit stages
+/// ([`Stages::Narrow`]; otherwise 64-bit ones, about twice the instructions).
+pub fn laguerre_stages_are_narrow(pole_q30: i32, gains_pm: &[i32; LAGUERRE_STAGES]) -> bool {
+    let gain_sum: u64 = gains_pm.iter().map(|g| u64::from(g.unsigned_abs())).sum();
+    pole_q30 > 0 && pole_q30 <= NARROW_POLE_MAX_Q30 && gain_sum <= 1 << 32
+}
+
+/// Smoothing velocities (nm per 4 ticks) below this divide in 32 bits (see
+/// [`velocity_sign_q30`]); at or above, a 64-bit division (a library call) does.
+pub const VELOCITY_SMOOTH_32_BIT_LIMIT: i32 = 1 << 17;
 
 /// Kernel state of a term other than a harmonic.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -372,7 +375,7 @@ fn velocity_sign_q30(dv: i64, smooth: i64) -> i64 {
     let q = if magnitude >= smooth as u64 {
         // |dv| / smooth >= 1: clamped.
         1 << 30
-    } else if smooth < 1 << 17 {
+    } else if smooth < VELOCITY_SMOOTH_32_BIT_LIMIT as i64 {
         // magnitude < smooth < 2^17: (magnitude << 15) and (remainder << 15) fit in 32 bits.
         let s = smooth as u32;
         let high = (magnitude as u32) << 15;
@@ -930,14 +933,25 @@ impl Synth {
     /// is to be applied, call [`Synth::apply`]).
     #[inline]
     pub fn apply_prepared(&mut self, targets: &SynthTargets, terms: &[TickTerm]) {
+        if !self.switch_prepared() {
+            self.apply(targets, terms);
+        }
+    }
+
+    /// Applies the update [`Synth::prepare`]d, by switching banks and cells, if it was
+    /// prepared for this machine time and nothing changed since; returns whether it did
+    /// (otherwise nothing changes: apply the update with [`Synth::apply`]).
+    #[inline]
+    pub fn switch_prepared(&mut self) -> bool {
         match self.prepared {
             Some(p) if p.generation == self.generation && p.ramp_ticks == self.ramp_ticks && p.at_ticks == self.ticks => {
                 self.live ^= 1;
                 self.ramp_left = p.ramp_ticks;
                 self.generation = self.generation.wrapping_add(1);
                 self.prepared = None;
+                true
             }
-            _ => self.apply(targets, terms),
+            _ => false,
         }
     }
 
@@ -1020,7 +1034,7 @@ impl Synth {
     }
 
     /// The kernel terms' sum for this tick, picometres.
-    #[inline(never)]
+    #[inline(always)]
     fn kernels_pm(&mut self, input: &TickInput, ticks: u64) -> i64 {
         let mut total = 0i64;
         let Self { banks, live, cells, .. } = self;

@@ -1,7 +1,8 @@
 //! The servo tick's outputs pinned bit for bit: a hash of every DAC code and prediction of
-//! long runs with every kind of per-tick term, program changes and both update schedules
-//! (ramps that settle between model results and ramps that never do), and of the
-//! synthesiser driven directly with the inputs the bus does not carry yet. The hashes were
+//! long runs with every kind of per-tick term (programs within the tick budget), program
+//! changes and both update schedules (ramps that settle between model results and ramps
+//! that never do), and of the synthesiser driven directly with any terms (64-bit Laguerre
+//! stages and divisions too) and the inputs the bus does not carry yet. The hashes were
 //! taken from the implementation before the tick was optimised for its instruction budget;
 //! any change of output, however small, fails here.
 
@@ -87,16 +88,15 @@ fn programs() -> Vec<Program> {
     let velocity = laguerre(TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 }, 0.93, 150_000);
     let dahl = laguerre(TermInput::Dahl { inv_x0_q30: (1 << 30) / 2000 }, 0.93, 120_000);
     let sine = laguerre(TermInput::PositionSine { turns_per_nm: 4_294_967, phase_turns: 7 << 28 }, 0.9, 90_000);
-    let slow_pole = laguerre(TermInput::VelocitySign { smooth_nm_per_4_ticks: 200_000 }, 0.999, 4_000);
     let mut harmonics = vec![];
     for (i, order) in (2..10).enumerate() {
         harmonics.push(harmonic(order, 2 + 2 * (i as u8 % 3)));
     }
     vec![
         program(11, &harmonics),
-        program(12, &[velocity, dahl, sine, drift, coupling]),
-        // Kernels between harmonics; one pole beyond the narrow arithmetic's range.
-        program(13, &[harmonic(3, 2), velocity, harmonic(5, 4), slow_pole, drift, harmonic(2, 6)]),
+        program(12, &[velocity, drift, coupling]),
+        // Kernels between harmonics.
+        program(13, &[harmonic(3, 2), sine, harmonic(5, 4), drift]),
         program(14, &[harmonic(3, 2), harmonic(2, 4)]),
         {
             let mut paper = paper_program();
@@ -140,12 +140,12 @@ fn twin_hash(window_samples: u32, ticks: u32) -> u64 {
 
 #[test]
 fn the_twins_outputs_are_those_pinned_ramps_settling_between_updates() {
-    assert_eq!(twin_hash(2000, 24_000), 14_326_754_603_054_264_594, "window 2000");
+    assert_eq!(twin_hash(2000, 24_000), 13_996_983_126_520_668_907, "window 2000");
 }
 
 #[test]
 fn the_twins_outputs_are_those_pinned_ramps_never_settling() {
-    assert_eq!(twin_hash(800, 24_000), 12_050_359_546_961_236_639, "window 800");
+    assert_eq!(twin_hash(800, 24_000), 6_427_079_730_390_142_188, "window 800");
 }
 
 /// A random term of any kind (poles inside and beyond the narrow range, inputs on every path).

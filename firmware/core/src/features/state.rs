@@ -1,6 +1,6 @@
 //! The interrupt-owned part: exact sliding sums, the raw ring and the block accumulator.
 
-use super::{FeatureConfig, FeatureError, SpectralRings, BLOCK_SAMPLES, MARGIN_BLOCKS, MAX_WINDOW_BLOCKS, MIN_WINDOW_BLOCKS};
+use super::{FeatureConfig, FeatureError, SpectralRings, BLOCK_SAMPLES, MARGIN_BLOCKS, MAX_WINDOW_BLOCKS, MAX_WINDOW_SAMPLES, MIN_WINDOW_BLOCKS};
 use fixed::types::I24F8;
 
 /// Interrupt-owned feature state for a window of up to `16 * WINDOW_BLOCKS` samples.
@@ -22,6 +22,9 @@ pub struct FeatureState<const WINDOW_BLOCKS: usize> {
     dc_old: I24F8,
     /// Sum of the codes of the block being written so far (0 when it is empty).
     block_sum: i32,
+    /// A block ended and the next one's DC reference is still to be set (by the next
+    /// `push`, so that the block end's tick does not do it as well).
+    dc_pending: bool,
     /// DC reference (Q24.8 codes) that each block of `raw` was accumulated with.
     dc_ref: [I24F8; WINDOW_BLOCKS],
     /// Raw codes of the window, oldest overwritten first. Only the first `filled` positions
@@ -176,6 +179,7 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
             dc_new: I24F8::ZERO,
             dc_old: I24F8::ZERO,
             block_sum: 0,
+            dc_pending: false,
             dc_ref: [I24F8::ZERO; WINDOW_BLOCKS],
             raw: [[0; BLOCK_SAMPLES]; WINDOW_BLOCKS],
         })
@@ -199,6 +203,7 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         self.dc_new = I24F8::ZERO;
         self.dc_old = I24F8::ZERO;
         self.block_sum = 0;
+        self.dc_pending = false;
         Ok(())
     }
 
@@ -208,6 +213,9 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
     #[inline]
     pub fn push<const RING_BLOCKS: usize>(&mut self, rings: &SpectralRings<RING_BLOCKS>, code: i16) {
         const { assert!(RING_BLOCKS >= WINDOW_BLOCKS + MARGIN_BLOCKS, "RING_BLOCKS too small") };
+        if self.dc_pending {
+            self.start_block_dc();
+        }
         let in_block = (self.snap.counts.in_block as usize) % BLOCK_SAMPLES;
         let Some(block) = self.raw.get_mut(self.raw_block as usize) else {
             return; // unreachable: raw_block < window blocks <= WINDOW_BLOCKS
@@ -268,10 +276,20 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         }
         self.snap.counts.in_block = 0;
         self.raw_block = if self.raw_block + 1 >= window_blocks { 0 } else { self.raw_block + 1 };
+        // The next block's DC reference: set by the next push, from the sums as they stand
+        // now (nothing changes them before).
+        self.dc_pending = true;
+    }
 
-        // The next block overwrites the oldest one: remember its reference, set the new one
-        // to the window mean truncated to 1/256 LSB (two i32 divisions, no i64).
-        let n = self.snap.counts.filled.max(1) as i32;
+    /// The start of a block: it overwrites the oldest one, so remember that one's DC
+    /// reference, and set the new one to the window mean truncated to 1/256 LSB (two i32
+    /// divisions, no i64). Out of line, on the tick after a block end.
+    #[inline(never)]
+    fn start_block_dc(&mut self) {
+        self.dc_pending = false;
+        // (At most the window, 65,536: the bound tells the compiler that the divisions
+        // cannot overflow, so they need no checks.)
+        let n = self.snap.counts.filled.clamp(1, MAX_WINDOW_SAMPLES as u32) as i32;
         let q = self.snap.counts.s1 / n;
         let r = self.snap.counts.s1 % n; // |r| < n <= 2^16, so r << 8 fits
         let dc = I24F8::from_bits((q << 8) + (r << 8) / n);
@@ -285,6 +303,30 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
     /// Takes a snapshot for [`SpectralRings::finish`]: O(1), a copy of a few fields.
     pub fn capture<const RING_BLOCKS: usize>(&self, _rings: &SpectralRings<RING_BLOCKS>) -> Capture {
         self.snap.capture()
+    }
+
+    /// Whether the last [`FeatureState::push`] did a block's extra work: closed a 16-sample
+    /// block, or started the next one (its DC reference).
+    #[inline(always)]
+    pub fn last_push_was_busy(&self) -> bool {
+        let counts = &self.snap.counts;
+        (counts.in_block == 0 && counts.filled != 0) || (counts.in_block == 1 && counts.filled > 1)
+    }
+
+    /// Whether the next [`FeatureState::push`] will do a block's extra work (see
+    /// [`FeatureState::last_push_was_busy`]).
+    pub fn next_push_is_busy(&self) -> bool {
+        self.next_push_ends_block() || self.dc_pending
+    }
+
+    /// Whether the next [`FeatureState::push`] will close a 16-sample block.
+    pub fn next_push_ends_block(&self) -> bool {
+        self.pushes_to_block_end() == 1
+    }
+
+    /// Pushes until the one that closes the current block (1 to 16).
+    pub fn pushes_to_block_end(&self) -> u32 {
+        BLOCK_SAMPLES as u32 - self.snap.counts.in_block.min(BLOCK_SAMPLES as u32 - 1)
     }
 
     /// What a capture is made of, to be copied (one block move) and turned into a

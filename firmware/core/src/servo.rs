@@ -105,7 +105,7 @@ pub struct ModelRequest {
 }
 
 impl ModelRequest {
-    /// A request for no real window (what an empty [`RequestSlot`] holds).
+    /// A request for no real window (what an empty request slot holds).
     pub const EMPTY: Self = Self { snapshot: FeatureSnapshot::empty(FeatureConfig::DEFAULT), tick: 0, due_tick: 0, cmd_step_turns: 0 };
 }
 
@@ -128,7 +128,6 @@ impl RequestSlot {
         let full = core::mem::replace(&mut self.full, false);
         full.then_some(self.request)
     }
-
 }
 
 /// Why a model update produced no output.

@@ -261,14 +261,14 @@ impl Stages {
 pub const NARROW_POLE_MAX_Q30: i32 = (1 << 30) / 200 * 199;
 
 /// Whether a Laguerre bank with pole `pole_q30` and gains `gains_pm` runs on 32-bit stages
-/// ([`Stages::Narrow`]; otherwise 64-bit ones, about twice the instructions).
+/// (otherwise on 64-bit ones, about twice the instructions).
 pub fn laguerre_stages_are_narrow(pole_q30: i32, gains_pm: &[i32; LAGUERRE_STAGES]) -> bool {
     let gain_sum: u64 = gains_pm.iter().map(|g| u64::from(g.unsigned_abs())).sum();
     pole_q30 > 0 && pole_q30 <= NARROW_POLE_MAX_Q30 && gain_sum <= 1 << 32
 }
 
-/// Smoothing velocities (nm per 4 ticks) below this divide in 32 bits (see
-/// [`velocity_sign_q30`]); at or above, a 64-bit division (a library call) does.
+/// Smoothing velocities (nm per 4 ticks) below this are divided by in 32 bits; at or above,
+/// a 64-bit division (a library call) does it.
 pub const VELOCITY_SMOOTH_32_BIT_LIMIT: i32 = 1 << 17;
 
 /// Kernel state of a term other than a harmonic.
@@ -276,7 +276,8 @@ pub const VELOCITY_SMOOTH_32_BIT_LIMIT: i32 = 1 << 17;
 struct KernelState {
     /// Laguerre stage outputs, Q24.
     stages: Stages,
-    /// Command positions of the last 4 ticks (velocity), newest first.
+    /// Command positions of the last ticks, newest first: as many as the input reads (see
+    /// `laguerre_input_q30`).
     pos_hist: [i32; 4],
     /// Dahl state, Q30.
     dahl_q30: i32,

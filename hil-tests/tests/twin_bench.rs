@@ -5,32 +5,81 @@
 //! cargo test -p sts-hil-tests --release --test twin_bench -- --ignored --nocapture --test-threads=1
 //! ```
 //!
-//! `bench_twin_tick_*` give the figures of the platform's instruction benchmark;
-//! `breakdown_twin_tick_*` run the same stream and sort every tick by what it did (the
-//! schedule of block ends, model requests and model results is known in advance), to show
-//! which kind of tick is the worst.
+//! Each case runs 20,000 lockstep ticks of `bench_inputs` under two feature windows: 2,000
+//! samples (model interval 112 ticks, latency 48: the synthesiser's 80-tick ramps settle
+//! before each result is applied) and 800 samples (interval 48, latency 16, the 0.1 s window
+//! of a 40 Hz cut: the ramps never settle, every tick ramps; under the benchmark's `-icount`
+//! the model results come late, so they are applied on whatever tick allows it). Every
+//! tick's count is read exactly (the host waits for the firmware to publish it) and sorted by
+//! what the tick did (the schedule of block ends and starts, model requests and model results
+//! is known in advance), to show which kind of tick is the worst. Each case is checked
+//! against the program validator's cost model: the worst tick must be within
+//! `Program::tick_cost`, and that within the budget of 800 (the cases are the most expensive
+//! programs the validator accepts of each kind). `bench_twin_tick_program_switch` measures
+//! what the model leaves out: a switch from a program with harmonic terms to one with
+//! kernel terms.
 
-use sts_twin::hil::{bench_inputs, bench_instructions_prepared, Hil, HilError, INSTRUCTION_BENCH_SHIFT};
+use std::time::{Duration, Instant};
+
+use sts_twin::hil::{bench_inputs, Hil, HilError, INSTRUCTION_BENCH_SHIFT};
 use sts_twin::rig::request_on;
 use sts_twin_core::features::{FeatureConfig, BLOCK_SAMPLES};
 use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::program::{paper_program, TickTerm};
+use sts_twin_core::program::{paper_program, Program, TermInput, TickTerm, LAGUERRE_STAGES, TICK_BUDGET_INSTRUCTIONS};
 use sts_twin_core::servo::{ModelTiming, ServoConfig};
 use sts_twin_core::wire::{Request, Response};
 
-/// A short window so that model updates land inside the run.
-const WINDOW_SAMPLES: u32 = 2000;
-/// Ticks measured.
+/// Ticks measured per run.
 const TICKS: u32 = 20_000;
+/// Feature windows measured, samples.
+const WINDOWS: [u32; 2] = [2000, 800];
 
-/// Uploads the paper's program plus `terms` per-tick harmonic terms and enables compensation.
-fn prepare(hil: &mut Hil, terms: u8) -> Result<(), HilError> {
+/// A Laguerre bank as `fit --effect` makes them (pole 0.93, gains of some 100 nm).
+fn laguerre(input: TermInput) -> TickTerm {
+    let gains_pm: [i32; LAGUERRE_STAGES] = [180_000, -95_000, 61_000, -40_000, 22_000, -15_000, 9_000, -4_000];
+    TickTerm::Laguerre { input, pole_q30: (0.93 * (1u64 << 30) as f64).round() as i32, gains_pm }
+}
+
+/// The three Laguerre inputs, each on its most expensive path for the bench's command (a
+/// 250 nm per tick ramp): the velocity below the smoothing velocity (a division), a Dahl
+/// state away from its limits, a sine of the position.
+fn velocity_sign() -> TickTerm {
+    laguerre(TermInput::VelocitySign { smooth_nm_per_4_ticks: 4000 })
+}
+
+fn dahl() -> TickTerm {
+    laguerre(TermInput::Dahl { inv_x0_q30: (1u32 << 30) as i32 / 20_000 })
+}
+
+fn position_sine(phase_turns: u32) -> TickTerm {
+    laguerre(TermInput::PositionSine { turns_per_nm: 4295, phase_turns })
+}
+
+fn drift() -> TickTerm {
+    TickTerm::Drift { offset_pm: 300_000, decay_pm: -300_000, tau_ticks: 8000 * 600 }
+}
+
+fn axis_coupling() -> TickTerm {
+    TickTerm::AxisCoupling { x_gain_pm_per_mps2: 800_000, spindle_amp_pm: 50_000, spindle_phase_turns: 1 << 30 }
+}
+
+fn harmonics(count: u8) -> Vec<TickTerm> {
+    (2..).take(count as usize).map(|order| TickTerm::Harmonic { order, amp_reg: 0, phase_reg: 1 }).collect()
+}
+
+/// The paper's program with `terms`.
+fn program_with(terms: &[TickTerm]) -> Program {
     let mut program = paper_program();
-    for order in (2..).take(terms as usize) {
-        let _ = program.terms.push(TickTerm::Harmonic { order, amp_reg: 0, phase_reg: 1 });
+    for term in terms {
+        program.terms.push(*term).expect("at most MAX_TERMS terms");
     }
+    program
+}
+
+/// Uploads `program` with the feature window `window_samples` and enables compensation.
+fn prepare(hil: &mut Hil, program: Program, window_samples: u32) -> Result<(), HilError> {
     let requests = [
-        Request::SetFeatureConfig(FeatureConfig { window_samples: WINDOW_SAMPLES, ..FeatureConfig::DEFAULT }),
+        Request::SetFeatureConfig(FeatureConfig { window_samples, ..FeatureConfig::DEFAULT }),
         Request::SetParams(FeedforwardParams { enable_ramp_ticks: 100, ..FeedforwardParams::default() }),
         Request::UploadProgram { program, activate: true },
         Request::SetEnabled(true),
@@ -44,31 +93,6 @@ fn prepare(hil: &mut Hil, terms: u8) -> Result<(), HilError> {
     Ok(())
 }
 
-fn bench(terms: u8) {
-    let _serial = sts_hil_tests::serial();
-    let report = bench_instructions_prepared(sts_hil_tests::twin_config(), TICKS, |hil| prepare(hil, terms)).expect("instruction benchmark");
-    println!("paper program + {terms} per-tick terms: {report}");
-    assert_eq!(report.underruns, 0);
-}
-
-#[test]
-#[ignore = "benchmark: run with --ignored --nocapture"]
-fn bench_twin_tick_instructions_paper_program() {
-    bench(0);
-}
-
-#[test]
-#[ignore = "benchmark: run with --ignored --nocapture"]
-fn bench_twin_tick_instructions_with_two_terms() {
-    bench(2);
-}
-
-#[test]
-#[ignore = "benchmark: run with --ignored --nocapture"]
-fn bench_twin_tick_instructions_with_eight_terms() {
-    bench(8);
-}
-
 /// What a tick did besides the feature update, synthesis and feedforward.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum Kind {
@@ -76,6 +100,8 @@ enum Kind {
     Settled,
     /// The synthesiser's ramps to a model result were moving.
     Ramping,
+    /// Started a feature block (set its DC reference).
+    BlockStart,
     /// Closed a 16-sample feature block.
     BlockEnd,
     /// Captured the features for a model request.
@@ -87,9 +113,9 @@ enum Kind {
 /// Each tick's kind, from the servo's schedule: the feature window restarts at tick 0, the
 /// first request comes one interval and half a block in, each takes effect a latency later,
 /// and requests start once the window is full.
-fn schedule(ticks: u32) -> Vec<Kind> {
+fn schedule(ticks: u32, window_samples: u32) -> Vec<Kind> {
     let config = ServoConfig::default();
-    let timing = ModelTiming::new(&config, WINDOW_SAMPLES);
+    let timing = ModelTiming::new(&config, window_samples);
     let mut kinds = vec![Kind::Settled; ticks as usize];
     let mut mark = |k: u32, kind: Kind| {
         if let Some(slot) = kinds.get_mut(k as usize) {
@@ -99,7 +125,7 @@ fn schedule(ticks: u32) -> Vec<Kind> {
     let first = timing.interval_ticks + (BLOCK_SAMPLES / 2) as u32 - 1;
     let mut request = first;
     while request < ticks {
-        if request + 1 >= WINDOW_SAMPLES {
+        if request + 1 >= window_samples {
             let apply = request + timing.latency_ticks;
             for k in apply + 1..apply + config.synth_ramp_ticks {
                 mark(k, Kind::Ramping);
@@ -111,55 +137,190 @@ fn schedule(ticks: u32) -> Vec<Kind> {
     }
     for k in (BLOCK_SAMPLES as u32 - 1..ticks).step_by(BLOCK_SAMPLES) {
         mark(k, Kind::BlockEnd);
+        mark(k + 1, Kind::BlockStart);
     }
     kinds
 }
 
-fn breakdown(terms: u8) {
+/// One run's per-tick instructions (input arrival -> output written).
+struct Run {
+    busy: Vec<f64>,
+    kinds: Vec<Kind>,
+    /// The firmware's own worst (`busy_max`), a check on the per-tick reads.
+    busy_max: f64,
+}
+
+impl Run {
+    fn worst(&self) -> f64 {
+        self.busy.iter().copied().fold(0.0, f64::max)
+    }
+
+    fn quantile(&self, q: f64) -> f64 {
+        let mut sorted = self.busy.clone();
+        sorted.sort_by(f64::total_cmp);
+        sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+    }
+}
+
+/// Runs `program` under `window_samples` and reads every tick's count.
+fn run(program: &Program, window_samples: u32) -> Run {
     let _serial = sts_hil_tests::serial();
     let mut config = sts_hil_tests::twin_config();
     config.icount_shift = INSTRUCTION_BENCH_SHIFT;
     let per_count = 40.0 / f64::from(1u32 << INSTRUCTION_BENCH_SHIFT);
     let mut hil = Hil::start(config).expect("boot");
-    prepare(&mut hil, terms).expect("prepare");
+    prepare(&mut hil, program.clone(), window_samples).expect("prepare");
     let mut busy = Vec::with_capacity(TICKS as usize);
+    let mut sum = hil.diagnostics().busy_sum_counts;
     for input in bench_inputs(TICKS) {
         hil.step(input).expect("tick");
-        busy.push(f64::from(hil.diagnostics().busy_last_counts) * per_count);
+        // The firmware publishes the tick's count just after its output: wait for the sum
+        // to move, so that the count read is this tick's and not the previous one's.
+        let deadline = Instant::now() + Duration::from_secs(5);
+        // The count is written before the sum, and read after it: a read that sees the new
+        // sum but the old count is read again.
+        let diag = loop {
+            let diag = hil.diagnostics();
+            if diag.busy_sum_counts != sum && diag.busy_sum_counts - sum == u64::from(diag.busy_last_counts) {
+                break diag;
+            }
+            assert!(Instant::now() < deadline, "the firmware did not publish the tick's count");
+            std::hint::spin_loop();
+        };
+        sum = diag.busy_sum_counts;
+        busy.push(f64::from(diag.busy_last_counts) * per_count);
     }
+    let busy_max = f64::from(hil.diagnostics().busy_max_counts) * per_count;
     let underruns = hil.counters().underruns;
     hil.shutdown().expect("shutdown");
     assert_eq!(underruns, 0);
-    let kinds = schedule(TICKS);
-    println!("paper program + {terms} per-tick terms, input arrival -> output written, by kind of tick:");
-    for kind in [Kind::Settled, Kind::Ramping, Kind::BlockEnd, Kind::Request, Kind::Apply] {
-        let mut of_kind: Vec<f64> = busy.iter().zip(&kinds).filter(|(_, k)| **k == kind).map(|(b, _)| *b).collect();
+    Run { busy, kinds: schedule(TICKS, window_samples), busy_max }
+}
+
+/// Prints a run: the figures of the BENCHMARKS.md table, then the ticks by kind.
+fn report(name: &str, window_samples: u32, run: &Run) {
+    println!(
+        "{name}, window {window_samples}: median / p99 / worst {:.0} / {:.0} / {:.0} (firmware's worst {:.0})",
+        run.quantile(0.5),
+        run.quantile(0.99),
+        run.worst(),
+        run.busy_max
+    );
+    for kind in [Kind::Settled, Kind::Ramping, Kind::BlockStart, Kind::BlockEnd, Kind::Request, Kind::Apply] {
+        let mut of_kind: Vec<f64> = run.busy.iter().zip(&run.kinds).filter(|(_, k)| **k == kind).map(|(b, _)| *b).collect();
         if of_kind.is_empty() {
             continue;
         }
         of_kind.sort_by(f64::total_cmp);
         let median = of_kind[of_kind.len() / 2];
         let worst = of_kind[of_kind.len() - 1];
-        println!("  {kind:?}: {} ticks, median {median:.0}, worst {worst:.0}", of_kind.len());
+        println!("    {kind:?}: {} ticks, median {median:.0}, worst {worst:.0}", of_kind.len());
     }
-    let (worst_tick, worst) = busy.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).expect("ticks");
-    println!("  worst tick {worst_tick} ({:?}, tick mod 16 = {}): {worst:.0}", kinds[worst_tick], worst_tick % 16);
+    let (worst_tick, worst) = run.busy.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).expect("ticks");
+    println!("    worst tick {worst_tick} ({:?}, tick mod 16 = {}): {worst:.0}", run.kinds[worst_tick], worst_tick % 16);
+}
+
+/// Measures `terms` on the paper program under both windows and checks the worst tick
+/// against the validator's cost model; returns the worst tick.
+fn bench(name: &str, terms: &[TickTerm]) -> f64 {
+    let program = program_with(terms);
+    assert_eq!(program.validate(), Ok(()), "{name}: the firmware would reject it");
+    let model = program.tick_cost();
+    let mut worst = 0.0f64;
+    for window in WINDOWS {
+        let run = run(&program, window);
+        report(name, window, &run);
+        worst = worst.max(run.worst()).max(run.busy_max);
+    }
+    println!("    {name}: worst {worst:.0}, cost model {model}, budget {TICK_BUDGET_INSTRUCTIONS}");
+    assert!(worst <= f64::from(model), "{name}: worst tick {worst:.0} beyond the cost model's {model}");
+    worst
 }
 
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
-fn breakdown_twin_tick_paper_program() {
-    breakdown(0);
+fn bench_twin_tick_harmonic_terms() {
+    bench("paper program", &[]);
+    bench("+ 2 harmonic terms", &harmonics(2));
+    bench("+ 8 harmonic terms", &harmonics(8));
 }
 
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
-fn breakdown_twin_tick_with_two_terms() {
-    breakdown(2);
+fn bench_twin_tick_laguerre_terms() {
+    bench("+ 1 Laguerre bank (velocity sign)", &[velocity_sign()]);
+    bench("+ 1 Laguerre bank (Dahl)", &[dahl()]);
+    bench("+ 1 Laguerre bank (position sine)", &[position_sine(0)]);
+    bench("+ 2 Laguerre banks (position sine, cosine)", &[position_sine(0), position_sine(1 << 30)]);
+    bench("+ 2 Laguerre banks (velocity sign)", &[velocity_sign(), velocity_sign()]);
+    bench("+ 2 Laguerre banks (Dahl, position sine)", &[dahl(), position_sine(0)]);
 }
 
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
-fn breakdown_twin_tick_with_eight_terms() {
-    breakdown(8);
+fn bench_twin_tick_drift_and_coupling() {
+    bench("+ Drift", &[drift()]);
+    bench("+ AxisCoupling", &[axis_coupling()]);
+    bench("+ Drift + AxisCoupling", &[drift(), axis_coupling()]);
+    bench("+ 1 Laguerre bank (velocity sign) + Drift + AxisCoupling", &[velocity_sign(), drift(), axis_coupling()]);
+    bench("+ 1 Laguerre bank (Dahl) + Drift + AxisCoupling", &[dahl(), drift(), axis_coupling()]);
+    bench("+ 2 Laguerre banks (position sine, cosine) + Drift", &[position_sine(0), position_sine(1 << 30), drift()]);
+}
+
+#[test]
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn bench_twin_tick_harmonics_with_kernels() {
+    let mut terms = harmonics(3);
+    terms.push(position_sine(0));
+    bench("+ 3 harmonic terms + 1 Laguerre bank (position sine)", &terms);
+}
+
+/// What the cost model leaves out: a program with eight harmonic terms, then (uploaded at
+/// tick 6,000) one with two Laguerre banks and a drift. The first result of the second
+/// program ramps out six of the old harmonics beside the new terms.
+#[test]
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn bench_twin_tick_program_switch() {
+    let _serial = sts_hil_tests::serial();
+    let first = program_with(&harmonics(8));
+    let second = program_with(&[position_sine(0), position_sine(1 << 30), drift()]);
+    for window in WINDOWS {
+        let mut config = sts_hil_tests::twin_config();
+        config.icount_shift = INSTRUCTION_BENCH_SHIFT;
+        let per_count = 40.0 / f64::from(1u32 << INSTRUCTION_BENCH_SHIFT);
+        let mut hil = Hil::start(config).expect("boot");
+        prepare(&mut hil, first.clone(), window).expect("prepare");
+        let mut busy = Vec::new();
+        let mut sum = hil.diagnostics().busy_sum_counts;
+        for (k, input) in bench_inputs(12_000).into_iter().enumerate() {
+            if k == 6000 {
+                match request_on(&mut hil, 9, Request::UploadProgram { program: second.clone(), activate: true }) {
+                    Ok(Response::Ack) => {}
+                    other => panic!("uploading the second program: {other:?}"),
+                }
+            }
+            hil.step(input).expect("tick");
+            let deadline = Instant::now() + Duration::from_secs(5);
+            let diag = loop {
+                let diag = hil.diagnostics();
+                if diag.busy_sum_counts != sum && diag.busy_sum_counts - sum == u64::from(diag.busy_last_counts) {
+                    break diag;
+                }
+                assert!(Instant::now() < deadline, "the firmware did not publish the tick's count");
+                std::hint::spin_loop();
+            };
+            sum = diag.busy_sum_counts;
+            busy.push(f64::from(diag.busy_last_counts) * per_count);
+        }
+        hil.shutdown().expect("shutdown");
+        let worst = |range: std::ops::Range<usize>| busy[range].iter().copied().fold(0.0, f64::max);
+        println!(
+            "8 harmonic terms, then 2 Laguerre banks + Drift, window {window}: worst before the switch {:.0}, in the 1,000 ticks after it {:.0}, later {:.0} (cost models {} and {})",
+            worst(2000..6000),
+            worst(6000..7000),
+            worst(7000..12_000),
+            first.tick_cost(),
+            second.tick_cost()
+        );
+    }
 }

@@ -95,7 +95,12 @@ static SHARED: BootCell<SharedCell<AppShared>> = BootCell::new();
 static BACKGROUND: BootCell<(AppBackground, QemuConfigStore)> = BootCell::new();
 
 static COUNTERS: ServoCounters = ServoCounters::new();
-static EVENTS: Events = Events::new();
+/// The servo tick only pends the model executor; its interrupt wakes the background task.
+static EVENTS: Events = Events::with_deferred_wake(pend_model_executor);
+
+fn pend_model_executor() {
+    cortex_m::peripheral::NVIC::pend(Irq::ModelExecutor);
+}
 static MODEL_EXEC: InterruptExecutor = InterruptExecutor::new();
 
 // SAFETY: the PSRAM at PSRAM_BASE is not used by the linker (memory.x) and is the bus.
@@ -276,6 +281,8 @@ unsafe extern "C" fn UART0TX() {
 /// The model executor.
 #[no_mangle]
 unsafe extern "C" fn MODEL_EXECUTOR() {
+    // Events raised by the servo tick wake the background task here, not in the tick.
+    EVENTS.wake_deferred();
     // SAFETY: this is the executor's interrupt, as given to `start`.
     unsafe { MODEL_EXEC.on_interrupt() }
 }

@@ -178,7 +178,7 @@ pub fn run_tick<S: ServoApp>(
             ServoCounters::bump(&counters.ticks);
             if outcome.request_model_work {
                 ServoCounters::bump(&counters.model_requests);
-                events.raise(EVENT_MODEL_WORK);
+                events.raise_from_tick(EVENT_MODEL_WORK);
             }
             let busy = timer.elapsed_counts();
             let t = &mut state.timing;

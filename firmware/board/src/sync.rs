@@ -168,12 +168,24 @@ impl<const N: usize> Default for ByteQueue<N> {
 pub struct Events {
     bits: AtomicU32,
     waker: AtomicWaker,
+    /// Pends the interrupt of the executor that runs the waiting task: given, the servo
+    /// tick's raise leaves waking the task to that interrupt ([`Events::wake_deferred`]).
+    pend_executor: Option<fn()>,
 }
 
 impl Events {
     /// No event pending.
     pub const fn new() -> Self {
-        Self { bits: AtomicU32::new(0), waker: AtomicWaker::new() }
+        Self { bits: AtomicU32::new(0), waker: AtomicWaker::new(), pend_executor: None }
+    }
+
+    /// No event pending; [`Events::raise_from_tick`] only sets the bits and calls
+    /// `pend_executor` (which pends the interrupt of the executor running the waiting task),
+    /// and that interrupt wakes the task ([`Events::wake_deferred`]). Waking a task from the
+    /// servo tick itself costs it some 50 instructions (a critical section and the
+    /// executor's run queue).
+    pub const fn with_deferred_wake(pend_executor: fn()) -> Self {
+        Self { bits: AtomicU32::new(0), waker: AtomicWaker::new(), pend_executor: Some(pend_executor) }
     }
 
     /// Raises `bits` and wakes the waiting task. Callable from any interrupt.
@@ -181,6 +193,27 @@ impl Events {
     pub fn raise(&self, bits: u32) {
         self.bits.fetch_or(bits, Ordering::Release);
         self.waker.wake();
+    }
+
+    /// Raises `bits` from the servo tick: as [`Events::raise`], or, with a deferred wake,
+    /// only the bits and the executor's interrupt.
+    #[inline(always)]
+    pub fn raise_from_tick(&self, bits: u32) {
+        match self.pend_executor {
+            Some(pend) => {
+                self.bits.fetch_or(bits, Ordering::Release);
+                pend();
+            }
+            None => self.raise(bits),
+        }
+    }
+
+    /// Wakes the waiting task if bits are pending: call it from the executor's interrupt,
+    /// before the executor polls, when the events defer their wake.
+    pub fn wake_deferred(&self) {
+        if self.bits.load(Ordering::Acquire) != 0 {
+            self.waker.wake();
+        }
     }
 
     /// Takes the pending bits without waiting (0 when none).
@@ -230,6 +263,24 @@ mod tests {
         assert_eq!(q.pop_slice(&mut out), 4);
         assert_eq!(&out[..4], b"bcdf");
         assert!(q.is_empty());
+    }
+
+    #[test]
+    fn deferred_events_pend_the_executor_and_wake_from_it() {
+        use core::sync::atomic::AtomicU32;
+        static PENDED: AtomicU32 = AtomicU32::new(0);
+        fn pend() {
+            PENDED.fetch_add(1, Ordering::Relaxed);
+        }
+        let e = Events::with_deferred_wake(pend);
+        e.raise_from_tick(2);
+        e.raise_from_tick(8);
+        assert_eq!(PENDED.load(Ordering::Relaxed), 2);
+        e.wake_deferred();
+        assert_eq!(e.take(), 10);
+        let plain = Events::new();
+        plain.raise_from_tick(1);
+        assert_eq!(plain.take(), 1);
     }
 
     #[test]

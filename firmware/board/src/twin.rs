@@ -15,7 +15,7 @@ use sts_twin_core::config::{ConfigError as RecordError, PersistentConfig, MAX_CO
 use sts_twin_core::control::{handle_request, ConfigWriter, ServoAccess};
 use sts_twin_core::features::{DefaultSpectralRings, FeatureConfig};
 use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::servo::{ModelRequest, Models, Servo, ServoConfig};
+use sts_twin_core::servo::{Models, Servo, ServoConfig};
 use sts_twin_core::wire::{encode_frame, ConfigSource, FrameDecoder, Request, MAX_ENCODED_FRAME};
 
 use crate::servo::{BackgroundApp, BackgroundCtx, ServoApp, TickOutcome};
@@ -28,10 +28,9 @@ pub static RINGS: DefaultSpectralRings = DefaultSpectralRings::new();
 
 /// State shared by the two halves.
 pub struct TwinShared {
-    /// The core's servo pipeline.
+    /// The core's servo pipeline (it also holds the model request waiting for the
+    /// background).
     pub servo: Servo,
-    /// A model request waiting for the background.
-    pub request: Option<ModelRequest>,
 }
 
 impl TwinShared {
@@ -39,7 +38,7 @@ impl TwinShared {
     /// [`TwinBackground::on_boot`]).
     pub fn new() -> Self {
         let (servo, _) = Servo::new(FeatureConfig::DEFAULT, ServoConfig::default(), FeedforwardParams::default());
-        Self { servo, request: None }
+        Self { servo }
     }
 }
 
@@ -59,8 +58,7 @@ impl ServoApp for TwinServo {
     #[inline]
     fn tick(&mut self, input: &InputSlot, shared: &SharedCell<TwinShared>) -> TickOutcome {
         shared.with(|s| {
-            // The request is written into the shared slot in place (a snapshot of ~100 bytes).
-            let (output, request_model_work) = s.servo.tick(&RINGS, input, &mut s.request);
+            let (output, request_model_work) = s.servo.tick(&RINGS, input);
             TickOutcome { output, request_model_work }
         })
     }
@@ -135,12 +133,12 @@ impl BackgroundApp for TwinBackground {
             Err(_) => ConfigSource::DefaultsAfterCorrupt,
         };
         if self.config_source == ConfigSource::DefaultsAfterCorrupt {
-            ctx.shared.with(|s| s.servo.counters_mut().config_store_errors += 1);
+            ctx.shared.with(|s| s.servo.update_counters(|c| c.config_store_errors += 1));
         }
     }
 
     fn model_work(&mut self, ctx: &mut BackgroundCtx<'_, TwinShared>) {
-        let Some((request, path)) = ctx.shared.with(|s| s.request.take().map(|r| (r, *s.servo.analogue_path()))) else {
+        let Some((request, path)) = ctx.shared.with(|s| s.servo.take_request().map(|r| (r, *s.servo.analogue_path()))) else {
             return;
         };
         let result = self.models.compute(&RINGS, &request, &path);
@@ -155,7 +153,7 @@ impl BackgroundApp for TwinBackground {
             let envelope = match frame {
                 Ok(envelope) => envelope,
                 Err(_) => {
-                    ctx.shared.with(|s| s.servo.counters_mut().frame_errors += 1);
+                    ctx.shared.with(|s| s.servo.update_counters(|c| c.frame_errors += 1));
                     continue;
                 }
             };

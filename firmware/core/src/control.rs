@@ -38,7 +38,7 @@ pub fn handle_request(
         Request::UploadProgram { program, activate } => match models.upload(program, activate) {
             Ok(()) => Response::Ack,
             Err(err) => {
-                servo.with(|s| s.counters_mut().rejected_programs += 1);
+                servo.with(|s| s.update_counters(|c| c.rejected_programs += 1));
                 Response::Rejected(Rejection::Program(err))
             }
         },
@@ -68,7 +68,7 @@ pub fn handle_request(
             if written {
                 Response::Ack
             } else {
-                servo.with(|s| s.counters_mut().config_store_errors += 1);
+                servo.with(|s| s.update_counters(|c| c.config_store_errors += 1));
                 Response::Rejected(Rejection::Store)
             }
         }
@@ -77,7 +77,7 @@ pub fn handle_request(
             Err(_) => Response::Rejected(Rejection::FeatureConfig),
         },
         Request::ResetCounters => {
-            servo.with(|s| *s.counters_mut() = Default::default());
+            servo.with(|s| s.update_counters(|c| *c = Default::default()));
             Response::Ack
         }
     }

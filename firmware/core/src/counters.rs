@@ -39,3 +39,22 @@ pub struct Counters {
     /// Feature settings rejected (`SetFeatureConfig` with a zero or too long window).
     pub rejected_feature_configs: u32,
 }
+
+impl Counters {
+    /// Sum of the fault counters (wrapping): underruns, overruns, DAC saturations, frame
+    /// errors, rejected programs and parameters, model faults, stuck and saturated inputs,
+    /// config store errors. Every output slot reports it.
+    pub fn fault_sum(&self) -> u32 {
+        self.bus_underruns
+            .wrapping_add(self.bus_overruns)
+            .wrapping_add(self.dac_saturations)
+            .wrapping_add(self.frame_errors)
+            .wrapping_add(self.rejected_programs)
+            .wrapping_add(self.rejected_params)
+            .wrapping_add(self.rejected_feature_configs)
+            .wrapping_add(self.model_faults)
+            .wrapping_add(self.input_stuck)
+            .wrapping_add(self.input_saturated)
+            .wrapping_add(self.config_store_errors)
+    }
+}

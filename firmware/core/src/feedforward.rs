@@ -133,7 +133,8 @@ struct Scaled {
     codes_per_pm_q32: i64,
     offset_q16: i64,
     slew_q16: i64,
-    gain_step_q16: i64,
+    /// 1 ..= 2^16.
+    gain_step_q16: i32,
 }
 
 const ONE_Q16: i64 = 1 << 16;
@@ -150,7 +151,7 @@ impl Scaled {
             codes_per_pm_q32: (4_294_967_296.0 / pm_per_code) as i64,
             offset_q16: (f64::from(params.offset_v) / v_per_code * 65536.0) as i64,
             slew_q16: ((f64::from(params.slew_v_per_tick) / v_per_code * 65536.0) as i64).max(1),
-            gain_step_q16: (ONE_Q16 / ramp).max(1),
+            gain_step_q16: (ONE_Q16 / ramp).max(1) as i32,
         }
     }
 }
@@ -171,10 +172,11 @@ pub struct FeedforwardTick {
 pub struct Feedforward {
     params: FeedforwardParams,
     scaled: Scaled,
-    /// Current output, Q16 codes.
-    output_q16: i64,
+    /// Current output, Q16 codes; always within the DAC's range (it only ever moves towards
+    /// a target clamped to the range), so 32 bits hold it.
+    output_q16: i32,
     /// Current gain, Q16 (0 ..= 65536).
-    gain_q16: i64,
+    gain_q16: i32,
     /// Whether compensation is wanted (the gain ramps towards 1 when also trusted).
     enabled: bool,
 }
@@ -223,7 +225,8 @@ impl Feedforward {
     #[inline]
     pub fn tick(&mut self, de_pred_pm: i32, trusted: bool) -> FeedforwardTick {
         let s = &self.scaled;
-        let gain_target = if self.enabled && trusted { ONE_Q16 } else { 0 };
+        let gain_target = if self.enabled && trusted { ONE_Q16 as i32 } else { 0 };
+        // Gain and step are at most 2^16: 32 bits suffice.
         self.gain_q16 = if self.gain_q16 < gain_target {
             (self.gain_q16 + s.gain_step_q16).min(gain_target)
         } else {
@@ -235,13 +238,16 @@ impl Feedforward {
         const LIMIT_Q16: i64 = 1 << 40;
         let product_q48 = (de_pred_pm as i64).wrapping_neg().wrapping_mul(s.codes_per_pm_q32);
         let correction_q16 = (product_q48 >> 16).clamp(-LIMIT_Q16, LIMIT_Q16);
-        let mut target = ((correction_q16 * self.gain_q16) >> 16) - s.offset_q16;
+        let target = ((correction_q16 * self.gain_q16 as i64) >> 16) - s.offset_q16;
         let saturated = !(CODE_MIN_Q16..=CODE_MAX_Q16).contains(&target);
-        target = target.clamp(CODE_MIN_Q16, CODE_MAX_Q16);
-        let delta = target - self.output_q16;
+        let target = target.clamp(CODE_MIN_Q16, CODE_MAX_Q16);
+        let delta = target - self.output_q16 as i64;
         let slewing = delta.abs() > s.slew_q16;
-        self.output_q16 += delta.clamp(-s.slew_q16, s.slew_q16);
-        let code = ((self.output_q16 + (1 << 15)) >> 16).clamp(i16::MIN as i64, i16::MAX as i64) as i16;
+        // Moved by at most |delta| towards a target in the range: still in it. (`max`/`min`
+        // rather than `clamp`: the same for a slew limit of at least 1, without its check.)
+        self.output_q16 += delta.max(-s.slew_q16).min(s.slew_q16) as i32;
+        // In the range [-2^31, 2^31 - 2^16], (output + 2^15) >> 16 is always an i16: no clamp.
+        let code = ((self.output_q16 + (1 << 15)) >> 16) as i16;
         FeedforwardTick { dac_code: code, saturated, slewing }
     }
 
@@ -335,6 +341,72 @@ mod tests {
         let tick = ff.tick(i32::MAX, true);
         assert!(tick.saturated);
         assert_eq!(tick.dac_code, i16::MIN);
+    }
+
+    /// The tick as first written, all in 64 bits: the narrower arithmetic must give the same
+    /// codes and flags, bit for bit.
+    fn wide_tick(s: &Scaled, output_q16: &mut i64, gain_q16: &mut i64, enabled: bool, de_pred_pm: i32, trusted: bool) -> FeedforwardTick {
+        let gain_target = if enabled && trusted { ONE_Q16 } else { 0 };
+        let step = s.gain_step_q16 as i64;
+        *gain_q16 = if *gain_q16 < gain_target { (*gain_q16 + step).min(gain_target) } else { (*gain_q16 - step).max(gain_target) };
+        const LIMIT_Q16: i64 = 1 << 40;
+        let product_q48 = (de_pred_pm as i64).wrapping_neg().wrapping_mul(s.codes_per_pm_q32);
+        let correction_q16 = (product_q48 >> 16).clamp(-LIMIT_Q16, LIMIT_Q16);
+        let mut target = ((correction_q16 * *gain_q16) >> 16) - s.offset_q16;
+        let saturated = !(CODE_MIN_Q16..=CODE_MAX_Q16).contains(&target);
+        target = target.clamp(CODE_MIN_Q16, CODE_MAX_Q16);
+        let delta = target - *output_q16;
+        let slewing = delta.abs() > s.slew_q16;
+        *output_q16 += delta.clamp(-s.slew_q16, s.slew_q16);
+        let code = ((*output_q16 + (1 << 15)) >> 16).clamp(i16::MIN as i64, i16::MAX as i64) as i16;
+        FeedforwardTick { dac_code: code, saturated, slewing }
+    }
+
+    #[test]
+    fn the_tick_is_the_64_bit_one_bit_for_bit() {
+        let mut seed = 0x9e37_79b9u64;
+        let mut rng = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let mut checked = 0;
+        for round in 0..400 {
+            let fs = [1e-3f32, 0.5, 10.0, 100.0][round % 4];
+            let unit = |r: u64| (r % 1_000_001) as f32 * 1e-6;
+            let params = FeedforwardParams {
+                k_dv_um_per_v: [1e-4f32, -1e-4, 0.0656, -0.0656, 1.0, -3.7, 1e4, -1e4][(rng() % 8) as usize] * (0.5 + unit(rng())),
+                dac_full_scale_v: fs,
+                offset_v: fs / 2.0 * (2.0 * unit(rng()) - 1.0),
+                slew_v_per_tick: fs * unit(rng()).max(1e-6),
+                enable_ramp_ticks: [0, 1, 3, 100, 4_800_000][(rng() % 5) as usize],
+                ..FeedforwardParams::default()
+            };
+            if params.validate().is_err() {
+                continue;
+            }
+            let mut ff = stage(params);
+            let (mut output, mut gain) = (0i64, 0i64);
+            for k in 0..3000 {
+                if k % 500 == 0 {
+                    ff.set_enabled(rng() % 4 != 0);
+                }
+                let de = match rng() % 6 {
+                    0 => i32::MIN,
+                    1 => i32::MAX,
+                    2 => (rng() as i32) >> (rng() % 32),
+                    _ => (rng() % 20_000_001) as i32 - 10_000_000,
+                };
+                let trusted = rng() % 50 != 0;
+                let expected = wide_tick(&ff.scaled, &mut output, &mut gain, ff.enabled, de, trusted);
+                assert_eq!(ff.tick(de, trusted), expected, "{params:?} tick {k}");
+                assert_eq!(i64::from(ff.output_q16), output);
+                assert_eq!(i64::from(ff.gain_q16), gain);
+            }
+            checked += 1;
+        }
+        assert!(checked > 150, "{checked}");
     }
 
     #[test]

@@ -9,7 +9,8 @@
 //!   effect exactly one model latency after the request, whenever it was
 //!   computed, so the output is a function of the input stream alone: the firmware and the
 //!   host produce the same DAC codes bit for bit. A result that comes later than that is
-//!   applied at once and counted as late.
+//!   applied at once (or up to two ticks later, not to fall on a tick that ends or starts a
+//!   feature block or requests a model update) and counted as late.
 //!
 //! Faults never step the output and never stop the loop: a stuck or saturated accelerometer,
 //! or a missing host, marks the inputs untrusted ([`DEGRADED_STUCK`] ...) and the feedforward
@@ -21,7 +22,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::analogue_path::AnaloguePath;
 use crate::bus::{InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_ENABLED, OUT_FLAG_MODEL_ACTIVE, OUT_FLAG_SATURATED, OUT_FLAG_SLEWING};
-use crate::features::{Capture, DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, Features};
+use crate::features::{DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features};
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
 use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_PHASE_DEG};
 use crate::synth::{Synth, SynthTargets};
@@ -91,8 +92,9 @@ pub enum InitError {
 /// A snapshot handed from the servo tick to the model update.
 #[derive(Clone, Copy, Debug)]
 pub struct ModelRequest {
-    /// The features' state at the request.
-    pub capture: Capture,
+    /// The features' state at the request (its [`FeatureSnapshot::capture`] is what the
+    /// features are computed from).
+    pub snapshot: FeatureSnapshot,
     /// Tick of the request.
     pub tick: u64,
     /// Tick at which the result takes effect.
@@ -100,6 +102,32 @@ pub struct ModelRequest {
     /// The command phase's advance per tick at the request, u32 turns (as `i32`, signed):
     /// the command frequency, for the analogue-path correction.
     pub cmd_step_turns: i32,
+}
+
+impl ModelRequest {
+    /// A request for no real window (what an empty request slot holds).
+    pub const EMPTY: Self = Self { snapshot: FeatureSnapshot::empty(FeatureConfig::DEFAULT), tick: 0, due_tick: 0, cmd_step_turns: 0 };
+}
+
+/// Where [`Servo::tick`] leaves a model request: written in place, field by field (block
+/// moves rather than a library `memcpy` of the ~110 bytes), and taken out at low priority.
+#[derive(Clone, Copy, Debug)]
+struct RequestSlot {
+    request: ModelRequest,
+    full: bool,
+}
+
+impl RequestSlot {
+    /// An empty slot.
+    const fn new() -> Self {
+        Self { request: ModelRequest::EMPTY, full: false }
+    }
+
+    /// Takes the request out, if there is one.
+    fn take(&mut self) -> Option<ModelRequest> {
+        let full = core::mem::replace(&mut self.full, false);
+        full.then_some(self.request)
+    }
 }
 
 /// Why a model update produced no output.
@@ -190,7 +218,8 @@ impl Models {
     /// frequency of the request.
     pub fn compute(&mut self, rings: &DefaultSpectralRings, request: &ModelRequest, path: &AnaloguePath) -> ModelResult {
         let mut result = ModelResult { due_tick: request.due_tick, features: [0.0; 12], outcome: Err(ModelFault::NoProgram), targets: SynthTargets::SILENT };
-        let features: Features = match rings.finish(&request.capture, &mut self.scratch) {
+        let capture = request.snapshot.capture();
+        let features: Features = match rings.finish(&capture, &mut self.scratch) {
             Ok(features) => features,
             Err(err) => {
                 result.outcome = Err(ModelFault::Features(err));
@@ -201,7 +230,7 @@ impl Models {
         if let Some(program) = &self.active {
             result.outcome = match program.evaluate(&result.features) {
                 Ok(mut output) => {
-                    correct_for_path(&mut output, &program.terms, path, request.cmd_step_turns, request.capture.cfg.sample_rate_hz);
+                    correct_for_path(&mut output, &program.terms, path, request.cmd_step_turns, capture.cfg.sample_rate_hz);
                     result.targets = SynthTargets::new(&output, &program.terms);
                     Ok((output, program.terms.clone(), program.id))
                 }
@@ -233,6 +262,18 @@ fn correct_for_path(output: &mut ModelOutput, terms: &[TickTerm], path: &Analogu
             }
         }
     }
+}
+
+/// What applying a pending result does besides the synthesiser's update (decided when it
+/// is delivered, so that the tick applying it need not look at it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PendingEffect {
+    /// The program's output takes effect.
+    Output { program_id: u32 },
+    /// No program is active: silence.
+    NoProgram,
+    /// The evaluation failed: silence, counted.
+    Fault,
 }
 
 /// Input-health tracking of the accelerometer and the bus.
@@ -290,9 +331,10 @@ impl ModelTiming {
 
 /// The servo-interrupt side of the twin. See the [module docs](self).
 ///
-/// `repr(C)` with the 90 KB feature state last: the fields every tick touches then lie
-/// within 4 KB of the start, where a Cortex-M4 load or store needs one instruction (three
-/// beyond, with the offset built in a register).
+/// `repr(C)` with the fields every tick touches first, then the 90 KB feature state (whose
+/// per-sample fields come first): they then lie within 4 KB of the start, where a Cortex-M4
+/// load or store needs one instruction (three beyond, with the offset built in a register).
+/// The model results, touched only when one is delivered or applied, come last.
 #[repr(C)]
 pub struct Servo {
     counters: Counters,
@@ -305,16 +347,28 @@ pub struct Servo {
     /// Model interval and latency for the feature window in force.
     timing: ModelTiming,
     awaiting_due: Option<u64>,
+    /// [`Counters::fault_sum`] of `counters`, kept up to date where they change.
+    fault_total: u32,
+    /// Due tick of the pending result (`u64::MAX`: none), next to the other per-tick fields.
+    pending_due_tick: u64,
+    /// `results[applied]` is the result in force; the other one is pending when
+    /// `pending_due_tick` says so. Applying it is a switch.
+    applied: usize,
+    /// What applying the pending result does besides the synthesiser's update.
+    pending_effect: PendingEffect,
     model_active: bool,
     last_dac: i16,
     program_id: Option<u32>,
-    synth: Synth,
     feedforward: Feedforward,
     feature_config: FeatureConfig,
-    pending: Option<ModelResult>,
-    last_output: ModelOutput,
-    last_features: [f32; 12],
+    /// The model request waiting for the low-priority side ([`Servo::take_request`]).
+    request: RequestSlot,
+    synth: Synth,
     features: DefaultFeatureState,
+    results: [Option<ModelResult>; 2],
+    /// The last model output applied, per result slot (an error result carries the previous
+    /// one over).
+    last_outputs: [ModelOutput; 2],
 }
 
 impl Servo {
@@ -340,12 +394,16 @@ impl Servo {
             config,
             counters: Counters::default(),
             health: Health::default(),
-            pending: None,
+            request: RequestSlot::new(),
+            results: [None, None],
+            applied: 0,
+            pending_effect: PendingEffect::NoProgram,
+            pending_due_tick: u64::MAX,
             awaiting_due: None,
+            fault_total: 0,
             model_active: false,
             program_id: None,
-            last_output: ModelOutput::default(),
-            last_features: [0.0; 12],
+            last_outputs: [ModelOutput::default(); 2],
             last_dac: 0,
             model_countdown: first_request_countdown(&timing),
             timing,
@@ -360,12 +418,13 @@ impl Servo {
     pub fn set_feature_config(&mut self, config: FeatureConfig) -> Result<(), FeatureError> {
         if let Err(e) = self.features.reconfigure(config) {
             self.counters.rejected_feature_configs += 1;
+            self.fault_total = self.fault_total.wrapping_add(1);
             return Err(e);
         }
         self.feature_config = config;
         self.timing = ModelTiming::new(&self.config, config.window_samples);
         self.model_countdown = first_request_countdown(&self.timing);
-        self.pending = None;
+        self.pending_due_tick = u64::MAX;
         self.awaiting_due = None;
         Ok(())
     }
@@ -380,11 +439,10 @@ impl Servo {
         &self.feature_config
     }
 
-    /// One servo tick on `input`. Every model interval it writes a [`ModelRequest`] into
-    /// `request` (a slot the caller owns, so that the snapshot is built in place rather than
-    /// copied on its way out) and returns true with the output; otherwise `request` is left
-    /// as it is.
-    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: &InputSlot, request: &mut Option<ModelRequest>) -> (OutputSlot, bool) {
+    /// One servo tick on `input`. Every model interval it leaves a [`ModelRequest`] for the
+    /// low-priority side ([`Servo::take_request`]; one not yet taken is replaced) and returns
+    /// true with the output.
+    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: &InputSlot) -> (OutputSlot, bool) {
         let tick = self.counters.ticks;
         self.counters.ticks += 1;
         self.health.underrun_run = 0;
@@ -397,19 +455,29 @@ impl Servo {
         // A countdown, not `tick % interval`: a 64-bit remainder is a library call of a
         // hundred instructions on a Cortex-M4, every tick.
         self.model_countdown = self.model_countdown.saturating_sub(1);
-        if self.model_countdown == 0 {
+        let countdown_hit = self.model_countdown == 0;
+        if countdown_hit {
             self.model_countdown = self.timing.interval_ticks;
-            let capture = self.features.capture(rings);
+            let snapshot = self.features.snapshot();
             // Only a full window gives the features the model was trained on.
-            if capture.samples >= self.feature_config.window_samples {
+            if snapshot.samples() >= self.feature_config.window_samples {
                 let due_tick = tick + self.timing.latency_ticks as u64;
                 let cmd_step_turns = input.cmd_phase_turns.wrapping_sub(prev_cmd_phase_turns) as i32;
-                *request = Some(ModelRequest { capture, tick, due_tick, cmd_step_turns });
+                // Block moves; the capture is made from the snapshot at low priority.
+                let slot = &mut self.request;
+                snapshot.copy_to(&mut slot.request.snapshot);
+                slot.request.tick = tick;
+                slot.request.due_tick = due_tick;
+                slot.request.cmd_step_turns = cmd_step_turns;
+                slot.full = true;
                 requested = true;
                 self.awaiting_due = Some(due_tick);
             }
         }
-        self.apply_due(tick);
+        // This tick's own extra work: a feature block's end or start, or a model request
+        // (see `Servo::next_tick_is_busy`).
+        let busy = countdown_hit || self.features.last_push_was_busy();
+        self.apply_due(tick, busy);
 
         // Kernel terms (effects) see the command position, the X acceleration and the spindle.
         let de_pm = self.synth.next_input(&crate::synth::TickInput {
@@ -421,6 +489,7 @@ impl Servo {
         let trusted = self.health.degraded == 0;
         let ff = self.feedforward.tick(de_pm, trusted && self.model_active);
         self.counters.dac_saturations += ff.saturated as u32;
+        self.fault_total = self.fault_total.wrapping_add(ff.saturated as u32);
         self.counters.slew_limited_ticks += ff.slewing as u32;
         self.last_dac = ff.dac_code;
         let flags = (self.feedforward.enabled() as u16 * OUT_FLAG_ENABLED)
@@ -438,6 +507,7 @@ impl Servo {
     /// itself is not consumed: the next input is still tick `counters().ticks`.
     pub fn underrun(&mut self) -> OutputSlot {
         self.counters.bus_underruns += 1;
+        self.fault_total = self.fault_total.wrapping_add(1);
         self.health.underrun_run += 1;
         if self.health.underrun_run >= self.config.underrun_limit_ticks {
             self.degrade(DEGRADED_NO_INPUT);
@@ -473,19 +543,22 @@ impl Servo {
         h.saturated_run = if full_scale { h.saturated_run.saturating_add(1) } else { 0 };
         if h.same_run == self.config.stuck_limit_ticks {
             self.counters.input_stuck += 1;
+            self.fault_total = self.fault_total.wrapping_add(1);
             self.degrade(DEGRADED_STUCK);
         }
         if self.health.saturated_run == self.config.saturation_limit_ticks {
             self.counters.input_saturated += 1;
+            self.fault_total = self.fault_total.wrapping_add(1);
             self.degrade(DEGRADED_SATURATED);
         }
-        let recovery_ticks = self.recovery_ticks();
-        let h = &mut self.health;
+        let h = &self.health;
         let bad_now = h.same_run >= self.config.stuck_limit_ticks || h.saturated_run > 0;
         if h.degraded != 0 {
             if bad_now {
-                h.recovering_ticks = recovery_ticks;
+                // (Computed only here: three saturating additions on every tick otherwise.)
+                self.health.recovering_ticks = self.recovery_ticks();
             } else {
+                let h = &mut self.health;
                 // Inputs are healthy again: wait for a model result from a window of them.
                 h.degraded = (h.degraded & DEGRADED_MODEL) | DEGRADED_RECOVERING;
                 h.recovering_ticks = h.recovering_ticks.saturating_sub(1);
@@ -496,64 +569,118 @@ impl Servo {
         }
     }
 
-    fn apply_due(&mut self, tick: u64) {
-        // Looked at in place: a result waiting for its tick is not moved (it is about 500
-        // bytes, and it waits for most ticks of an interval).
-        let Some(result) = &self.pending else {
-            if self.awaiting_due.is_some_and(|due| tick > due) {
-                // The result is late; it will be applied when it arrives.
-                self.counters.model_late += 1;
-                self.awaiting_due = None;
+    /// Applies the pending result at its due tick. A result that came late is applied at
+    /// once, or a tick or two later while a tick ends or starts a feature block or requests
+    /// a model update (`busy`): on time it never falls on such a tick (requests and results
+    /// come half a block away from the block ends, in whole blocks), and so the most
+    /// expensive ticks never add up.
+    fn apply_due(&mut self, tick: u64, busy: bool) {
+        // The pending result itself (about 600 bytes, waiting for most ticks of an interval)
+        // is neither moved nor looked at: its due tick is kept with the per-tick fields.
+        if tick >= self.pending_due_tick {
+            if tick == self.pending_due_tick || !busy {
+                self.apply_pending();
             }
-            return;
-        };
-        if tick < result.due_tick {
-            return;
+        } else if self.pending_due_tick == u64::MAX && self.awaiting_due.is_some_and(|due| tick > due) {
+            // The result is late; it will be applied when it arrives.
+            self.counters.model_late += 1;
+            self.awaiting_due = None;
         }
-        self.apply_pending();
     }
 
-    /// Applies the pending result. Out of line: inlined, its register needs made every
-    /// tick dearer.
+    /// Applies the pending result: a switch of result slots (nothing is copied). Out of
+    /// line: inlined, its register needs made every tick dearer.
     #[inline(never)]
     fn apply_pending(&mut self) {
-        let Some(result) = &self.pending else {
-            return;
-        };
+        let slot = (self.applied ^ 1) & 1;
         self.awaiting_due = None;
-        self.last_features = result.features;
-        match &result.outcome {
-            Ok((output, terms, id)) => {
+        // Prepared at delivery for this tick (see `deliver`): a switch.
+        if !self.synth.switch_prepared() {
+            self.apply_unprepared(slot);
+        }
+        match self.pending_effect {
+            PendingEffect::Output { program_id } => {
                 self.counters.model_updates += 1;
                 self.health.degraded &= !DEGRADED_MODEL;
-                self.synth.apply_prepared(&result.targets, terms);
-                self.last_output = *output;
                 self.model_active = true;
-                self.program_id = Some(*id);
+                self.program_id = Some(program_id);
             }
-            Err(ModelFault::NoProgram) => {
-                self.synth.apply_prepared(&SynthTargets::SILENT, &[]);
+            PendingEffect::NoProgram => {
                 self.model_active = false;
                 self.program_id = None;
             }
-            Err(_) => {
+            PendingEffect::Fault => {
                 // A bad model or a torn snapshot: count, and ramp the prediction out.
                 self.counters.model_faults += 1;
+                self.fault_total = self.fault_total.wrapping_add(1);
                 self.health.degraded |= DEGRADED_MODEL;
-                self.synth.apply_prepared(&SynthTargets::SILENT, &[]);
             }
         }
-        self.pending = None;
+        self.applied = slot;
+        self.pending_due_tick = u64::MAX;
+    }
+
+    /// The synthesiser's update to result `slot` when it was not prepared for this tick.
+    #[cold]
+    #[inline(never)]
+    fn apply_unprepared(&mut self, slot: usize) {
+        // `deliver` prepares every result for the tick that applies it.
+        debug_assert!(false, "a model result applied without its prepared update");
+        match &self.results[slot & 1] {
+            Some(ModelResult { outcome: Ok((_, terms, _)), targets, .. }) => self.synth.apply(targets, terms),
+            _ => self.synth.apply(&SynthTargets::SILENT, &[]),
+        }
+    }
+
+    /// Whether the tick `ahead` ticks after the next one will end or start a feature block
+    /// or hit the model countdown (the ticks a late result is not applied on; see
+    /// `apply_due`), for `ahead` of 0 or 1.
+    fn tick_is_busy(&self, ahead: u32) -> bool {
+        let countdown_hit = self.model_countdown.max(1) == ahead + 1;
+        let block = match ahead {
+            0 => self.features.next_push_is_busy(),
+            // The next push ends a block, so the one after starts the next; or the one after ends one.
+            _ => self.features.next_push_ends_block() || self.features.pushes_to_block_end() == 2,
+        };
+        countdown_hit || block
+    }
+
+    /// The model request the last request tick left, if not taken yet (at low priority).
+    pub fn take_request(&mut self) -> Option<ModelRequest> {
+        self.request.take()
     }
 
     /// Hands back a model result computed for a request of this servo, and prepares the
-    /// synthesiser's ramps to it, so that the tick applying it has little to do.
+    /// synthesiser's update to it for the tick that will apply it (its due tick, or the next
+    /// tick if that has passed), so that this tick has little to do.
     pub fn deliver(&mut self, result: ModelResult) {
-        match &result.outcome {
-            Ok((_, terms, _)) => self.synth.prepare(&result.targets, terms),
-            Err(_) => self.synth.prepare(&SynthTargets::SILENT, &[]),
-        }
-        self.pending = Some(result);
+        // The tick that will apply it (see `apply_due`).
+        let next = self.counters.ticks;
+        let apply_tick = if result.due_tick >= next {
+            result.due_tick
+        } else {
+            // Late: the first tick from now that is not busy (at most two are in a row).
+            next + u64::from((0..2).find(|&j| !self.tick_is_busy(j)).unwrap_or(2))
+        };
+        let ticks_ahead = (apply_tick - next).min(u64::from(u32::MAX)) as u32;
+        let (applied, slot) = (self.applied & 1, (self.applied ^ 1) & 1);
+        self.pending_effect = match &result.outcome {
+            Ok((_, _, program_id)) => PendingEffect::Output { program_id: *program_id },
+            Err(ModelFault::NoProgram) => PendingEffect::NoProgram,
+            Err(_) => PendingEffect::Fault,
+        };
+        self.last_outputs[slot] = match &result.outcome {
+            Ok((output, terms, _)) => {
+                self.synth.prepare(&result.targets, terms, ticks_ahead);
+                *output
+            }
+            Err(_) => {
+                self.synth.prepare(&SynthTargets::SILENT, &[], ticks_ahead);
+                self.last_outputs[applied]
+            }
+        };
+        self.pending_due_tick = result.due_tick;
+        self.results[slot] = Some(result);
     }
 
     /// The analogue-path table in force (part of the feedforward parameters).
@@ -566,6 +693,7 @@ impl Servo {
         let result = self.feedforward.set_params(params);
         if result.is_err() {
             self.counters.rejected_params += 1;
+            self.fault_total = self.fault_total.wrapping_add(1);
         }
         result
     }
@@ -595,9 +723,12 @@ impl Servo {
         &self.counters
     }
 
-    /// The counters, for the board to add what it sees (overruns, frame errors, store errors).
-    pub fn counters_mut(&mut self) -> &mut Counters {
-        &mut self.counters
+    /// Changes the counters (the board adds what it sees: overruns, frame errors, store
+    /// errors; a reset clears them), keeping the servo's running sum of the fault counters.
+    pub fn update_counters<R>(&mut self, f: impl FnOnce(&mut Counters) -> R) -> R {
+        let result = f(&mut self.counters);
+        self.fault_total = self.counters.fault_sum();
+        result
     }
 
     /// `DEGRADED_*` bits in force.
@@ -607,12 +738,12 @@ impl Servo {
 
     /// The last model output applied.
     pub fn last_output(&self) -> &ModelOutput {
-        &self.last_output
+        &self.last_outputs[self.applied & 1]
     }
 
     /// The features of the last model update.
     pub fn last_features(&self) -> &[f32; 12] {
-        &self.last_features
+        self.results[self.applied & 1].as_ref().map_or(&[0.0; 12], |result| &result.features)
     }
 
     /// Id of the program whose output is in force.
@@ -620,20 +751,11 @@ impl Servo {
         self.program_id
     }
 
-    /// Sum of the fault counters, as reported in every output slot.
+    /// Sum of the fault counters, as reported in every output slot ([`Counters::fault_sum`],
+    /// kept as the counters change rather than summed on every tick).
     pub fn fault_count(&self) -> u32 {
-        let c = &self.counters;
-        c.bus_underruns
-            .wrapping_add(c.bus_overruns)
-            .wrapping_add(c.dac_saturations)
-            .wrapping_add(c.frame_errors)
-            .wrapping_add(c.rejected_programs)
-            .wrapping_add(c.rejected_params)
-            .wrapping_add(c.rejected_feature_configs)
-            .wrapping_add(c.model_faults)
-            .wrapping_add(c.input_stuck)
-            .wrapping_add(c.input_saturated)
-            .wrapping_add(c.config_store_errors)
+        debug_assert_eq!(self.fault_total, self.counters.fault_sum());
+        self.fault_total
     }
 }
 
@@ -654,6 +776,50 @@ mod tests {
         let odd = ServoConfig { model_interval_ticks: 7, min_model_interval_ticks: 0, model_updates_per_window: 0, ..config };
         let timing = ModelTiming::new(&odd, 40_000);
         assert!(timing.interval_ticks >= 1 && timing.latency_ticks >= 1);
+    }
+
+    /// Results delivered late, some on the tick before a block end or a model request: each
+    /// is applied on the next tick that is neither, with the update prepared for that tick
+    /// (`apply_unprepared` asserts it is never needed), and counted as late.
+    #[test]
+    fn late_results_avoid_the_busy_ticks_and_are_prepared_for_their_tick() {
+        use crate::bus::IN_FLAG_PHASE_VALID;
+        use crate::program::{ProgramBuilder, REG_AMP_UM};
+        let features = FeatureConfig { window_samples: 800, ..FeatureConfig::DEFAULT };
+        let (servo, check) = Servo::new(features, ServoConfig::default(), FeedforwardParams::default());
+        assert_eq!(check, Ok(()));
+        let mut servo = std::boxed::Box::new(servo);
+        let rings = std::boxed::Box::new(DefaultSpectralRings::new());
+        let mut models = std::boxed::Box::new(Models::new());
+        let mut b = ProgramBuilder::new();
+        b.constant(2.0).feature(4).mul().store(REG_AMP_UM).constant(0.0).store(REG_PHASE_DEG);
+        b.term(TickTerm::Harmonic { order: 3, amp_reg: 0, phase_reg: 1 });
+        models.upload(b.finish().unwrap(), true).unwrap();
+        let mut waiting: Option<(u64, ModelRequest)> = None;
+        let mut applied_on = std::vec::Vec::new();
+        let mut updates = 0;
+        for k in 0..6000u32 {
+            let input = InputSlot { tick: k, acc_code: ((k * 7919) % 4001) as i16 - 2000, flags: IN_FLAG_PHASE_VALID, cmd_phase_turns: k.wrapping_mul(STEP_40HZ as u32), cmd_pos_nm: 0, ..Default::default() };
+            let busy = servo.tick_is_busy(0);
+            servo.tick(&rings, &input);
+            if servo.counters().model_updates != updates {
+                updates = servo.counters().model_updates;
+                applied_on.push((k, busy));
+            }
+            if let Some(request) = servo.take_request() {
+                // Late by 17..=23 ticks: past the due tick (16 later), on every phase.
+                waiting = Some((u64::from(k) + 17 + u64::from(k % 7), request));
+            }
+            if let Some((at, request)) = waiting.filter(|(at, _)| *at == u64::from(k)) {
+                let path = *servo.analogue_path();
+                servo.deliver(models.compute(&rings, &request, &path));
+                let _ = at;
+                waiting = None;
+            }
+        }
+        assert!(applied_on.len() > 50, "{}", applied_on.len());
+        assert!(applied_on.iter().all(|(_, busy)| !busy), "{applied_on:?}");
+        assert_eq!(servo.counters().model_late, servo.counters().model_updates);
     }
 
     #[test]

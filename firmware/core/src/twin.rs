@@ -5,7 +5,7 @@ use crate::config::{ConfigError, PersistentConfig};
 use crate::control::{handle_request, ConfigWriter};
 use crate::features::{DefaultSpectralRings, FeatureConfig};
 use crate::feedforward::FeedforwardParams;
-use crate::servo::{ModelRequest, Models, Servo, ServoConfig};
+use crate::servo::{Models, Servo, ServoConfig};
 use crate::wire::{ConfigSource, Request, Response};
 
 /// The firmware's processing in one struct: servo tick, model update and control requests,
@@ -13,7 +13,6 @@ use crate::wire::{ConfigSource, Request, Response};
 /// `Twin` fed the same inputs writes the same DAC codes as the firmware.
 pub struct Twin {
     servo: Servo,
-    request: Option<ModelRequest>,
     models: Models,
     rings: DefaultSpectralRings,
     config_source: ConfigSource,
@@ -46,7 +45,7 @@ impl Twin {
         let (servo, _) = Servo::new(feature_config, servo_config, params);
         let mut store = MemoryStore::default();
         let _ = store.record.extend_from_slice(stored);
-        Self { servo, request: None, models: Models::new(), rings: DefaultSpectralRings::new(), config_source, store }
+        Self { servo, models: Models::new(), rings: DefaultSpectralRings::new(), config_source, store }
     }
 
     /// One servo tick, with the model update done at once when one is requested; `None`
@@ -55,8 +54,8 @@ impl Twin {
         let Some(input) = input else {
             return self.servo.underrun();
         };
-        let (output, requested) = self.servo.tick(&self.rings, input, &mut self.request);
-        if let Some(request) = self.request.take().filter(|_| requested) {
+        let (output, requested) = self.servo.tick(&self.rings, input);
+        if let Some(request) = self.servo.take_request().filter(|_| requested) {
             let path = *self.servo.analogue_path();
             let result = self.models.compute(&self.rings, &request, &path);
             self.servo.deliver(result);

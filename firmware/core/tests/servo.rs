@@ -91,12 +91,12 @@ fn a_late_computed_model_gives_bit_identical_output() {
     servo.set_enabled(true);
     let mut queue = Vec::new();
     let latency = servo.model_timing().latency_ticks;
-    let mut slot = None;
     for k in 0..6000u32 {
-        let (output, requested) = servo.tick(&rings, &input(k), &mut slot);
+        let (output, requested) = servo.tick(&rings, &input(k));
         assert_eq!(output, expected[k as usize], "tick {k}");
-        assert_eq!(requested, slot.is_some(), "tick {k}");
-        if let Some(request) = slot.take() {
+        let request = servo.take_request();
+        assert_eq!(requested, request.is_some(), "tick {k}");
+        if let Some(request) = request {
             // Computed 1..=latency ticks later, while the servo keeps pushing samples.
             queue.push((k + 1 + (k * 7919) % latency, request));
         }

@@ -128,7 +128,7 @@ mod state;
 pub use extractor::FeatureExtractor;
 pub use moments::sqrt_f32;
 pub use rings::{Scratch, SpectralRings};
-pub use state::{Capture, FeatureState};
+pub use state::{Capture, FeatureSnapshot, FeatureState};
 
 use core::fmt;
 

@@ -43,7 +43,7 @@ mod validate;
 pub use builder::ProgramBuilder;
 pub use builtin::{paper_program, PAPER_PROGRAM_ID};
 pub use eval::{EvalError, ModelOutput};
-pub use term::{TermInput, TickTerm, LAGUERRE_STAGES, MAX_HARMONIC_ORDER};
+pub use term::{tick_cost, TermInput, TickTerm, LAGUERRE_STAGES, MAX_HARMONIC_ORDER, TICK_BUDGET_INSTRUCTIONS};
 pub use validate::ProgramError;
 
 use heapless::Vec;

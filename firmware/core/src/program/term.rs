@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::validate::register_ok;
+use crate::synth::{laguerre_stages_are_narrow, VELOCITY_SMOOTH_32_BIT_LIMIT};
 
 /// Highest harmonic order a [`TickTerm::Harmonic`] may have.
 pub const MAX_HARMONIC_ORDER: u8 = 15;
@@ -102,5 +103,87 @@ impl TickTerm {
                 input_ok && pole_q30 > 0 && pole_q30 < (1 << 30)
             }
         }
+    }
+}
+
+/// Instructions the servo tick may take on the target, from the input's arrival to the
+/// output written (the budget [`Program::validate`](super::Program::validate) holds every
+/// program to).
+pub const TICK_BUDGET_INSTRUCTIONS: u32 = 800;
+
+/// The worst servo tick's instructions as a sum over a program's terms (Cortex-M4F, the
+/// firmware's `firmware` profile, counted under QEMU `-icount`; BENCHMARKS.md, "Twin
+/// firmware: instructions per servo tick", has the measurements these come from, each
+/// rounded up by a few instructions).
+///
+/// The tick's extra work (the end or start of a 16-sample feature block, a model request,
+/// applying a model result) never falls on the same tick twice: requests and results come
+/// half a block away from the block ends, and a late result waits for a tick without either.
+/// [`FIXED`](tick_cost::FIXED) is the worst such tick of a program without per-tick terms;
+/// each term adds its own share, the same on every tick. Not covered: while a program
+/// replaces one with more harmonic terms, the old program's extra harmonics ramp out over
+/// the synthesiser's ramp (80 ticks) beside the new program's terms, each at
+/// [`HARMONIC_BESIDE_KERNELS`](tick_cost::HARMONIC_BESIDE_KERNELS).
+pub mod tick_cost {
+    /// A tick without per-tick terms at its worst: the paper program's (482 measured),
+    /// whose formulas are not evaluated in the tick (the model update runs at low priority).
+    pub const FIXED: u32 = 486;
+    /// A harmonic term in a program without kernel terms (25.9 measured).
+    pub const HARMONIC: u32 = 26;
+    /// A harmonic term in a program with kernel terms (41.5 measured: the harmonic pass
+    /// then skips the kernel slots by a bit mask).
+    pub const HARMONIC_BESIDE_KERNELS: u32 = 42;
+    /// Once, when the program has kernel terms (anything but harmonics): running them (41).
+    pub const KERNELS: u32 = 42;
+    /// A Laguerre bank on the position sine (108), with 32-bit stages.
+    pub const LAGUERRE_POSITION_SINE: u32 = 109;
+    /// A Laguerre bank on the velocity sign (130), with 32-bit stages and divisions.
+    pub const LAGUERRE_VELOCITY_SIGN: u32 = 131;
+    /// A Laguerre bank on the Dahl state (146), with 32-bit stages.
+    pub const LAGUERRE_DAHL: u32 = 147;
+    /// More for a Laguerre bank whose stages need 64 bits: a pole above 0.995 or gains
+    /// above 2^32 in sum (173 measured).
+    pub const LAGUERRE_WIDE_STAGES: u32 = 178;
+    /// More for a velocity-sign bank whose smoothing velocity needs a 64-bit division
+    /// (2^17 nm per 4 ticks or more, 262 mm/s): a library call whose length depends on the
+    /// operands (161 measured with, at most 234 on the bench's worst tick).
+    pub const VELOCITY_64_BIT_DIVISION: u32 = 260;
+    /// A drift term, with its 64-bit step every 256 ticks (41).
+    pub const DRIFT: u32 = 43;
+    /// An axis-coupling term (48).
+    pub const AXIS_COUPLING: u32 = 50;
+}
+
+impl TickTerm {
+    /// Instructions this term adds to the worst servo tick ([`tick_cost`]), in a program that
+    /// has kernel terms (`with_kernels`) or not.
+    pub fn tick_cost(&self, with_kernels: bool) -> u32 {
+        use tick_cost::*;
+        match *self {
+            Self::Harmonic { .. } if with_kernels => HARMONIC_BESIDE_KERNELS,
+            Self::Harmonic { .. } => HARMONIC,
+            Self::Drift { .. } => DRIFT,
+            Self::AxisCoupling { .. } => AXIS_COUPLING,
+            Self::Laguerre { input, pole_q30, ref gains_pm } => {
+                let bank = match input {
+                    TermInput::VelocitySign { smooth_nm_per_4_ticks } if smooth_nm_per_4_ticks >= VELOCITY_SMOOTH_32_BIT_LIMIT => {
+                        LAGUERRE_VELOCITY_SIGN + VELOCITY_64_BIT_DIVISION
+                    }
+                    TermInput::VelocitySign { .. } => LAGUERRE_VELOCITY_SIGN,
+                    TermInput::Dahl { .. } => LAGUERRE_DAHL,
+                    TermInput::PositionSine { .. } => LAGUERRE_POSITION_SINE,
+                };
+                if laguerre_stages_are_narrow(pole_q30, gains_pm) {
+                    bank
+                } else {
+                    bank + LAGUERRE_WIDE_STAGES
+                }
+            }
+        }
+    }
+
+    /// Whether the term is a kernel term (anything but a harmonic).
+    pub fn is_kernel(&self) -> bool {
+        !matches!(self, Self::Harmonic { .. })
     }
 }

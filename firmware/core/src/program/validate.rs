@@ -1,6 +1,7 @@
 //! Validation of a [`Program`]: everything the evaluator relies on is checked here once, so
 //! that evaluation itself cannot index out of bounds or overflow its stack.
 
+use super::term::{tick_cost, TICK_BUDGET_INSTRUCTIONS};
 use super::{op, Program, TickTerm, FEATURE_INPUTS, MAX_STACK, PROGRAM_VERSION, REGISTER_COUNT, REG_AMP_UM, REG_PHASE_DEG};
 
 /// Why a program was rejected. Byte positions are offsets into [`Program::code`].
@@ -86,6 +87,14 @@ pub enum ProgramError {
         /// Index of the term.
         index: u8,
     },
+    /// The per-tick terms would make the servo tick longer than its budget
+    /// ([`Program::tick_cost`] against [`TICK_BUDGET_INSTRUCTIONS`]).
+    TickBudget {
+        /// The tick's instructions with these terms, at worst.
+        cost: u16,
+        /// The budget.
+        budget: u16,
+    },
 }
 
 impl core::fmt::Display for ProgramError {
@@ -106,6 +115,9 @@ impl core::fmt::Display for ProgramError {
             Self::MissingOutput { register } => write!(f, "program never stores output register {register}"),
             Self::TooLarge => write!(f, "program exceeds the code, constant or term capacity"),
             Self::BadTerm { index } => write!(f, "tick term {index} is malformed"),
+            Self::TickBudget { cost, budget } => {
+                write!(f, "the per-tick terms would take the servo tick to about {cost} instructions, over its budget of {budget}")
+            }
         }
     }
 }
@@ -136,7 +148,20 @@ impl Program {
                 return Err(ProgramError::BadTerm { index: index as u8 });
             }
         }
+        let cost = self.tick_cost();
+        if cost > TICK_BUDGET_INSTRUCTIONS {
+            return Err(ProgramError::TickBudget { cost: cost.min(u32::from(u16::MAX)) as u16, budget: TICK_BUDGET_INSTRUCTIONS as u16 });
+        }
         Ok(())
+    }
+
+    /// The servo tick's instructions at worst with this program's per-tick terms
+    /// ([`tick_cost`]): [`tick_cost::FIXED`], [`tick_cost::KERNELS`] if it has kernel
+    /// terms, and each term's [`TickTerm::tick_cost`].
+    pub fn tick_cost(&self) -> u32 {
+        let with_kernels = self.terms.iter().any(TickTerm::is_kernel);
+        let kernels = if with_kernels { tick_cost::KERNELS } else { 0 };
+        tick_cost::FIXED + kernels + self.terms.iter().map(|term| term.tick_cost(with_kernels)).sum::<u32>()
     }
 
     /// Walks the code once, simulating the stack depth; returns the set of stored registers.
@@ -247,6 +272,50 @@ mod tests {
         assert_eq!(raw(&[op::CONST, 0, op::STORE, 8], &[1.0]).validate(), Err(ProgramError::UnknownRegister { at: 2, register: 8 }));
         assert_eq!(raw(&[op::REG, 3, op::STORE, 0], &[]).validate(), Err(ProgramError::RegisterReadBeforeWrite { at: 0, register: 3 }));
         assert_eq!(raw(&[op::CONST, 0, op::STORE, 0], &[1.0]).validate(), Err(ProgramError::MissingOutput { register: 1 }));
+    }
+
+    fn laguerre(input: super::super::TermInput, pole: f64) -> TickTerm {
+        let gains_pm = [180_000, -95_000, 61_000, -40_000, 22_000, -15_000, 9_000, -4_000];
+        TickTerm::Laguerre { input, pole_q30: (pole * (1u64 << 30) as f64) as i32, gains_pm }
+    }
+
+    fn with_terms(terms: &[TickTerm]) -> Program {
+        let mut b = minimal();
+        b.constant(0.3).store(2).constant(10.0).store(3);
+        let mut program = b.finish().unwrap();
+        for term in terms {
+            program.terms.push(*term).unwrap();
+        }
+        program
+    }
+
+    #[test]
+    fn the_tick_budget_takes_the_programs_of_fit_and_rejects_more() {
+        use super::super::TermInput;
+        let harmonic = |order| TickTerm::Harmonic { order, amp_reg: 2, phase_reg: 3 };
+        let velocity = laguerre(TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 }, 0.93);
+        let dahl = laguerre(TermInput::Dahl { inv_x0_q30: 1 << 20 }, 0.93);
+        let sine = laguerre(TermInput::PositionSine { turns_per_nm: 4295, phase_turns: 0 }, 0.93);
+        let cosine = laguerre(TermInput::PositionSine { turns_per_nm: 4295, phase_turns: 1 << 30 }, 0.93);
+        let drift = TickTerm::Drift { offset_pm: 1, decay_pm: 1, tau_ticks: 8000 };
+        let coupling = TickTerm::AxisCoupling { x_gain_pm_per_mps2: 1, spindle_amp_pm: 1, spindle_phase_turns: 0 };
+        // Accepted: eight harmonics, the terms of each `fit --effect` (friction, hysteresis,
+        // force ripple, drift, coupling), two banks with a drift, one bank with both others.
+        let eight: std::vec::Vec<TickTerm> = (2..10).map(harmonic).collect();
+        for terms in [&eight[..], &[velocity], &[dahl], &[sine, cosine], &[drift], &[coupling], &[velocity, velocity], &[sine, cosine, drift], &[velocity, drift, coupling]] {
+            let program = with_terms(terms);
+            assert_eq!(program.validate(), Ok(()), "{terms:?}: {}", program.tick_cost());
+        }
+        // Rejected, with the cost: three banks with a drift and a coupling, a bank whose pole
+        // needs 64-bit stages.
+        let three = with_terms(&[velocity, dahl, sine, drift, coupling]);
+        let cost = three.tick_cost();
+        assert_eq!(cost, 486 + 42 + 131 + 147 + 109 + 43 + 50);
+        assert_eq!(three.validate(), Err(ProgramError::TickBudget { cost: cost as u16, budget: 800 }));
+        let slow_pole = with_terms(&[laguerre(TermInput::PositionSine { turns_per_nm: 4295, phase_turns: 0 }, 0.999)]);
+        assert!(matches!(slow_pole.validate(), Err(ProgramError::TickBudget { .. })));
+        // The paper program alone costs the fixed part.
+        assert_eq!(crate::program::paper_program().tick_cost(), tick_cost::FIXED);
     }
 
     #[test]

@@ -1,0 +1,230 @@
+//! The servo tick's outputs pinned bit for bit: a hash of every DAC code and prediction of
+//! long runs with every kind of per-tick term (programs within the tick budget), program
+//! changes and both update schedules (ramps that settle between model results and ramps
+//! that never do), and of the synthesiser driven directly with any terms (64-bit Laguerre
+//! stages and divisions too) and the inputs the bus does not carry yet. The hashes were
+//! taken from the implementation before the tick was optimised for its instruction budget;
+//! any change of output, however small, fails here.
+
+use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
+use sts_twin_core::features::FeatureConfig;
+use sts_twin_core::feedforward::FeedforwardParams;
+use sts_twin_core::program::{paper_program, Program, ProgramBuilder, TermInput, TickTerm, LAGUERRE_STAGES, REG_AMP_UM, REG_PHASE_DEG};
+use sts_twin_core::servo::ServoConfig;
+use sts_twin_core::synth::{Synth, TickInput};
+use sts_twin_core::twin::Twin;
+use sts_twin_core::wire::{Request, Response};
+
+/// FNV-1a, 64 bits.
+struct Hash(u64);
+
+impl Hash {
+    fn new() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+
+    fn add(&mut self, value: i64) {
+        for byte in value.to_le_bytes() {
+            self.0 = (self.0 ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+}
+
+fn xorshift(seed: &mut u64) -> u64 {
+    *seed ^= *seed << 13;
+    *seed ^= *seed >> 7;
+    *seed ^= *seed << 17;
+    *seed
+}
+
+/// A 40 Hz motion whose amplitude changes, with pseudo-noise, and a command position that
+/// also jumps now and then (a new cut).
+fn input(k: u32) -> InputSlot {
+    let t = k as f64 / 8000.0;
+    let amp = 4000.0 + 2000.0 * (2.0 * std::f64::consts::PI * 0.3 * t).sin();
+    let phase = 2.0 * std::f64::consts::PI * 40.0 * t;
+    let noise = ((k.wrapping_mul(2_654_435_761) >> 16) % 9) as f64 - 4.0;
+    let jump = if (k / 3000) % 2 == 1 { 40_000 } else { 0 };
+    InputSlot {
+        tick: k,
+        acc_code: (-amp * phase.sin() + noise).round() as i16,
+        flags: IN_FLAG_PHASE_VALID,
+        cmd_phase_turns: ((40.0 * t).fract() * 4_294_967_296.0) as u64 as u32,
+        cmd_pos_nm: (3000.0 * phase.sin()) as i32 + jump,
+        // The hashes date from before the bus carried the other axes (the servo passed zero).
+        x_acc_um_per_s2: 0,
+        spindle_turns: 0,
+    }
+}
+
+fn laguerre(input: TermInput, pole: f64, scale: i32) -> TickTerm {
+    let mut gains_pm = [0i32; LAGUERRE_STAGES];
+    for (i, gain) in gains_pm.iter_mut().enumerate() {
+        *gain = scale / (i as i32 + 1) * if i % 2 == 0 { 1 } else { -1 };
+    }
+    TickTerm::Laguerre { input, pole_q30: (pole * (1u64 << 30) as f64).round() as i32, gains_pm }
+}
+
+/// RMS-driven amplitude and a frequency-driven phase, with harmonic coefficients in
+/// registers 2..8 (also driven by the features).
+fn program(id: u32, terms: &[TickTerm]) -> Program {
+    let mut b = ProgramBuilder::new();
+    b.id(id).constant(2.0).feature(4).mul().store(REG_AMP_UM);
+    b.constant(-0.2).feature(0).mul().store(REG_PHASE_DEG);
+    b.constant(0.4).feature(4).mul().store(2).constant(25.0).feature(9).mul().store(3);
+    b.constant(0.15).feature(3).mul().store(4).constant(-70.0).store(5);
+    b.constant(0.05).feature(1).mul().store(6).constant(130.0).feature(6).add().store(7);
+    for term in terms {
+        b.term(*term);
+    }
+    b.finish().expect("a valid program")
+}
+
+fn harmonic(order: u8, amp_reg: u8) -> TickTerm {
+    TickTerm::Harmonic { order, amp_reg, phase_reg: amp_reg + 1 }
+}
+
+/// The programs of the run, in order.
+fn programs() -> Vec<Program> {
+    let drift = TickTerm::Drift { offset_pm: 300_000, decay_pm: -450_000, tau_ticks: 9000 };
+    let coupling = TickTerm::AxisCoupling { x_gain_pm_per_mps2: 800_000, spindle_amp_pm: 50_000, spindle_phase_turns: 1 << 29 };
+    let velocity = laguerre(TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 }, 0.93, 150_000);
+    let dahl = laguerre(TermInput::Dahl { inv_x0_q30: (1 << 30) / 2000 }, 0.93, 120_000);
+    let sine = laguerre(TermInput::PositionSine { turns_per_nm: 4_294_967, phase_turns: 7 << 28 }, 0.9, 90_000);
+    let mut harmonics = vec![];
+    for (i, order) in (2..10).enumerate() {
+        harmonics.push(harmonic(order, 2 + 2 * (i as u8 % 3)));
+    }
+    vec![
+        program(11, &harmonics),
+        program(12, &[velocity, drift, coupling]),
+        // Kernels between harmonics.
+        program(13, &[harmonic(3, 2), sine, harmonic(5, 4), drift]),
+        program(14, &[harmonic(3, 2), harmonic(2, 4)]),
+        {
+            let mut paper = paper_program();
+            paper.terms.push(dahl).unwrap();
+            paper.terms.push(sine).unwrap();
+            paper
+        },
+    ]
+}
+
+/// Runs the twin for `ticks` ticks under `window_samples`, changing programs on the way,
+/// and hashes every output.
+fn twin_hash(window_samples: u32, ticks: u32) -> u64 {
+    let mut twin = Box::new(Twin::boot(FeatureConfig { window_samples, ..FeatureConfig::DEFAULT }, ServoConfig::default(), &[]));
+    let params = FeedforwardParams { enable_ramp_ticks: 400, slew_v_per_tick: 0.05, ..FeedforwardParams::default() };
+    assert_eq!(twin.handle(Request::SetParams(params)), Response::Ack);
+    assert_eq!(twin.handle(Request::SetEnabled(true)), Response::Ack);
+    let programs = programs();
+    let change_every = ticks / (programs.len() as u32 + 1);
+    let mut hash = Hash::new();
+    let mut predicting = 0u32;
+    for k in 0..ticks {
+        if k % change_every == 0 {
+            let request = match programs.get((k / change_every) as usize) {
+                Some(program) => Request::UploadProgram { program: program.clone(), activate: true },
+                None => Request::ClearProgram,
+            };
+            assert_eq!(twin.handle(request), Response::Ack);
+        }
+        let out = twin.tick(Some(&input(k)));
+        hash.add(i64::from(out.dac_code));
+        hash.add(i64::from(out.de_pred_pm));
+        hash.add(i64::from(out.flags));
+        predicting += u32::from(out.de_pred_pm != 0);
+    }
+    // The run exercises what it should: predictions most of the time, many model updates.
+    assert!(predicting > ticks / 2, "{predicting} ticks with a prediction");
+    assert!(twin.servo().counters().model_updates > 100, "{:?}", twin.servo().counters());
+    hash.0
+}
+
+#[test]
+fn the_twins_outputs_are_those_pinned_ramps_settling_between_updates() {
+    assert_eq!(twin_hash(2000, 24_000), 13_996_983_126_520_668_907, "window 2000");
+}
+
+#[test]
+fn the_twins_outputs_are_those_pinned_ramps_never_settling() {
+    assert_eq!(twin_hash(800, 24_000), 6_427_079_730_390_142_188, "window 800");
+}
+
+/// A random term of any kind (poles inside and beyond the narrow range, inputs on every path).
+fn random_term(seed: &mut u64) -> TickTerm {
+    let r = xorshift(seed);
+    match r % 6 {
+        0 | 1 => TickTerm::Harmonic { order: 1 + (r >> 8) as u8 % 15, amp_reg: 2 + 2 * ((r >> 16) % 3) as u8, phase_reg: 3 + 2 * ((r >> 20) % 3) as u8 },
+        2 => TickTerm::Drift { offset_pm: (r >> 8) as i32 % 2_000_000, decay_pm: (r >> 24) as i32 % 3_000_000, tau_ticks: 256 + (r >> 40) as u32 % 100_000 },
+        3 => TickTerm::AxisCoupling {
+            x_gain_pm_per_mps2: (r >> 8) as i32,
+            spindle_amp_pm: (r >> 20) as i32 % 1_000_000,
+            spindle_phase_turns: (r >> 32) as u32,
+        },
+        _ => {
+            let input = match (r >> 8) % 4 {
+                0 => TermInput::VelocitySign { smooth_nm_per_4_ticks: 1 + (r >> 12) as i32 % 300 },
+                1 => TermInput::VelocitySign { smooth_nm_per_4_ticks: 1 + ((r >> 12) as i32 & i32::MAX) },
+                2 => TermInput::Dahl { inv_x0_q30: 1 + ((r >> 16) as i32 & 0x7fff_ffff) % (1 << 24) },
+                _ => TermInput::PositionSine { turns_per_nm: 1 + (r >> 16) as u32, phase_turns: (r >> 32) as u32 },
+            };
+            let pole = [0.3, 0.93, 0.99, 0.9949, 0.9951, 0.999, 0.99999][(r >> 40) as usize % 7];
+            let scale = [1, 1_000, 150_000, i32::MAX / 9][(r >> 44) as usize % 4];
+            laguerre(input, pole, scale)
+        }
+    }
+}
+
+/// Drives the synthesiser directly: random programs, ramp lengths, machine-time jumps,
+/// restarts, and per-tick inputs with X acceleration, spindle angle and position jumps.
+fn synth_hash(seed: u64, ticks: u32) -> u64 {
+    let mut seed = seed;
+    let mut synth = Synth::new(80);
+    let mut hash = Hash::new();
+    let mut pos: i64 = 0;
+    let mut theta = 0u32;
+    for k in 0..ticks {
+        let r = xorshift(&mut seed);
+        if r % 97 == 0 {
+            let count = (xorshift(&mut seed) % 9) as usize;
+            let terms: Vec<TickTerm> = (0..count).map(|_| random_term(&mut seed)).collect();
+            let mut output = sts_twin_core::program::ModelOutput::default();
+            for register in output.registers.iter_mut() {
+                *register = (xorshift(&mut seed) % 4000) as f32 * 1e-3 - 1.0;
+            }
+            output.registers[1] = (xorshift(&mut seed) % 720) as f32 - 360.0;
+            synth.ramp_ticks = [0, 1, 7, 80, 80][(xorshift(&mut seed) % 5) as usize];
+            synth.update(&output, &terms);
+        }
+        if r % 1009 == 0 {
+            synth.set_time_ticks(xorshift(&mut seed) % 100_000_000);
+        }
+        if r % 1013 == 0 {
+            synth.restart_kernels();
+        }
+        pos += match (r >> 12) % 50 {
+            0 => (xorshift(&mut seed) % 2_000_001) as i64 - 1_000_000,
+            1 => 0,
+            _ => ((r >> 20) % 801) as i64 - 400,
+        };
+        pos = pos.clamp(i32::MIN as i64, i32::MAX as i64);
+        theta = theta.wrapping_add(5_368_709 + (r >> 40) as u32 % 1000);
+        let x_acc = match (r >> 30) % 8 {
+            0 => i32::MAX,
+            1 => i32::MIN,
+            2 => 0,
+            _ => (r >> 32) as i32 % 10_000_000,
+        };
+        let tick_input = TickInput { cmd_phase_turns: theta, cmd_pos_nm: pos as i32, x_acc_um_per_s2: x_acc, spindle_turns: (r >> 8) as u32 };
+        hash.add(i64::from(synth.next_input(&tick_input)));
+        let _ = k;
+    }
+    hash.0
+}
+
+#[test]
+fn the_synthesisers_outputs_are_those_pinned() {
+    assert_eq!(synth_hash(0x5eed_0001, 60_000), 16_112_828_574_929_426_089, "seed 1");
+    assert_eq!(synth_hash(0x5eed_0002, 60_000), 13_385_909_165_789_960_018, "seed 2");
+}

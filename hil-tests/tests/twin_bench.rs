@@ -174,21 +174,7 @@ fn run(program: &Program, window_samples: u32) -> Run {
     let mut sum = hil.diagnostics().busy_sum_counts;
     for input in bench_inputs(TICKS) {
         hil.step(input).expect("tick");
-        // The firmware publishes the tick's count just after its output: wait for the sum
-        // to move, so that the count read is this tick's and not the previous one's.
-        let deadline = Instant::now() + Duration::from_secs(5);
-        // The count is written before the sum, and read after it: a read that sees the new
-        // sum but the old count is read again.
-        let diag = loop {
-            let diag = hil.diagnostics();
-            if diag.busy_sum_counts != sum && diag.busy_sum_counts - sum == u64::from(diag.busy_last_counts) {
-                break diag;
-            }
-            assert!(Instant::now() < deadline, "the firmware did not publish the tick's count");
-            std::hint::spin_loop();
-        };
-        sum = diag.busy_sum_counts;
-        busy.push(f64::from(diag.busy_last_counts) * per_count);
+        busy.push(tick_instructions(&hil, &mut sum, per_count));
     }
     let busy_max = f64::from(hil.diagnostics().busy_max_counts) * per_count;
     let underruns = hil.counters().underruns;
@@ -297,17 +283,7 @@ fn bench_twin_tick_program_switch() {
                 }
             }
             hil.step(input).expect("tick");
-            let deadline = Instant::now() + Duration::from_secs(5);
-            let diag = loop {
-                let diag = hil.diagnostics();
-                if diag.busy_sum_counts != sum && diag.busy_sum_counts - sum == u64::from(diag.busy_last_counts) {
-                    break diag;
-                }
-                assert!(Instant::now() < deadline, "the firmware did not publish the tick's count");
-                std::hint::spin_loop();
-            };
-            sum = diag.busy_sum_counts;
-            busy.push(f64::from(diag.busy_last_counts) * per_count);
+            busy.push(tick_instructions(&hil, &mut sum, per_count));
         }
         hil.shutdown().expect("shutdown");
         let worst = |range: std::ops::Range<usize>| busy[range].iter().copied().fold(0.0, f64::max);
@@ -320,4 +296,21 @@ fn bench_twin_tick_program_switch() {
             second.tick_cost()
         );
     }
+}
+
+/// Instructions of the tick just stepped. The firmware publishes the tick's count just after
+/// its output, the count before the running sum: wait for the sum to move by exactly the
+/// count read, so that the count is this tick's and not the previous one's.
+fn tick_instructions(hil: &Hil, sum: &mut u64, per_count: f64) -> f64 {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let diag = loop {
+        let diag = hil.diagnostics();
+        if diag.busy_sum_counts != *sum && diag.busy_sum_counts - *sum == u64::from(diag.busy_last_counts) {
+            break diag;
+        }
+        assert!(Instant::now() < deadline, "the firmware did not publish the tick's count");
+        std::hint::spin_loop();
+    };
+    *sum = diag.busy_sum_counts;
+    f64::from(diag.busy_last_counts) * per_count
 }

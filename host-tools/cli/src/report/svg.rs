@@ -77,13 +77,19 @@ pub struct Series<'a> {
     pub markers: bool,
 }
 
-fn frame(out: &mut String, id: &str, title: &str, x_label: &str, y_label: &str, xr: (f64, f64), yr: (f64, f64)) {
+/// Opens a chart: the `<svg>` element of `width` x `height` with CSS class `class`, a white
+/// background and the title centred at the top.
+pub fn open_chart(out: &mut String, class: &str, id: &str, title: &str, width: f64, height: f64) {
     let _ = write!(
         out,
-        r##"<svg xmlns="http://www.w3.org/2000/svg" class="chart" id="{id}" width="{W}" height="{H}" viewBox="0 0 {W} {H}" role="img" aria-label="{t}"><rect width="{W}" height="{H}" fill="#ffffff"/><text x="{cx}" y="20" text-anchor="middle" font-size="14" font-weight="bold">{t}</text>"##,
+        r##"<svg xmlns="http://www.w3.org/2000/svg" class="{class}" id="{id}" width="{width}" height="{height}" viewBox="0 0 {width} {height}" role="img" aria-label="{t}"><rect width="{width}" height="{height}" fill="#ffffff"/><text x="{cx}" y="20" text-anchor="middle" font-size="14" font-weight="bold">{t}</text>"##,
         t = esc(title),
-        cx = W / 2.0
+        cx = width / 2.0
     );
+}
+
+fn frame(out: &mut String, id: &str, title: &str, x_label: &str, y_label: &str, xr: (f64, f64), yr: (f64, f64)) {
+    open_chart(out, "chart", id, title, W, H);
     let (pw, ph) = (W - LEFT - RIGHT, H - TOP - BOTTOM);
     let _ = write!(out, r##"<rect x="{LEFT}" y="{TOP}" width="{pw}" height="{ph}" fill="none" stroke="#888"/>"##);
     for t in nice_ticks(xr.0, xr.1, 8) {
@@ -166,12 +172,7 @@ pub fn line_chart(id: &str, title: &str, x_label: &str, y_label: &str, series: &
 pub fn heat_map(id: &str, title: &str, x_label: &str, y_label: &str, xs: &[f64], ys: &[f64], values: &[Vec<Option<f64>>], unit: &str) -> String {
     let vmax = values.iter().flatten().flatten().fold(0.0f64, |m, v| m.max(*v)).max(1e-12);
     let mut out = String::new();
-    let _ = write!(
-        out,
-        r##"<svg xmlns="http://www.w3.org/2000/svg" class="chart heatmap" id="{id}" width="{W}" height="{H}" viewBox="0 0 {W} {H}" role="img" aria-label="{t}"><rect width="{W}" height="{H}" fill="#ffffff"/><text x="{cx}" y="20" text-anchor="middle" font-size="14" font-weight="bold">{t}</text>"##,
-        t = esc(title),
-        cx = W / 2.0
-    );
+    open_chart(&mut out, "chart heatmap", id, title, W, H);
     let (pw, ph) = (W - LEFT - RIGHT - 70.0, H - TOP - BOTTOM);
     let cw = pw / xs.len().max(1) as f64;
     let ch = ph / ys.len().max(1) as f64;

@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 use std::fmt::Write as _;
 
-use super::svg::{colour_scale, esc, tick_label};
+use super::svg::{colour_scale, esc, open_chart, tick_label};
 use crate::trial::{CutMaps, TrialReport};
 
 const SIZE: f64 = 360.0;
@@ -29,12 +29,7 @@ fn polar_map(id: &str, title: &str, r_max_mm: f64, values: &[Vec<Option<f64>>], 
     let (w, h) = (SIZE + 2.0 * PAD + 90.0, SIZE + 2.0 * PAD + 10.0);
     let (cx, cy, radius) = (PAD + SIZE / 2.0, PAD + 10.0 + SIZE / 2.0, SIZE / 2.0);
     let mut out = String::new();
-    let _ = write!(
-        out,
-        r##"<svg xmlns="http://www.w3.org/2000/svg" class="chart polar" id="{id}" width="{w}" height="{h}" viewBox="0 0 {w} {h}" role="img" aria-label="{t}"><rect width="{w}" height="{h}" fill="#ffffff"/><text x="{tx}" y="20" text-anchor="middle" font-size="14" font-weight="bold">{t}</text>"##,
-        t = esc(title),
-        tx = w / 2.0
-    );
+    open_chart(&mut out, "chart polar", id, title, w, h);
     let rings = values.len().max(1);
     for (ri, row) in values.iter().enumerate() {
         let (r0, r1) = (radius * ri as f64 / rings as f64, radius * (ri + 1) as f64 / rings as f64);

@@ -137,12 +137,11 @@ pub fn cmd_phase_turns(sample: &GroupSample, t_s: f64) -> u32 {
 pub fn tick_input(sample: &GroupSample, group: &GroupData, k: usize) -> TickInput {
     let x_acc = group.x_acc_mps2.as_ref().map_or(0.0, |v| v[k]);
     let spindle = group.spindle_deg.as_ref().map_or(0.0, |v| v[k]);
-    let turns = (spindle / 360.0).rem_euclid(1.0);
     TickInput {
         cmd_phase_turns: cmd_phase_turns(sample, group.t_s[k]),
         cmd_pos_nm: (group.z_cmd_um[k] * 1000.0).round() as i32,
         x_acc_um_per_s2: (x_acc * 1e6).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32,
-        spindle_turns: (turns * 4_294_967_296.0) as u64 as u32,
+        spindle_turns: crate::rig::turns_u32(spindle / 360.0),
     }
 }
 

@@ -313,12 +313,12 @@ pub fn terms_output(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64
     (0..group.len())
         .map(|k| {
             let x_acc = group.x_acc_mps2.as_ref().map_or(0.0, |v| v[k]);
-            let spindle = group.spindle_deg.as_ref().map_or(0.0, |v| (v[k] / 360.0).rem_euclid(1.0));
+            let spindle_deg = group.spindle_deg.as_ref().map_or(0.0, |v| v[k]);
             let input = TickInput {
                 cmd_phase_turns: 0,
                 cmd_pos_nm: (group.z_cmd_um[k] * 1000.0).round() as i32,
                 x_acc_um_per_s2: (x_acc * 1e6).round() as i32,
-                spindle_turns: (spindle * 4_294_967_296.0) as u64 as u32,
+                spindle_turns: crate::rig::turns_u32(spindle_deg / 360.0),
             };
             f64::from(synth.next_input(&input)) * 1e-6
         })

@@ -64,9 +64,12 @@ pub fn run_loop(
 ) -> anyhow::Result<()> {
     let sample_rate_hz = trajectory.sample_rate_hz();
     let mut analog_in_v = 0.0;
+    let at_tick = |k: u64| trajectory.at(k as f64 / sample_rate_hz);
+    // Each tick needs the trajectory at k - 1 (X acceleration), k and k + 1: evaluated once
+    // each and carried along.
+    let mut before = at_tick(first_tick.saturating_sub(1));
+    let mut point = at_tick(first_tick);
     for k in first_tick..first_tick + ticks {
-        let t_s = k as f64 / sample_rate_hz;
-        let point = trajectory.at(t_s);
         let machine_out = machine.step(&StepInput {
             z_cmd_um: point.z_cmd_um,
             x_mm: point.x_mm,
@@ -77,8 +80,7 @@ pub fn run_loop(
         // The output of this tick acts at the next one: hand over the command phase, the X
         // acceleration (as the machine computes it, from three X positions) and the spindle
         // angle there.
-        let next = trajectory.at((k + 1) as f64 / sample_rate_hz);
-        let before = if k == 0 { point } else { trajectory.at((k - 1) as f64 / sample_rate_hz) };
+        let next = at_tick(k + 1);
         let x_acc_mps2 = (next.x_mm - 2.0 * point.x_mm + before.x_mm) * 1e-3 * sample_rate_hz * sample_rate_hz;
         let input = InputSlot {
             tick: k as u32,
@@ -87,11 +89,12 @@ pub fn run_loop(
             cmd_phase_turns: next.phase_turns,
             cmd_pos_nm: (next.z_cmd_um * 1e3).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32,
             x_acc_um_per_s2: (x_acc_mps2 * 1e6).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32,
-            spindle_turns: ((next.spindle_deg / 360.0).rem_euclid(1.0) * 4_294_967_296.0) as u64 as u32,
+            spindle_turns: turns_u32(next.spindle_deg / 360.0),
         };
         let output = coprocessor.tick(&input)?;
         analog_in_v = f64::from(output.dac_code) * dac_full_scale_v / 32767.0;
         record(&LoopSample { point, machine: machine_out, output });
+        (before, point) = (point, next);
     }
     Ok(())
 }

@@ -100,8 +100,17 @@ fn stored_calibration_board(bus: &std::path::Path) -> anyhow::Result<Box<dyn Cop
 
 /// Prints a measured analogue path for people.
 pub fn print_path(points: &[PathPoint]) {
-    let cells: Vec<String> = points.iter().map(|p| format!("{:.0} Hz {:+.2} deg", p.freq_hz, p.phase_deg)).collect();
-    eprintln!("analogue path (DAC -> TCP) phase: {}", cells.join(", "));
+    eprintln!("analogue path (DAC -> TCP) phase: {}", path_text(points.iter().map(|p| (p.freq_hz, p.phase_deg))));
+}
+
+/// An analogue-path table as `5 Hz +0.05 deg, 10 Hz ...` (`none` when empty).
+fn path_text(points: impl Iterator<Item = (f64, f64)>) -> String {
+    let cells: Vec<String> = points.map(|(freq_hz, phase_deg)| format!("{freq_hz:.0} Hz {phase_deg:+.2} deg")).collect();
+    if cells.is_empty() {
+        "none".to_string()
+    } else {
+        cells.join(", ")
+    }
 }
 
 /// Prints a trial report for people.
@@ -135,12 +144,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let params = if let Some(bus) = &args.bus {
         let stored = stored_params(cop.as_mut()).with_context(|| format!("--bus {}", bus.display()))?;
         if !args.json {
-            let path: Vec<String> = stored.analogue_path.points().map(|(freq_hz, phase_deg)| format!("{freq_hz:.0} Hz {phase_deg:+.2} deg")).collect();
             eprintln!(
                 "stored calibration: offset {:+.3} mV, K_dv {:.4} um/V, analogue path {}",
                 f64::from(stored.offset_v) * 1e3,
                 stored.k_dv_um_per_v,
-                if path.is_empty() { "none".to_string() } else { path.join(", ") }
+                path_text(stored.analogue_path.points().map(|(freq_hz, phase_deg)| (f64::from(freq_hz), f64::from(phase_deg))))
             );
         }
         stored

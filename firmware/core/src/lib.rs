@@ -7,6 +7,7 @@
 //!   in fixed point with O(1) work per sample.
 //! - [`program`]: the twin program, a small validated stack-machine program holding the
 //!   amplitude model, the phase model and extra error terms, serialised with postcard.
+//! - [`axis`]: a servo-axis twin simulated per tick, for friction, hysteresis and encoder error.
 //! - [`synth`]: per-tick synthesis of the predicted dynamic error (Eq. 4), phase-continuous.
 //! - [`feedforward`]: predicted error to a DAC code (Eq. 5) with offset, slew limit and
 //!   saturation counting.
@@ -20,6 +21,7 @@
 #![forbid(unsafe_code)]
 
 pub mod analogue_path;
+pub mod axis;
 pub mod bus;
 pub mod config;
 pub mod control;

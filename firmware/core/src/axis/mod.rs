@@ -1,0 +1,177 @@
+//! A servo-axis twin: the Z slide under its position controller, simulated every servo tick
+//! from the command alone, with the nonlinear effects a linear error model cannot carry
+//! (Coulomb/Stribeck friction, presliding hysteresis, the encoder's interpolation error).
+//!
+//! What the twin adds to the predicted error is the *deviation* these effects cause: the
+//! TCP of the nonlinear axis minus the TCP of the same axis without them. Both are
+//! simulated side by side, the linear one relative to the command and the nonlinear one
+//! relative to the linear, so that single precision stays accurate to far below a
+//! nanometre at any absolute position.
+//!
+//! The model (all forces per kg of moving mass, which is not identifiable from motion data):
+//! a PID position controller with velocity and acceleration feedforward on the encoder
+//! reading, a one-tick computation delay, a first-order current loop, the slide with
+//! viscous drag, and one structural mode between slide and TCP driven by the slide's
+//! acceleration. Its linear part is discretised exactly (zero-order hold, [`discretise`]);
+//! the friction force is applied linearly implicitly, so the stiff law of a sticking slide
+//! stays stable at the 8 kHz tick.
+//!
+//! Parameters come from `sts-twin fit --effect` (identified from a measurement); the
+//! firmware validates them ([`AxisParams::check`]) and computes the coefficients when the
+//! program is activated ([`AxisModel::new`]). A diverging state (an unstable parameter set)
+//! is reset and reported, never output.
+
+pub mod discretise;
+pub mod math;
+mod model;
+
+pub use model::{AxisModel, AxisState};
+
+use serde::{Deserialize, Serialize};
+
+/// Largest command delay the axis model takes, ticks.
+pub const MAX_CMD_DELAY_TICKS: u8 = 8;
+
+/// Parameters of a servo-axis twin, as a program carries them.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AxisParams {
+    /// Delay of the command inside the controller before the servo loop, ticks.
+    pub cmd_delay_ticks: u8,
+    /// Proportional gain per kg, (N/m)/kg = 1/s^2.
+    pub kp_per_s2: f32,
+    /// Integral gain per kg, 1/s^3.
+    pub ki_per_s3: f32,
+    /// Derivative gain per kg, 1/s.
+    pub kd_per_s: f32,
+    /// Velocity feedforward per kg, 1/s.
+    pub vff_per_s: f32,
+    /// Acceleration feedforward as a fraction of the moving mass.
+    pub aff: f32,
+    /// Viscous drag per kg, 1/s.
+    pub viscous_per_s: f32,
+    /// Current (force) loop time constant, s.
+    pub current_tau_s: f32,
+    /// Structural mode between slide and TCP: frequency, Hz.
+    pub mode_freq_hz: f32,
+    /// Its damping ratio.
+    pub mode_damping: f32,
+    /// Its displacement at the TCP per unit of slide motion.
+    pub mode_tcp_gain: f32,
+    /// Friction, if any.
+    pub friction: Option<Friction>,
+    /// Presliding hysteresis, if any.
+    pub hysteresis: Option<Hysteresis>,
+    /// Encoder interpolation error, if any.
+    pub ripple: Option<Ripple>,
+}
+
+/// Coulomb friction with a Stribeck peak: `F(v) = -(Fc + (Fs - Fc) exp(-(v/vs)^2)) tanh(v/v_smooth)`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Friction {
+    /// Coulomb (sliding) force per kg, m/s^2.
+    pub coulomb_mps2: f32,
+    /// Static (breakaway) force per kg, m/s^2.
+    pub static_mps2: f32,
+    /// Stribeck velocity, m/s.
+    pub stribeck_mps: f32,
+    /// Velocity below which the sign is smoothed, m/s.
+    pub smooth_mps: f32,
+}
+
+/// Dahl presliding hysteresis: `dF = sigma dx (1 - F/Fmax sgn(dx))`, the force opposing the motion.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Hysteresis {
+    /// Limit force per kg, m/s^2.
+    pub force_mps2: f32,
+    /// Initial stiffness per kg, 1/s^2.
+    pub stiffness_per_s2: f32,
+}
+
+/// Encoder interpolation error: the reading is `x + a1 sin(theta) + a2 sin(2 theta)`,
+/// `theta = 2 pi x / period + phase`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Ripple {
+    /// First-harmonic amplitude, nm.
+    pub amp_nm: f32,
+    /// Second-harmonic amplitude, nm.
+    pub harmonic2_nm: f32,
+    /// `2^32 / period`, turns per nm.
+    pub turns_per_nm: u32,
+    /// Phase at position zero, turns (2^32 per turn).
+    pub phase_turns: u32,
+}
+
+/// Why an [`AxisParams`] is refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AxisError {
+    /// A value is not finite or out of its documented range (the field's name).
+    OutOfRange(&'static str),
+}
+
+/// `lo <= x <= hi`, false for NaN.
+fn within(x: f32, lo: f32, hi: f32) -> bool {
+    x >= lo && x <= hi
+}
+
+impl AxisParams {
+    /// Checks every value is finite and physically plausible: gains and times positive
+    /// and bounded so the coefficients and states stay well inside single precision.
+    pub fn check(&self) -> Result<(), AxisError> {
+        let checks: [(&'static str, bool); 11] = [
+            ("cmd_delay_ticks", self.cmd_delay_ticks <= MAX_CMD_DELAY_TICKS),
+            ("kp_per_s2", within(self.kp_per_s2, 1.0, 1e9)),
+            ("ki_per_s3", within(self.ki_per_s3, 0.0, 1e12)),
+            ("kd_per_s", within(self.kd_per_s, 0.0, 1e6)),
+            ("vff_per_s", within(self.vff_per_s, -1e6, 1e6)),
+            ("aff", within(self.aff, -10.0, 10.0)),
+            ("viscous_per_s", within(self.viscous_per_s, 0.0, 1e6)),
+            ("current_tau_s", within(self.current_tau_s, 1e-6, 0.1)),
+            ("mode_freq_hz", within(self.mode_freq_hz, 1.0, 3000.0)),
+            ("mode_damping", within(self.mode_damping, 0.001, 10.0)),
+            ("mode_tcp_gain", within(self.mode_tcp_gain, -100.0, 100.0)),
+        ];
+        for (name, ok) in checks {
+            if !ok {
+                return Err(AxisError::OutOfRange(name));
+            }
+        }
+        if let Some(f) = &self.friction {
+            let checks: [(&'static str, bool); 4] = [
+                ("friction.coulomb_mps2", within(f.coulomb_mps2, 0.0, 1e3)),
+                ("friction.static_mps2", within(f.static_mps2, 0.0, 1e3)),
+                ("friction.stribeck_mps", within(f.stribeck_mps, 1e-7, 1.0)),
+                ("friction.smooth_mps", within(f.smooth_mps, 1e-8, 1.0)),
+            ];
+            for (name, ok) in checks {
+                if !ok {
+                    return Err(AxisError::OutOfRange(name));
+                }
+            }
+        }
+        if let Some(h) = &self.hysteresis {
+            if !within(h.force_mps2, 1e-6, 1e3) {
+                return Err(AxisError::OutOfRange("hysteresis.force_mps2"));
+            }
+            if !within(h.stiffness_per_s2, 1.0, 1e10) {
+                return Err(AxisError::OutOfRange("hysteresis.stiffness_per_s2"));
+            }
+        }
+        if let Some(r) = &self.ripple {
+            if !within(r.amp_nm, -1e4, 1e4) {
+                return Err(AxisError::OutOfRange("ripple.amp_nm"));
+            }
+            if !within(r.harmonic2_nm, -1e4, 1e4) {
+                return Err(AxisError::OutOfRange("ripple.harmonic2_nm"));
+            }
+            if r.turns_per_nm == 0 {
+                return Err(AxisError::OutOfRange("ripple.turns_per_nm"));
+            }
+        }
+        Ok(())
+    }
+}

@@ -30,7 +30,7 @@
 //! ordinary imprecision of a well-fitted model is not mistaken for a missing effect.
 
 mod candidates;
-mod linalg;
+pub(crate) mod linalg;
 
 use std::f64::consts::PI;
 

@@ -23,6 +23,8 @@
 //! formulas and terms together. The model file gains an `effects` field recording each
 //! effect's estimated parameters; the terms are in the program itself.
 
+pub mod axis;
+
 use std::f64::consts::PI;
 use std::path::Path;
 

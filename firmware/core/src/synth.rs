@@ -9,6 +9,7 @@
 //! phase offset move to their new values linearly over [`Synth::ramp_ticks`] ticks, the
 //! phase along the shorter way round, so the synthesised waveform stays continuous.
 
+use crate::axis::{AxisModel, AxisState};
 use crate::program::{ModelOutput, TermInput, TickTerm, LAGUERRE_STAGES, MAX_TERMS};
 
 /// What the servo tick hands the synthesiser: the command and the other axes.
@@ -272,7 +273,7 @@ pub fn laguerre_stages_are_narrow(pole_q30: i32, gains_pm: &[i32; LAGUERRE_STAGE
 pub const VELOCITY_SMOOTH_32_BIT_LIMIT: i32 = 1 << 17;
 
 /// Kernel state of a term other than a harmonic.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct KernelState {
     /// Laguerre stage outputs, Q24.
     stages: Stages,
@@ -294,6 +295,8 @@ struct KernelState {
     minus_two_pole_q30: i32,
     /// Whether the command history is valid.
     primed: bool,
+    /// A servo-axis twin's coefficients (computed when the term starts) and state.
+    axis: Option<(AxisModel, AxisState)>,
 }
 
 impl KernelState {
@@ -307,6 +310,7 @@ impl KernelState {
         two_pole_q30: 0,
         minus_two_pole_q30: 0,
         primed: false,
+        axis: None,
     };
 
     /// The state a kernel term starts from at machine time `ticks`. Out of line: its 64-bit
@@ -325,6 +329,9 @@ impl KernelState {
                 state.two_pole_q30 = pole_q30.wrapping_mul(2);
                 state.minus_two_pole_q30 = pole_q30.wrapping_mul(-2);
             }
+            // The discretisation (f64, software on the target) runs here, once per program.
+            // Parameters the validator let through always give a model.
+            TickTerm::Axis(ref params) => state.axis = AxisModel::new(params).ok().map(|model| (model, AxisState::INITIAL)),
             _ => {}
         }
         state
@@ -456,6 +463,10 @@ fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput, ticks: u6
             x + harmonic_pm(*spindle_amp_pm, input.spindle_turns.wrapping_add(*spindle_phase_turns)) as i64
         }
         TickTerm::Laguerre { input: kind, pole_q30, gains_pm } => laguerre_pm(kind, *pole_q30, gains_pm, st, input),
+        TickTerm::Axis(_) => match &mut st.axis {
+            Some((model, axis)) => model.step(axis, input.cmd_pos_nm),
+            None => 0,
+        },
     }
 }
 
@@ -1075,7 +1086,8 @@ impl Synth {
             let slot = self.slot_mut(i);
             if slot.term.is_some() {
                 let keep = slot.state;
-                slot.state = KernelState { stages: keep.stages.rested(), pos_hist: [0; 4], dahl_q30: 0, primed: false, ..keep };
+                let axis = keep.axis.map(|(model, _)| (model, AxisState::INITIAL));
+                slot.state = KernelState { stages: keep.stages.rested(), pos_hist: [0; 4], dahl_q30: 0, primed: false, axis, ..keep };
             }
         }
     }

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::validate::register_ok;
+use crate::axis::AxisParams;
 use crate::synth::{laguerre_stages_are_narrow, VELOCITY_SMOOTH_32_BIT_LIMIT};
 
 /// Highest harmonic order a [`TickTerm::Harmonic`] may have.
@@ -55,6 +56,10 @@ pub enum TickTerm {
         /// Output weight of each stage, picometres per unit stage output.
         gains_pm: [i32; LAGUERRE_STAGES],
     },
+    /// A servo-axis twin ([`crate::axis`]): the TCP deviation that friction, presliding
+    /// hysteresis or the encoder's interpolation error cause, simulated every tick from the
+    /// command through the identified controller, slide and structural mode.
+    Axis(AxisParams),
 }
 
 /// Stages of a [`TickTerm::Laguerre`] filter bank.
@@ -94,6 +99,7 @@ impl TickTerm {
             }
             Self::Drift { tau_ticks, .. } => tau_ticks >= 256,
             Self::AxisCoupling { .. } => true,
+            Self::Axis(params) => params.check().is_ok(),
             Self::Laguerre { input, pole_q30, .. } => {
                 let input_ok = match input {
                     TermInput::VelocitySign { smooth_nm_per_4_ticks } => smooth_nm_per_4_ticks >= 1,
@@ -154,6 +160,15 @@ pub mod tick_cost {
     /// An axis-coupling term (90 measured with the bus's X acceleration and spindle words;
     /// 48 when the servo passed constant zeros the compiler could fold).
     pub const AXIS_COUPLING: u32 = 94;
+    /// A servo-axis twin without effects: the linear axis and the deviation's controller,
+    /// slide and mode in single precision.
+    pub const AXIS: u32 = 250;
+    /// More for the axis's friction law (two exponentials and a division).
+    pub const AXIS_FRICTION: u32 = 110;
+    /// More for its presliding hysteresis.
+    pub const AXIS_HYSTERESIS: u32 = 30;
+    /// More for its encoder interpolation error (two table sines).
+    pub const AXIS_RIPPLE: u32 = 45;
 }
 
 impl TickTerm {
@@ -166,6 +181,11 @@ impl TickTerm {
             Self::Harmonic { .. } => HARMONIC,
             Self::Drift { .. } => DRIFT,
             Self::AxisCoupling { .. } => AXIS_COUPLING,
+            Self::Axis(ref p) => {
+                AXIS + if p.friction.is_some() { AXIS_FRICTION } else { 0 }
+                    + if p.hysteresis.is_some() { AXIS_HYSTERESIS } else { 0 }
+                    + if p.ripple.is_some() { AXIS_RIPPLE } else { 0 }
+            }
             Self::Laguerre { input, pole_q30, ref gains_pm } => {
                 let bank = match input {
                     TermInput::VelocitySign { smooth_nm_per_4_ticks } if smooth_nm_per_4_ticks >= VELOCITY_SMOOTH_32_BIT_LIMIT => {

@@ -7,16 +7,15 @@
 //!
 //! | effect | term(s) |
 //! |---|---|
-//! | `coulomb-friction` | Laguerre bank on the saturated sign of the command velocity |
-//! | `presliding-hysteresis` | Laguerre bank on the Dahl state of the command position |
-//! | `force-ripple` | two Laguerre banks on sine and cosine of the command position over the pitch |
+//! | `coulomb-friction`, `presliding-hysteresis`, `force-ripple` | one servo-axis twin ([`axis`], [`sts_twin_core::axis`]): the controller, slide, mode and the effects simulated from the command, identified on the encoder and probe readings |
 //! | `thermal-drift` | `offset + decay exp(-t / tau)` over machine time |
 //! | `axis-coupling` | X acceleration gain and the spindle's once-per-revolution sine |
 //! | `structural-mode`, `loop-delay`, `sensor-gain` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
 //!
-//! How: the terms are fitted first, on what the formulas can never explain: each group's
-//! dynamic error minus its own sine at the command frequency (regressors likewise made
-//! orthogonal to that sine per group). The dataset's `z_tcp_um` is then reduced by the terms'
+//! How: the terms are fitted first: drift and coupling on what the formulas can never explain
+//! (each group's dynamic error minus its own sine at the command frequency, regressors likewise
+//! made orthogonal to that sine per group), the axis twin on the whole encoder and probe
+//! readings (it simulates the whole axis; its term adds only the effects' deviation). The dataset's `z_tcp_um` is then reduced by the terms'
 //! full output (their share at the command frequency included), and the usual fit trains
 //! the amplitude and phase formulas on that, so that formulas plus terms reproduce the
 //! measurement without counting anything twice. Held-out figures of the fit then score
@@ -32,7 +31,7 @@ use anyhow::Context as _;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sts_dataset::{Dataset, GroupData};
-use sts_twin_core::program::{TermInput, TickTerm, LAGUERRE_STAGES};
+use sts_twin_core::program::{TermInput, TickTerm};
 
 use crate::analysis::targets;
 use crate::diagnose::{solve, Stats, EFFECTS};
@@ -100,11 +99,6 @@ fn project_out_fundamental(y: &[f64], theta: &[f64]) -> Vec<f64> {
     y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k] - th[2]).collect()
 }
 
-/// f64 mirror of the firmware's Laguerre bank (stage outputs over the whole group).
-fn laguerre_all(u: &[f64], stages: usize) -> Vec<Vec<f64>> {
-    crate::diagnose::laguerre_bank(u, 0, POLE, stages)
-}
-
 /// The inputs of a term kind, as the firmware computes them from the command position.
 fn term_input(kind: &TermInput, pos: &[i32]) -> Vec<f64> {
     match *kind {
@@ -135,75 +129,10 @@ fn term_input(kind: &TermInput, pos: &[i32]) -> Vec<f64> {
     }
 }
 
-/// Regressor columns of one group for a set of term inputs (each through a Laguerre bank)
-/// over the window: (made orthogonal to the group's fundamental, as they are).
-fn columns(g: &GroupInputs, kinds: &[TermInput]) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
-    let mut projected = Vec::new();
-    let mut raw = Vec::new();
-    for kind in kinds {
-        let u = term_input(kind, &g.pos_nm);
-        for stage in laguerre_all(&u, LAGUERRE_STAGES) {
-            projected.push(project_out_fundamental(&stage[g.start..], &g.theta[g.start..]));
-            raw.push(stage[g.start..].to_vec());
-        }
-    }
-    (projected, raw)
-}
-
 /// Weight of the penalty on a term's whole output energy: the fit sees only what the formulas
 /// cannot explain, so a combination of stages that is nearly a pure sine at the command
 /// frequency is undetermined by it; the penalty keeps such combinations small.
 pub const OUTPUT_PENALTY: f64 = 1e-2;
-
-/// Fits the Laguerre coefficients for `kinds` on all groups; returns (coefficients, SSE).
-fn fit_kinds(inputs: &[GroupInputs], kinds: &[TermInput]) -> (Vec<f64>, f64) {
-    let pairs: Vec<(Stats, Stats)> = inputs
-        .par_iter()
-        .map(|g| {
-            let (p, r) = columns(g, kinds);
-            (Stats::from_columns(&p, &g.target), Stats::from_columns(&r, &vec![0.0; g.target.len()]))
-        })
-        .collect();
-    let mut penalised: Vec<Stats> = pairs.iter().map(|(p, _)| p.clone()).collect();
-    for (s, (_, raw)) in penalised.iter_mut().zip(&pairs) {
-        for (row, raw_row) in s.xtx.iter_mut().zip(&raw.xtx) {
-            for (v, r) in row.iter_mut().zip(raw_row) {
-                *v += OUTPUT_PENALTY * r;
-            }
-        }
-    }
-    let refs: Vec<&Stats> = penalised.iter().collect();
-    let theta = solve(&refs);
-    let sse = pairs.iter().map(|(p, _)| p.sse(&theta)).sum();
-    (theta, sse)
-}
-
-fn laguerre_terms(kinds: &[TermInput], theta: &[f64]) -> Vec<TickTerm> {
-    kinds
-        .iter()
-        .enumerate()
-        .map(|(i, kind)| {
-            let mut gains_pm = [0i32; LAGUERRE_STAGES];
-            for (s, g) in gains_pm.iter_mut().enumerate() {
-                *g = (theta[i * LAGUERRE_STAGES + s] * 1e6).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32;
-            }
-            TickTerm::Laguerre { input: *kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm }
-        })
-        .collect()
-}
-
-/// Picks the best of several input-kind sets by SSE.
-fn best_of(inputs: &[GroupInputs], sets: Vec<Vec<TermInput>>) -> (Vec<TermInput>, Vec<f64>) {
-    let mut best: Option<(Vec<TermInput>, Vec<f64>, f64)> = None;
-    for kinds in sets {
-        let (theta, sse) = fit_kinds(inputs, &kinds);
-        if best.as_ref().is_none_or(|b| sse < b.2) {
-            best = Some((kinds, theta, sse));
-        }
-    }
-    let (k, t, _) = best.expect("at least one set");
-    (k, t)
-}
 
 /// The ripple's pitch: the position sine (unfiltered) that best explains the slowest groups,
 /// where the servo follows a position-periodic error without filtering (peak command velocity
@@ -255,27 +184,13 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
         .collect::<anyhow::Result<_>>()?;
     let mut terms = Vec::new();
     let mut records = Vec::new();
+    let mut axis_names: Vec<String> = Vec::new();
     for name in names {
         let (new_terms, params, note) = match name.as_str() {
-            "coulomb-friction" => {
-                let sets = [2, 8, 30, 120].iter().map(|&s| vec![TermInput::VelocitySign { smooth_nm_per_4_ticks: s }]).collect();
-                let (kinds, theta) = best_of(&inputs, sets);
-                let TermInput::VelocitySign { smooth_nm_per_4_ticks } = kinds[0] else { unreachable!() };
-                let smooth = f64::from(smooth_nm_per_4_ticks) * fs / 4.0 / 1000.0;
-                (laguerre_terms(&kinds, &theta), vec![("smoothing_velocity_um_per_s".to_string(), smooth)], "Laguerre bank on the saturated sign of the command velocity".to_string())
-            }
-            "presliding-hysteresis" => {
-                let sets = [100.0, 300.0, 1000.0, 3000.0].iter().map(|&x0: &f64| vec![TermInput::Dahl { inv_x0_q30: ((1u64 << 30) as f64 / x0).round() as i32 }]).collect();
-                let (kinds, theta) = best_of(&inputs, sets);
-                let TermInput::Dahl { inv_x0_q30 } = kinds[0] else { unreachable!() };
-                let x0_um = (1u64 << 30) as f64 / f64::from(inv_x0_q30) / 1000.0;
-                (laguerre_terms(&kinds, &theta), vec![("presliding_distance_um".to_string(), x0_um)], "Laguerre bank on the Dahl state of the command position".to_string())
-            }
-            "force-ripple" => {
-                let (kinds, theta) = best_of(&inputs, vec![ripple_pitch(dataset, &inputs)]);
-                let TermInput::PositionSine { turns_per_nm, .. } = kinds[0] else { unreachable!() };
-                let pitch_um = 4_294_967_296.0 / f64::from(turns_per_nm) / 1000.0;
-                (laguerre_terms(&kinds, &theta), vec![("pitch_um".to_string(), pitch_um)], "two Laguerre banks on the sine and cosine of the command position".to_string())
+            "coulomb-friction" | "presliding-hysteresis" | "force-ripple" => {
+                // One servo-axis twin carries all three (identified together below).
+                axis_names.push(name.clone());
+                continue;
             }
             "thermal-drift" => {
                 let (term, params) = fit_drift(dataset, &inputs, fs);
@@ -289,6 +204,11 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
         };
         records.push(EffectRecord { effect: name.clone(), params, terms: new_terms.len(), note });
         terms.extend(new_terms);
+    }
+    if !axis_names.is_empty() {
+        let (term, axis_records) = fit_axis(dataset, &inputs, &axis_names)?;
+        terms.push(term);
+        records.extend(axis_records);
     }
     if terms.len() > sts_twin_core::program::MAX_TERMS {
         anyhow::bail!("--effect: {} per-tick terms needed, the program holds at most {}", terms.len(), sts_twin_core::program::MAX_TERMS);
@@ -325,6 +245,69 @@ pub fn terms_output(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64
             f64::from(synth.next_input(&input)) * 1e-6
         })
         .collect()
+}
+
+/// The servo-axis twin for friction, hysteresis and encoder error (any of them): one term,
+/// and a record per effect with its parameters (per kg of moving mass) and the axis's fit.
+fn fit_axis(dataset: &Dataset, inputs: &[GroupInputs], names: &[String]) -> anyhow::Result<(TickTerm, Vec<EffectRecord>)> {
+    let has = |n: &str| names.iter().any(|x| x == n);
+    let ripple_pitch_um = if has("force-ripple") {
+        let TermInput::PositionSine { turns_per_nm, .. } = ripple_pitch(dataset, inputs)[0] else { unreachable!("ripple_pitch gives position sines") };
+        Some(4_294_967_296.0 / f64::from(turns_per_nm) / 1000.0)
+    } else {
+        None
+    };
+    let effects = axis::AxisEffects { friction: has("coulomb-friction"), hysteresis: has("presliding-hysteresis"), ripple_pitch_um };
+    let fit = axis::identify(dataset, effects).context("identifying the servo axis")?;
+    let p = fit.params;
+    let shared = |params: &mut Vec<(String, f64)>| {
+        params.extend([
+            ("servo_kp_per_s2".to_string(), f64::from(p.kp_per_s2)),
+            ("servo_ki_per_s3".to_string(), f64::from(p.ki_per_s3)),
+            ("servo_kd_per_s".to_string(), f64::from(p.kd_per_s)),
+            ("command_delay_ticks".to_string(), f64::from(p.cmd_delay_ticks)),
+            ("mode_freq_hz".to_string(), f64::from(p.mode_freq_hz)),
+            ("mode_damping".to_string(), f64::from(p.mode_damping)),
+            ("axis_encoder_rms_nm".to_string(), fit.encoder_rms_nm),
+            ("axis_tcp_rms_nm".to_string(), fit.tcp_rms_nm),
+        ])
+    };
+    let mut records = Vec::new();
+    for name in names {
+        let mut params: Vec<(String, f64)> = match name.as_str() {
+            "coulomb-friction" => p.friction.map_or_else(Vec::new, |f| {
+                vec![
+                    ("coulomb_mps2".to_string(), f64::from(f.coulomb_mps2)),
+                    ("static_mps2".to_string(), f64::from(f.static_mps2)),
+                    ("stribeck_velocity_um_per_s".to_string(), f64::from(f.stribeck_mps) * 1e6),
+                    ("smoothing_velocity_um_per_s".to_string(), f64::from(f.smooth_mps) * 1e6),
+                ]
+            }),
+            "presliding-hysteresis" => p.hysteresis.map_or_else(Vec::new, |h| {
+                vec![
+                    ("force_mps2".to_string(), f64::from(h.force_mps2)),
+                    ("presliding_distance_um".to_string(), f64::from(h.force_mps2 / h.stiffness_per_s2) * 1e6),
+                ]
+            }),
+            _ => p.ripple.map_or_else(Vec::new, |r| {
+                vec![
+                    ("amp_nm".to_string(), f64::from(r.amp_nm)),
+                    ("harmonic2_nm".to_string(), f64::from(r.harmonic2_nm)),
+                    ("pitch_um".to_string(), 4_294_967_296.0 / f64::from(r.turns_per_nm) / 1000.0),
+                    ("phase_deg".to_string(), f64::from(r.phase_turns) / 4_294_967_296.0 * 360.0),
+                ]
+            }),
+        };
+        shared(&mut params);
+        let first = records.is_empty();
+        records.push(EffectRecord {
+            effect: name.clone(),
+            params,
+            terms: usize::from(first),
+            note: format!("servo-axis twin (controller, slide, mode and the effect, simulated per tick from the command; forces per kg){}", if first { "" } else { ": the term above" }),
+        });
+    }
+    Ok((TickTerm::Axis(p), records))
 }
 
 fn fit_drift(dataset: &Dataset, inputs: &[GroupInputs], fs: f64) -> (TickTerm, Vec<(String, f64)>) {
@@ -462,9 +445,10 @@ mod tests {
             TermInput::Dahl { inv_x0_q30: ((1u64 << 30) as f64 / 700.0) as i32 },
             TermInput::PositionSine { turns_per_nm: (4_294_967_296.0f64 / 3000.0) as u32, phase_turns: 1 << 30 },
         ] {
-            let terms = laguerre_terms(&[kind], &gains);
+            let gains_pm = gains.map(|w| (w * 1e6) as i32);
+            let terms = [TickTerm::Laguerre { input: kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm }];
             let kernel = terms_output(&terms, &g, 0.0, 8000.0);
-            let stages = laguerre_all(&term_input(&kind, &pos), LAGUERRE_STAGES);
+            let stages = crate::diagnose::laguerre_bank(&term_input(&kind, &pos), 0, POLE, sts_twin_core::program::LAGUERRE_STAGES);
             let worst = (0..g.len())
                 .map(|k| (kernel[k] - stages.iter().zip(&gains).map(|(s, w)| s[k] * w).sum::<f64>()).abs())
                 .fold(0.0, f64::max);

@@ -23,6 +23,7 @@ use std::time::{Duration, Instant};
 
 use sts_twin::hil::{bench_inputs, Hil, HilError, INSTRUCTION_BENCH_SHIFT};
 use sts_twin::rig::request_on;
+use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
 use sts_twin_core::features::{FeatureConfig, BLOCK_SAMPLES};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::{paper_program, Program, TermInput, TickTerm, LAGUERRE_STAGES, TICK_BUDGET_INSTRUCTIONS};
@@ -61,6 +62,28 @@ fn drift() -> TickTerm {
 
 fn axis_coupling() -> TickTerm {
     TickTerm::AxisCoupling { x_gain_pm_per_mps2: 800_000, spindle_amp_pm: 50_000, spindle_phase_turns: 1 << 30 }
+}
+
+/// A servo-axis twin of the default machine (per kg of its 45 kg slide) with the chosen
+/// effects, each on its most expensive path for the bench's ramp command: Stribeck and
+/// smoothing velocities above the ramp's, so both exponentials run their full series.
+fn axis(friction: bool, hysteresis: bool, ripple: bool) -> TickTerm {
+    TickTerm::Axis(AxisParams {
+        cmd_delay_ticks: 2,
+        kp_per_s2: 234_467.0,
+        ki_per_s3: 20_004_000.0,
+        kd_per_s: 396.1,
+        vff_per_s: 10.0,
+        aff: 0.3,
+        viscous_per_s: 6.67,
+        current_tau_s: 80e-6,
+        mode_freq_hz: 89.554,
+        mode_damping: 0.28,
+        mode_tcp_gain: 2.3662,
+        friction: friction.then_some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 0.5, smooth_mps: 0.1 }),
+        hysteresis: hysteresis.then_some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 }),
+        ripple: ripple.then_some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_383, phase_turns: 1 << 29 }),
+    })
 }
 
 fn harmonics(count: u8) -> Vec<TickTerm> {
@@ -248,6 +271,16 @@ fn bench_twin_tick_drift_and_coupling() {
     bench("+ Drift + AxisCoupling", &[drift(), axis_coupling()]);
     bench("+ 1 Laguerre bank (velocity sign) + Drift", &[velocity_sign(), drift()]);
     bench("+ 1 Laguerre bank (Dahl) + AxisCoupling", &[dahl(), axis_coupling()]);
+}
+
+#[test]
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn bench_twin_tick_axis() {
+    bench("+ axis twin", &[axis(false, false, false)]);
+    bench("+ axis twin with friction", &[axis(true, false, false)]);
+    bench("+ axis twin with hysteresis", &[axis(false, true, false)]);
+    bench("+ axis twin with encoder error", &[axis(false, false, true)]);
+    bench("+ axis twin with all three", &[axis(true, true, true)]);
 }
 
 #[test]

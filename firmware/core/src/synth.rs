@@ -464,7 +464,7 @@ fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput, ticks: u6
         }
         TickTerm::Laguerre { input: kind, pole_q30, gains_pm } => laguerre_pm(kind, *pole_q30, gains_pm, st, input),
         TickTerm::Axis(_) => match &mut st.axis {
-            Some((model, axis)) => model.step(axis, input.cmd_pos_nm),
+            Some((model, axis)) => i64::from(model.step(axis, input.cmd_pos_nm)),
             None => 0,
         },
     }

@@ -745,11 +745,10 @@ impl Harmonics {
     /// used to restart it with truncated steps: below `ramp` pm an amplitude never reached
     /// zero). Meanwhile the terms that replace a fading harmonic in its slot, and any
     /// kernel term that is not kept, wait: they start with the first update after the fade
-    /// (a harmonic from silence, a kernel from rest). So the tick never runs more than the
-    /// old program's terms, the new one's, or (without new kernels) its harmonics beside the
-    /// fading ones: within the budget of the programs on either side (see
-    /// [`crate::program::tick_cost`]). New harmonics in free slots start at once, kernel
-    /// terms that go stop at once (as before: they have no ramp).
+    /// (a harmonic from silence, a kernel from rest), so that the tick never runs the old
+    /// harmonics beside new kernel terms and stays within the budget of the programs on
+    /// either side (see [`crate::program::tick_cost`]). New harmonics in free slots start at
+    /// once, kernel terms that go stop at once (as before: they have no ramp).
     fn retarget_terms(&mut self, targets: &SynthTargets, count: usize, running: u32, kept: u32, ramp_left: u32, ramp: u32) -> TermsUpdate {
         let count = count.min(MAX_TERMS);
         // Masked to MAX_TERMS = 8 slots: no index below can be out of bounds.
@@ -814,9 +813,10 @@ impl Harmonics {
             }
         }
         fading |= new_fading;
-        let ramp_left = if new_fading != 0 || (fading != 0 && ramp < ramp_left) {
-            // A fade starts (or the update's ramps would end before the fade does): every
-            // fading harmonic ramps out from where it is, in step with the update's ramps.
+        let ramp_left = if new_fading != 0 || (fading != 0 && (ramp < ramp_left || ramp_left == 0)) {
+            // A fade starts (or the update's ramps would end before the fade does; or no
+            // event is due, which a fade always has): every fading harmonic ramps out from
+            // where it is, in step with the update's ramps.
             let mut restart = fading & 0xff;
             while restart != 0 {
                 let i = (restart.trailing_zeros() & 7) as usize;

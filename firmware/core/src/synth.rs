@@ -1719,6 +1719,55 @@ mod tests {
     }
 
     #[test]
+    fn a_kept_kernel_term_runs_on_through_a_switch_and_a_new_order_waits_for_the_old_one() {
+        let bank = TickTerm::Laguerre { input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 }, pole_q30: 998_579_896, gains_pm: [90_000, -40_000, 20_000, 0, 0, 0, 0, 0] };
+        let drift = TickTerm::Drift { offset_pm: 200_000, decay_pm: -300_000, tau_ticks: 5000 };
+        let harmonic = |order, amp_reg| TickTerm::Harmonic { order, amp_reg, phase_reg: amp_reg + 1 };
+        let out = harmonic_output();
+        let (before, after) = ([bank, harmonic(2, 2), harmonic(3, 6)], [bank, harmonic(5, 2), drift]);
+        let mut synth = Synth::new(80);
+        // The bank alone, never switched: the kept bank's state must stay the same as its.
+        let mut alone = Synth::new(80);
+        synth.update(&out, &before);
+        alone.update(&out, &[bank]);
+        let mut pos = 0i32;
+        let mut tick = |synth: &mut Synth, alone: &mut Synth, k: u32| {
+            pos = pos.wrapping_add(((k * 37) % 301) as i32 - 150);
+            let input = TickInput { cmd_phase_turns: k.wrapping_mul(0x0147_ae14), cmd_pos_nm: pos, ..TickInput::default() };
+            synth.next_input(&input);
+            alone.next_input(&input);
+        };
+        for k in 0..200 {
+            tick(&mut synth, &mut alone, k);
+        }
+        for k in 0..300u32 {
+            if k % 48 == 0 {
+                synth.update(&out, &after);
+            }
+            tick(&mut synth, &mut alone, 200 + k);
+            assert_eq!(synth.slot(0).state, alone.slot(0).state, "tick {k}");
+            let h = synth.harmonics();
+            let (slot_1, slot_2) = (h.ramps[1], h.ramps[2]);
+            if k < 79 {
+                // Both old harmonics fade (the second order's slot now a drift's); the bank runs.
+                assert_eq!((h.fading, h.kernels.kernel_mask, h.orders[1]), (0b110, 0b1, 2), "tick {k}");
+                assert!(slot_1.amp_pm != 0 && slot_2.amp_pm != 0, "tick {k}");
+            } else if k < 96 {
+                // Gone; the fifth order and the drift wait for the next update.
+                assert_eq!((h.fading, h.kernels.kernel_mask, h.term_count), (0, 0b1, 3), "tick {k}");
+                assert_eq!((slot_1.amp_pm, slot_2.amp_pm), (0, 0), "tick {k}");
+            } else {
+                // The update at tick 96 starts both: the fifth order ramps in from silence.
+                assert_eq!((h.orders[1], h.kernels.kernel_mask), (5, 0b101), "tick {k}");
+                if k < 96 + 79 {
+                    let target = slot_1.amp_target_pm;
+                    assert!(slot_1.amp_pm.abs() <= target.abs() && slot_1.amp_pm != target, "tick {k}: {} of {target}", slot_1.amp_pm);
+                }
+            }
+        }
+    }
+
+    #[test]
     fn drift_follows_its_exponential_over_machine_time() {
         let mut synth = Synth::new(0);
         let term = TickTerm::Drift { offset_pm: 800_000, decay_pm: -800_000, tau_ticks: 8000 * 900 };

@@ -16,8 +16,8 @@
 //! against the program validator's cost model: the worst tick must be within
 //! `Program::tick_cost`, and that within the budget of 800 (the cases are the most expensive
 //! programs the validator accepts of each kind). `bench_twin_tick_program_switch` measures
-//! what the model leaves out: a switch from a program with harmonic terms to one with
-//! kernel terms.
+//! program switches (the old program's harmonics ramping out while the new one starts),
+//! checked the same way against the larger of the two programs' cost models.
 
 use std::time::{Duration, Instant};
 
@@ -291,15 +291,38 @@ fn bench_twin_tick_harmonics_with_kernels() {
     bench("+ 3 harmonic terms + 1 Laguerre bank (position sine)", &terms);
 }
 
-/// What the cost model leaves out: a program with eight harmonic terms, then (uploaded at
-/// tick 6,000) one with two Laguerre banks and a drift. The first result of the second
-/// program ramps out six of the old harmonics beside the new terms.
+/// Program switches: the old program's harmonics that go ramp out before the new program's
+/// kernel terms start (the synthesiser's fade), so that no tick runs more than the programs
+/// on either side. Each case uploads the second program at tick 6,000 and is checked against
+/// the budget and against the larger of the two cost models. The first case is the one that
+/// ran the old harmonics beside the new banks before (1,001 instructions); the others are
+/// the tightest the validator accepts: a kernel bank kept through the switch with three
+/// harmonics fading beside it, a switch to the most expensive accepted program, and back.
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_twin_tick_program_switch() {
+    let mut three_and_bank = harmonics(3);
+    three_and_bank.insert(0, position_sine(0));
+    let cases = [
+        ("8 harmonic terms, then 2 Laguerre banks", program_with(&harmonics(8)), program_with(&[position_sine(0), position_sine(1 << 30)])),
+        ("1 Laguerre bank + 3 harmonic terms, then the bank + Drift", program_with(&three_and_bank), program_with(&[position_sine(0), drift()])),
+        ("1 Laguerre bank + 3 harmonic terms, then Dahl + AxisCoupling", program_with(&three_and_bank), program_with(&[dahl(), axis_coupling()])),
+        ("Dahl + AxisCoupling, then 8 harmonic terms", program_with(&[dahl(), axis_coupling()]), program_with(&harmonics(8))),
+    ];
+    for (name, first, second) in cases {
+        switch(name, &first, &second);
+    }
+}
+
+/// Runs `first`, uploads `second` at tick 6,000, and prints the worst tick before the switch,
+/// in the 1,000 ticks after it and later, under both windows; checks the worst against the
+/// budget and the larger of the two programs' cost models.
+fn switch(name: &str, first: &Program, second: &Program) {
     let _serial = sts_hil_tests::serial();
-    let first = program_with(&harmonics(8));
-    let second = program_with(&[position_sine(0), position_sine(1 << 30)]);
+    assert_eq!(first.validate(), Ok(()), "{name}: the firmware would reject the first program");
+    assert_eq!(second.validate(), Ok(()), "{name}: the firmware would reject the second program");
+    let model = first.tick_cost().max(second.tick_cost());
+    let mut worst_all = 0.0f64;
     for window in WINDOWS {
         let mut config = sts_hil_tests::twin_config();
         config.icount_shift = INSTRUCTION_BENCH_SHIFT;
@@ -312,23 +335,30 @@ fn bench_twin_tick_program_switch() {
             if k == 6000 {
                 match request_on(&mut hil, 9, Request::UploadProgram { program: second.clone(), activate: true }) {
                     Ok(Response::Ack) => {}
-                    other => panic!("uploading the second program: {other:?}"),
+                    other => panic!("{name}: uploading the second program: {other:?}"),
                 }
             }
             hil.step(input).expect("tick");
             busy.push(tick_instructions(&hil, &mut sum, per_count));
         }
+        let busy_max = f64::from(hil.diagnostics().busy_max_counts) * per_count;
+        let underruns = hil.counters().underruns;
         hil.shutdown().expect("shutdown");
+        assert_eq!(underruns, 0);
         let worst = |range: std::ops::Range<usize>| busy[range].iter().copied().fold(0.0, f64::max);
         println!(
-            "8 harmonic terms, then 2 Laguerre banks, window {window}: worst before the switch {:.0}, in the 1,000 ticks after it {:.0}, later {:.0} (cost models {} and {})",
+            "{name}, window {window}: worst before the switch {:.0}, in the 1,000 ticks after it {:.0}, later {:.0} (cost models {} and {})",
             worst(2000..6000),
             worst(6000..7000),
             worst(7000..12_000),
             first.tick_cost(),
             second.tick_cost()
         );
+        worst_all = worst_all.max(worst(0..busy.len())).max(busy_max);
     }
+    println!("    {name}: worst {worst_all:.0}, cost models at most {model}, budget {TICK_BUDGET_INSTRUCTIONS}");
+    assert!(worst_all <= f64::from(TICK_BUDGET_INSTRUCTIONS), "{name}: worst tick {worst_all:.0} beyond the budget");
+    assert!(worst_all <= f64::from(model), "{name}: worst tick {worst_all:.0} beyond the cost models' {model}");
 }
 
 /// Instructions of the tick just stepped. The firmware publishes the tick's count just after

@@ -8,6 +8,12 @@
 //! 48 pm at a 10 um amplitude). A model update never makes the output jump: amplitude and
 //! phase offset move to their new values linearly over [`Synth::ramp_ticks`] ticks, the
 //! phase along the shorter way round, so the synthesised waveform stays continuous.
+//!
+//! A change of terms (a program switch) does not step it either: a harmonic that goes ramps
+//! out over the same ramp, counted from the switch whatever model updates come meanwhile,
+//! lands on zero exactly and is dropped; the terms that take its slot, and new kernel terms
+//! (which have no ramp), start with the first update after, so the tick never runs the old
+//! harmonics beside new kernel terms (see `Harmonics::retarget_terms`).
 
 use crate::axis::{AxisModel, AxisState};
 use crate::program::{ModelOutput, TermInput, TickTerm, LAGUERRE_STAGES, MAX_TERMS};
@@ -637,19 +643,85 @@ struct Harmonics {
     /// Slots from here on are settled silent (amplitude, target and steps zero, phase at its
     /// target, no kernel): retargeting them to silence again would change nothing.
     idle_from: usize,
+    /// Slots whose harmonic ramps out because the terms changed (a program switch, see
+    /// [`Harmonics::retarget_terms`]): model updates leave them be, and the fade's last tick
+    /// silences them exactly and stops visiting them (`Synth::ramp_left` counts to it).
+    fading: u32,
+    /// While slots fade: the other ramps' steps left after the fade's last tick (0: they end
+    /// with it).
+    rest_ticks: u32,
+    /// Terms of the update in force: the slots visited once the fade is over.
+    count: usize,
     /// The kernel terms' cells (switched with the bank, so that applying a prepared update
     /// is one switch).
     kernels: KernelIndex,
 }
 
+/// What [`Harmonics::retarget_terms`] decided besides the ramps.
+struct TermsUpdate {
+    /// Kernel slots that run from the update on (those already running and kept, and those
+    /// starting from rest).
+    kernels: u32,
+    /// Ticks to the ramps' next event ([`Harmonics::end_ramps`]).
+    ramp_left: u32,
+}
+
 impl Harmonics {
-    const IDLE: Self = Self { fundamental: Ramp::IDLE, ramps: [Ramp::IDLE; MAX_TERMS], orders: [0; MAX_TERMS], term_count: 0, idle_from: 0, kernels: KernelIndex::INITIAL };
+    const IDLE: Self = Self {
+        fundamental: Ramp::IDLE,
+        ramps: [Ramp::IDLE; MAX_TERMS],
+        orders: [0; MAX_TERMS],
+        term_count: 0,
+        idle_from: 0,
+        fading: 0,
+        rest_ticks: 0,
+        count: 0,
+        kernels: KernelIndex::INITIAL,
+    };
 
     /// What the ticks of a running ramp end in: every visited value on its target.
     fn settle(&mut self) {
         self.fundamental.finish();
         let count = self.term_count.min(MAX_TERMS);
         self.ramps[..count].iter_mut().for_each(Ramp::finish);
+    }
+
+    /// The tick with one ramp tick left: the ramps end, settling on their targets, or a fade
+    /// ends ([`Harmonics::end_fade`]) while other ramps run on (this tick holds them, they
+    /// step on from the next). Returns the ramp ticks left after it.
+    fn end_ramps(&mut self) -> u32 {
+        if self.fading != 0 {
+            self.end_fade();
+            if self.rest_ticks != 0 {
+                return self.rest_ticks + 1;
+            }
+        }
+        self.settle();
+        0
+    }
+
+    /// The fade's last tick: the fading slots' amplitudes land on zero exactly (the step of
+    /// a ramp's last tick: its step and the remainder the truncated steps left), and only the
+    /// update's own terms are visited from now on.
+    #[cold]
+    fn end_fade(&mut self) {
+        let mut fading = self.fading & 0xff;
+        while fading != 0 {
+            let i = (fading.trailing_zeros() & 7) as usize;
+            fading &= fading - 1;
+            // Target and phase step are already zero: settled silent.
+            self.ramps[i].amp_pm = 0;
+            self.ramps[i].amp_step_pm = 0;
+        }
+        self.fading = 0;
+        self.term_count = self.count;
+        self.idle_from = self.count;
+    }
+
+    /// Whether slot `i`'s harmonic sounds now or by its ramp's end.
+    fn sounds(&self, i: usize) -> bool {
+        let ramp = &self.ramps[i & 7];
+        self.orders[i & 7] != 0 && (ramp.amp_pm != 0 || ramp.amp_target_pm != 0)
     }
 
     /// The harmonics of the slots in `slots` (bits) for command phase `cmd_phase_turns`,
@@ -672,69 +744,146 @@ impl Harmonics {
         total
     }
 
-    /// Starts the term slots' ramps to `targets` for `count` terms over `ramp` ticks;
-    /// `old_kernel_mask` marks the slots that held kernel terms. Returns the slots whose
-    /// kernel term must go.
-    fn retarget_terms(&mut self, targets: &SynthTargets, count: usize, old_kernel_mask: u32, ramp: u32) -> u32 {
-        let mut cleared = 0u32;
-        // Last slot holding a harmonic that is or will be audible.
-        let mut audible_to = 0;
-        // The harmonic slots, by their bits (masked to MAX_TERMS = 8 slots, so no index
-        // can be out of bounds).
-        let mut harmonics = !targets.kernel_mask & ((1u32 << count) - 1) & 0xff;
+    /// Starts the term slots' ramps to `targets` for `count` terms over `ramp` ticks, with
+    /// `ramp_left` ticks to the ramps' next event before the update. `running` marks the
+    /// slots whose kernel term runs, `kept` those of them whose term stays (the same term in
+    /// the same slot: it runs on with its state).
+    ///
+    /// A harmonic that has to go (its slot is beyond the terms, or holds another kind of
+    /// term now) ramps out over `ramp` ticks and is then dropped: the fade. It starts when
+    /// the terms change (a program switch), and later updates neither restart nor retarget
+    /// it, so it ends `ramp` ticks after the switch however often model updates come (they
+    /// used to restart it with truncated steps: below `ramp` pm an amplitude never reached
+    /// zero). Meanwhile the terms that replace a fading harmonic in its slot, and any
+    /// kernel term that is not kept, wait: they start with the first update after the fade
+    /// (a harmonic from silence, a kernel from rest), so that the tick never runs the old
+    /// harmonics beside new kernel terms and stays within the budget of the programs on
+    /// either side (see [`crate::program::tick_cost`]). New harmonics in free slots start at
+    /// once, kernel terms that go stop at once (as before: they have no ramp).
+    fn retarget_terms(&mut self, targets: &SynthTargets, count: usize, running: u32, kept: u32, ramp_left: u32, ramp: u32) -> TermsUpdate {
+        let count = count.min(MAX_TERMS);
+        // Masked to MAX_TERMS = 8 slots: no index below can be out of bounds.
+        let in_update = ((1u32 << count) - 1) & 0xff;
+        let kernel_slots = targets.kernel_mask & in_update;
+        let mut fading = self.fading;
+        let mut new_fading = 0u32;
+        let mut harmonics = !targets.kernel_mask & in_update;
         while harmonics != 0 {
             let i = (harmonics.trailing_zeros() & 7) as usize;
+            let bit = harmonics & harmonics.wrapping_neg();
             harmonics &= harmonics - 1;
             let order = targets.term_orders[i];
             let phase = targets.term_phase_turns[i];
-            if self.orders[i] != order || old_kernel_mask & (1 << i) != 0 {
+            if self.orders[i] == order && running & bit == 0 {
+                // The same harmonic, also one that was fading: on from where it is.
+                fading &= !bit;
+            } else if self.sounds(i) {
+                // Another harmonic sounds in the slot: it ramps out first.
+                new_fading |= bit & !fading;
+                continue;
+            } else {
                 // A new kind of term starts from silence at its own phase. (Its kernel state
                 // is not read while it is a harmonic, and is reset when it becomes a kernel.)
                 self.orders[i] = order;
                 self.ramps[i] = Ramp { phase_turns: phase, ..Ramp::IDLE };
-                cleared |= 1 << i;
+                fading &= !bit;
             }
-            let slot = &mut self.ramps[i];
-            slot.retarget(targets.term_amp_pm[i], phase, ramp);
-            if order != 0 && (slot.amp_pm != 0 || slot.amp_target_pm != 0) {
-                audible_to = i + 1;
+            self.ramps[i].retarget(targets.term_amp_pm[i], phase, ramp);
+        }
+        let mut kernels = kernel_slots & !kept;
+        while kernels != 0 {
+            let i = (kernels.trailing_zeros() & 7) as usize;
+            let bit = kernels & kernels.wrapping_neg();
+            kernels &= kernels - 1;
+            if self.sounds(i) {
+                // A harmonic sounds in the slot: it ramps out first.
+                new_fading |= bit & !fading;
+            } else {
+                // Silent: the slot is the kernel's (its ramp stays idle).
+                self.orders[i] = 0;
+                self.ramps[i] = Ramp::IDLE;
+                fading &= !bit;
             }
         }
-        // Harmonics that disappear ramp out; kernel terms stop at once (they have no ramp).
+        // Beyond the terms: harmonics ramp out, kernel terms stop.
         let mut idle_from = count;
         for i in count..self.idle_from.max(count) {
-            cleared |= 1 << i;
+            let bit = 1 << i;
+            if fading & bit != 0 {
+                continue;
+            }
+            if self.sounds(i) {
+                new_fading |= bit;
+                continue;
+            }
             let slot = &mut self.ramps[i];
             let phase = slot.phase_turns;
             slot.retarget(0, phase, ramp);
             if slot.amp_pm != 0 {
                 idle_from = i + 1;
-                if self.orders[i] != 0 {
-                    audible_to = i + 1;
-                }
             }
         }
-        self.idle_from = idle_from;
-        self.term_count = audible_to.max(count);
-        cleared
+        fading |= new_fading;
+        let ramp_left = if new_fading != 0 || (fading != 0 && (ramp < ramp_left || ramp_left == 0)) {
+            // A fade starts (or the update's ramps would end before the fade does; or no
+            // event is due, which a fade always has): every fading harmonic ramps out from
+            // where it is, in step with the update's ramps.
+            let mut restart = fading & 0xff;
+            while restart != 0 {
+                let i = (restart.trailing_zeros() & 7) as usize;
+                restart &= restart - 1;
+                let slot = &mut self.ramps[i];
+                let phase = slot.phase_turns;
+                slot.retarget(0, phase, ramp);
+                if slot.amp_pm == 0 {
+                    // At once (no ramp): gone.
+                    fading &= !(1 << i);
+                }
+            }
+            self.rest_ticks = 0;
+            ramp
+        } else if fading != 0 {
+            // The fade runs on to its end; the update's ramps go on after it.
+            self.rest_ticks = ramp - ramp_left;
+            ramp_left
+        } else {
+            self.rest_ticks = 0;
+            ramp
+        };
+        let fading_to = (32 - fading.leading_zeros()) as usize;
+        self.fading = fading;
+        self.count = count;
+        self.term_count = count.max(fading_to);
+        self.idle_from = idle_from.max(fading_to);
+        // Kernel terms that are not kept wait while harmonics fade.
+        let kernels = if fading != 0 { kernel_slots & kept } else { kernel_slots };
+        TermsUpdate { kernels, ramp_left }
     }
-}
 
-impl Harmonics {
     /// The state after `ticks` ticks of synthesis ([`Synth::next_input`]) with `ramp_left`
-    /// ticks left on the ramps: settled if they end by then, otherwise `ticks` steps on.
-    fn advanced(mut self, ramp_left: u32, ticks: u32) -> Self {
-        if ramp_left == 0 || ticks == 0 {
-            return self;
+    /// ticks to the ramps' next event, and the ramp ticks left then.
+    fn advanced(mut self, mut ramp_left: u32, mut ticks: u32) -> (Self, u32) {
+        while ramp_left != 0 && ticks != 0 {
+            if ticks < ramp_left {
+                self.step_n(ticks);
+                return (self, ramp_left - ticks);
+            }
+            // Steps up to the event's tick, then the event (which settles every ramp that
+            // ends with it: stepping those first would change nothing).
+            if self.fading != 0 && self.rest_ticks != 0 {
+                self.step_n(ramp_left - 1);
+            }
+            ticks -= ramp_left;
+            ramp_left = self.end_ramps();
         }
-        if ticks >= ramp_left {
-            self.settle();
-            return self;
-        }
+        (self, ramp_left)
+    }
+
+    /// `ticks` steps of every visited ramp.
+    fn step_n(&mut self, ticks: u32) {
         self.fundamental.step_n(ticks);
         let count = self.term_count.min(MAX_TERMS);
         self.ramps[..count].iter_mut().for_each(|ramp| ramp.step_n(ticks));
-        self
     }
 }
 
@@ -805,6 +954,8 @@ struct Prepared {
     ramp_ticks: u32,
     /// The machine time ([`Synth`]`::ticks`) at which it applies.
     at_ticks: u64,
+    /// `Synth::ramp_left` after it.
+    ramp_left: u32,
 }
 
 /// The error synthesiser. See the [module docs](self).
@@ -822,7 +973,8 @@ pub struct Synth {
     ticks: u64,
     /// Index of the live bank, 0 or 1.
     live: usize,
-    /// Ticks left on the ramps (all of them were retargeted together).
+    /// Ticks left to the ramps' next event: their end (all of them were retargeted
+    /// together), or the end of a fade while others run on (see `Harmonics::end_ramps`).
     ramp_left: u32,
     /// Model updates applied (wrapping): a prepared update is valid for one generation.
     generation: u32,
@@ -881,25 +1033,47 @@ impl Synth {
     }
 
     /// Takes a new model output, converted beforehand ([`SynthTargets::new`] of the same
-    /// `terms`): starts the ramps to it.
+    /// `terms`): starts the ramps to it. When the terms change, harmonics that go ramp out
+    /// first and the terms taking their place wait for them (see `Harmonics::retarget_terms`).
     pub fn apply(&mut self, targets: &SynthTargets, terms: &[TickTerm]) {
         let ramp = self.ramp_ticks;
         let count = terms.len().min(MAX_TERMS);
-        self.harmonics_mut().fundamental.retarget(targets.amp_pm, targets.phase_turns, ramp);
-        if targets.kernel_mask != 0 {
-            self.apply_kernels(targets.kernel_mask, &terms[..count]);
-        }
-        let old_kernel_mask = self.harmonics().kernels.kernel_mask;
-        let cleared = self.harmonics_mut().retarget_terms(targets, count, old_kernel_mask, ramp);
-        for i in 0..MAX_TERMS {
-            if cleared & (1 << i) != 0 {
-                self.slot_mut(i).term = None;
-            }
-        }
-        self.ramp_left = ramp;
-        self.harmonics_mut().kernels.set_kernels(targets.kernel_mask, &terms[..count]);
+        let kept = self.kept_kernels(targets, &terms[..count]);
+        let (live, ramp_left) = (self.live & 1, self.ramp_left);
+        let h = &mut self.banks[live];
+        h.fundamental.retarget(targets.amp_pm, targets.phase_turns, ramp);
+        let running = h.kernels.kernel_mask;
+        let update = h.retarget_terms(targets, count, running, kept, ramp_left, ramp);
+        self.change_kernels(running & !kept, update.kernels & !kept, &terms[..count]);
+        self.ramp_left = update.ramp_left;
+        self.harmonics_mut().kernels.set_kernels(update.kernels, &terms[..count]);
         self.generation = self.generation.wrapping_add(1);
         self.prepared = None;
+    }
+
+    /// The kernel slots of `terms` whose term runs in its slot now (and so runs on).
+    fn kept_kernels(&self, targets: &SynthTargets, terms: &[TickTerm]) -> u32 {
+        let mut kept = 0;
+        for (i, term) in terms.iter().enumerate() {
+            if targets.kernel_mask & (1 << i) != 0 && self.slot(i).term == Some(*term) {
+                kept |= 1 << i;
+            }
+        }
+        kept
+    }
+
+    /// Applies an update's kernel changes to the live cells: the terms of the slots `stop`
+    /// go, those of `start` (of `terms`) start from rest.
+    #[inline(never)]
+    fn change_kernels(&mut self, stop: u32, start: u32, terms: &[TickTerm]) {
+        let ticks = self.ticks;
+        for i in 0..MAX_TERMS {
+            match terms.get(i) {
+                Some(term) if start & (1 << i) != 0 => *self.slot_mut(i) = KernelSlot { term: Some(*term), state: KernelState::start(term, ticks) },
+                _ if stop & (1 << i) != 0 => self.slot_mut(i).term = None,
+                _ => {}
+            }
+        }
     }
 
     /// Prepares the model update `targets` of `terms` (as [`Synth::apply_prepared`] will
@@ -911,31 +1085,27 @@ impl Synth {
         let count = terms.len().min(MAX_TERMS);
         let at_ticks = self.ticks.wrapping_add(u64::from(ticks_ahead));
         let live = self.live & 1;
-        let mut next = self.banks[live].advanced(self.ramp_left, ticks_ahead);
-        let old_kernel_mask = next.kernels.kernel_mask;
+        let (mut next, ramp_left) = self.banks[live].advanced(self.ramp_left, ticks_ahead);
+        // (The cells do not change before then: only an update changes them.)
+        let kept = self.kept_kernels(targets, &terms[..count]);
         next.fundamental.retarget(targets.amp_pm, targets.phase_turns, ramp);
-        // As `apply_kernels`: a changed kernel term restarts from rest (here in the spare cell).
-        for (i, term) in terms[..count].iter().enumerate() {
-            if targets.kernel_mask & (1 << i) != 0 && self.slot(i).term != Some(*term) {
-                next.orders[i] = 0;
-                next.ramps[i] = Ramp::IDLE;
-                let spare = (next.kernels.cell_of_slot[i] ^ 1) as usize & (CELLS - 1);
-                self.cells[spare] = KernelSlot { term: Some(*term), state: KernelState::start(term, at_ticks) };
-                next.kernels.cell_of_slot[i] = spare as u8;
-            }
-        }
-        let cleared = next.retarget_terms(targets, count, old_kernel_mask, ramp);
+        let running = next.kernels.kernel_mask;
+        let update = next.retarget_terms(targets, count, running, kept, ramp_left, ramp);
+        // As `change_kernels`, in the spare cells.
+        let (stop, start) = (running & !kept, update.kernels & !kept);
         for i in 0..MAX_TERMS {
-            // Never a slot restarted above: a cleared slot holds no kernel term of `terms`.
-            if cleared & (1 << i) != 0 {
+            if (stop | start) & (1 << i) != 0 {
                 let spare = (next.kernels.cell_of_slot[i] ^ 1) as usize & (CELLS - 1);
-                self.cells[spare].term = None;
+                self.cells[spare] = match terms.get(i) {
+                    Some(term) if start & (1 << i) != 0 => KernelSlot { term: Some(*term), state: KernelState::start(term, at_ticks) },
+                    _ => KernelSlot { term: None, ..self.cells[spare] },
+                };
                 next.kernels.cell_of_slot[i] = spare as u8;
             }
         }
-        next.kernels.set_kernels(targets.kernel_mask, &terms[..count]);
+        next.kernels.set_kernels(update.kernels, &terms[..count]);
         self.banks[live ^ 1] = next;
-        self.prepared = Some(Prepared { generation: self.generation, ramp_ticks: ramp, at_ticks });
+        self.prepared = Some(Prepared { generation: self.generation, ramp_ticks: ramp, at_ticks, ramp_left: update.ramp_left });
     }
 
     /// Applies a model update: the one [`Synth::prepare`]d, by switching banks and cells,
@@ -958,27 +1128,12 @@ impl Synth {
         match self.prepared {
             Some(p) if p.generation == self.generation && p.ramp_ticks == self.ramp_ticks && p.at_ticks == self.ticks => {
                 self.live ^= 1;
-                self.ramp_left = p.ramp_ticks;
+                self.ramp_left = p.ramp_left;
                 self.generation = self.generation.wrapping_add(1);
                 self.prepared = None;
                 true
             }
             _ => false,
-        }
-    }
-
-    /// The kernel terms of an update (bits of `mask`): a changed one restarts from rest, an
-    /// unchanged one keeps its state (kernel terms carry their own coefficients).
-    #[inline(never)]
-    fn apply_kernels(&mut self, mask: u32, terms: &[TickTerm]) {
-        let ticks = self.ticks;
-        for (i, term) in terms.iter().enumerate() {
-            if mask & (1 << i) != 0 && self.slot(i).term != Some(*term) {
-                let harmonics = self.harmonics_mut();
-                harmonics.orders[i] = 0;
-                harmonics.ramps[i] = Ramp::IDLE;
-                *self.slot_mut(i) = KernelSlot { term: Some(*term), state: KernelState::start(term, ticks) };
-            }
         }
     }
 
@@ -999,7 +1154,6 @@ impl Synth {
     pub fn next_input(&mut self, input: &TickInput) -> i32 {
         let cmd_phase_turns = input.cmd_phase_turns;
         let live = self.live & 1;
-        let count = self.banks[live].term_count.min(MAX_TERMS);
         let kernel_mask = self.banks[live].kernels.kernel_mask;
         let ramping = self.ramp_left > 1;
         if ramping {
@@ -1007,6 +1161,8 @@ impl Synth {
         } else if self.ramp_left == 1 {
             self.finish_ramps();
         }
+        // (After the ramps' event: the end of a fade no longer visits the faded slots.)
+        let count = self.banks[live].term_count.min(MAX_TERMS);
         let h = &mut self.banks[live];
         if ramping {
             h.fundamental.step();
@@ -1038,11 +1194,11 @@ impl Synth {
         total.clamp(i32::MIN as i64, i32::MAX as i64) as i32
     }
 
-    /// The ramps' last tick: every value onto its target.
+    /// The tick with one ramp tick left: the ramps' end, or a fade's (see
+    /// `Harmonics::end_ramps`).
     #[inline(never)]
     fn finish_ramps(&mut self) {
-        self.ramp_left = 0;
-        self.harmonics_mut().settle();
+        self.ramp_left = self.harmonics_mut().end_ramps();
     }
 
     /// The kernel terms' sum for this tick, picometres.
@@ -1476,6 +1632,151 @@ mod tests {
             synth.next(0);
         }
         assert_eq!(synth.next(deg_to_turns(30.0)), 0);
+    }
+
+    /// Harmonic terms of `orders`, their coefficients in the register pairs 2..8 in turn.
+    fn harmonic_terms(orders: &[u8]) -> std::vec::Vec<TickTerm> {
+        orders.iter().enumerate().map(|(k, &order)| TickTerm::Harmonic { order, amp_reg: 2 + 2 * (k % 3) as u8, phase_reg: 3 + 2 * (k % 3) as u8 }).collect()
+    }
+
+    /// A model output for [`harmonic_terms`]: amplitudes of 1.5 um, 50 pm (a ramp's step over
+    /// 80 ticks truncates to zero) and 0.7 um.
+    fn harmonic_output() -> ModelOutput {
+        let mut out = output(2.0, 20.0);
+        out.registers[2..8].copy_from_slice(&[1.5, 40.0, 5e-5, -100.0, 0.7, 170.0]);
+        out
+    }
+
+    #[test]
+    fn harmonics_that_go_reach_zero_exactly_and_are_dropped_under_updates_faster_than_the_ramp() {
+        // The schedules of the 2,000 and 800 sample windows: an update every 112 ticks (the
+        // ramps settle in between) and every 48 (they never do).
+        for interval in [112u32, 48] {
+            let mut synth = Synth::new(80);
+            synth.update(&harmonic_output(), &harmonic_terms(&[2, 3, 4, 5, 6, 7, 8, 9]));
+            for _ in 0..100 {
+                synth.next(0);
+            }
+            let two = harmonic_terms(&[2, 3]);
+            let mut theta = 0u32;
+            for k in 0..3000u32 {
+                if k % interval == 0 {
+                    synth.update(&harmonic_output(), &two);
+                }
+                theta = theta.wrapping_add(0x0147_ae14);
+                synth.next(theta);
+                let h = synth.harmonics();
+                if k < 79 {
+                    // Ramping out (the 50 pm ones too: they hold until the last tick).
+                    assert_eq!(h.term_count, 8, "interval {interval} tick {k}");
+                    assert!(h.ramps[2..].iter().all(|r| r.amp_pm != 0 && r.amp_target_pm == 0), "interval {interval} tick {k}");
+                } else {
+                    // From the fade's last tick (80 ticks from the switch) on: exactly zero and
+                    // no longer visited, however often the updates came.
+                    assert_eq!((h.term_count, h.idle_from, h.fading), (2, 2, 0), "interval {interval} tick {k}");
+                    assert!(h.ramps[2..].iter().all(|r| r.amp_pm == 0 && r.amp_step_pm == 0 && r.amp_target_pm == 0 && r.phase_step_turns == 0), "interval {interval} tick {k}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_switch_to_kernel_terms_ramps_the_harmonics_out_before_the_kernels_start() {
+        let sine = |phase_turns| TickTerm::Laguerre {
+            input: TermInput::PositionSine { turns_per_nm: 4295, phase_turns },
+            pole_q30: 998_579_896,
+            gains_pm: [180_000, -95_000, 61_000, -40_000, 22_000, -15_000, 9_000, -4_000],
+        };
+        let banks = [sine(0), sine(1 << 30)];
+        let out = harmonic_output();
+        let eight = harmonic_terms(&[2, 3, 4, 5, 6, 7, 8, 9]);
+        // A held command: the harmonics change only by their ramps. Per tick a ramp moves its
+        // amplitude by its step (at most 1.5 um / 80), on its last tick by the remainder of
+        // the truncated steps too (below 80 pm); the sine's rounding adds a picometre.
+        let input = TickInput { cmd_phase_turns: 0x2345_6789, cmd_pos_nm: 1234, ..TickInput::default() };
+        let bound: i64 = eight.iter().map(|_| 1_500_000 / 80 + 80 + 1).sum();
+        for interval in [112u32, 48] {
+            let mut synth = Synth::new(80);
+            synth.update(&out, &eight);
+            for _ in 0..100 {
+                synth.next_input(&input);
+            }
+            let mut last = synth.next_input(&input);
+            let (mut fade_end, mut kernels_start) = (None, None);
+            for k in 0..1000u32 {
+                if k % interval == 0 {
+                    synth.update(&out, &banks);
+                }
+                let now = synth.next_input(&input);
+                let h = synth.harmonics();
+                if h.fading == 0 {
+                    fade_end.get_or_insert(k);
+                }
+                if h.kernels.kernel_count == 0 {
+                    assert!((i64::from(now) - i64::from(last)).abs() <= bound, "interval {interval} tick {k}: {last} -> {now}");
+                } else {
+                    // Only once the old harmonics are gone (silent, not visited).
+                    assert_eq!((h.fading, h.term_count), (0, 2), "interval {interval} tick {k}");
+                    assert!(h.ramps.iter().all(|r| r.amp_pm == 0), "interval {interval} tick {k}");
+                    kernels_start.get_or_insert(k);
+                }
+                last = now;
+            }
+            // The fade ends on the 80th tick after the switch, the banks start with the first
+            // update after it.
+            assert_eq!(fade_end, Some(79), "interval {interval}");
+            assert_eq!(kernels_start, Some(79_u32.div_ceil(interval) * interval), "interval {interval}");
+            assert_eq!(synth.harmonics().kernels.kernel_count, 2);
+        }
+    }
+
+    #[test]
+    fn a_kept_kernel_term_runs_on_through_a_switch_and_a_new_order_waits_for_the_old_one() {
+        let bank = TickTerm::Laguerre { input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 }, pole_q30: 998_579_896, gains_pm: [90_000, -40_000, 20_000, 0, 0, 0, 0, 0] };
+        let drift = TickTerm::Drift { offset_pm: 200_000, decay_pm: -300_000, tau_ticks: 5000 };
+        let harmonic = |order, amp_reg| TickTerm::Harmonic { order, amp_reg, phase_reg: amp_reg + 1 };
+        let out = harmonic_output();
+        let (before, after) = ([bank, harmonic(2, 2), harmonic(3, 6)], [bank, harmonic(5, 2), drift]);
+        let mut synth = Synth::new(80);
+        // The bank alone, never switched: the kept bank's state must stay the same as its.
+        let mut alone = Synth::new(80);
+        synth.update(&out, &before);
+        alone.update(&out, &[bank]);
+        let mut pos = 0i32;
+        let mut tick = |synth: &mut Synth, alone: &mut Synth, k: u32| {
+            pos = pos.wrapping_add(((k * 37) % 301) as i32 - 150);
+            let input = TickInput { cmd_phase_turns: k.wrapping_mul(0x0147_ae14), cmd_pos_nm: pos, ..TickInput::default() };
+            synth.next_input(&input);
+            alone.next_input(&input);
+        };
+        for k in 0..200 {
+            tick(&mut synth, &mut alone, k);
+        }
+        for k in 0..300u32 {
+            if k % 48 == 0 {
+                synth.update(&out, &after);
+            }
+            tick(&mut synth, &mut alone, 200 + k);
+            assert_eq!(synth.slot(0).state, alone.slot(0).state, "tick {k}");
+            let h = synth.harmonics();
+            let (slot_1, slot_2) = (h.ramps[1], h.ramps[2]);
+            if k < 79 {
+                // Both old harmonics fade (the second order's slot now a drift's); the bank runs.
+                assert_eq!((h.fading, h.kernels.kernel_mask, h.orders[1]), (0b110, 0b1, 2), "tick {k}");
+                assert!(slot_1.amp_pm != 0 && slot_2.amp_pm != 0, "tick {k}");
+            } else if k < 96 {
+                // Gone; the fifth order and the drift wait for the next update.
+                assert_eq!((h.fading, h.kernels.kernel_mask, h.term_count), (0, 0b1, 3), "tick {k}");
+                assert_eq!((slot_1.amp_pm, slot_2.amp_pm), (0, 0), "tick {k}");
+            } else {
+                // The update at tick 96 starts both: the fifth order ramps in from silence.
+                assert_eq!((h.orders[1], h.kernels.kernel_mask), (5, 0b101), "tick {k}");
+                if k < 96 + 79 {
+                    let target = slot_1.amp_target_pm;
+                    assert!(slot_1.amp_pm.abs() <= target.abs() && slot_1.amp_pm != target, "tick {k}: {} of {target}", slot_1.amp_pm);
+                }
+            }
+        }
     }
 
     #[test]

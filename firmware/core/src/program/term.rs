@@ -126,14 +126,24 @@ pub const TICK_BUDGET_INSTRUCTIONS: u32 = 800;
 /// applying a model result) never falls on the same tick twice: requests and results come
 /// half a block away from the block ends, and a late result waits for a tick without either.
 /// [`FIXED`](tick_cost::FIXED) is the worst such tick of a program without per-tick terms;
-/// each term adds its own share, the same on every tick. Not covered: while a program
-/// replaces one with more harmonic terms, the old program's extra harmonics ramp out over
-/// the synthesiser's ramp (80 ticks) beside the new program's terms, each at
-/// [`HARMONIC_BESIDE_KERNELS`](tick_cost::HARMONIC_BESIDE_KERNELS).
+/// each term adds its own share, the same on every tick.
+///
+/// A program switch stays within the larger of the two programs' costs: the old program's
+/// harmonics that go ramp out over the synthesiser's ramp (80 ticks) and are then dropped,
+/// and meanwhile the new program's kernel terms (and harmonics taking a fading one's slot)
+/// wait, starting with the first model result after (see `Synth::apply`). What a tick runs
+/// meanwhile (the old harmonics, the kernel terms both keep, new harmonics in other slots)
+/// lies within the old program's slots or, if a new harmonic lies beyond them, within the
+/// new one's, each term costing at most what that program has in its slot (a harmonic
+/// standing for a kernel term costs less, every term at least a harmonic). The fade's last
+/// tick, which silences the faded slots, steps no ramp (BENCHMARKS.md measures the
+/// tightest switches).
 pub mod tick_cost {
     /// A tick without per-tick terms at its worst: the paper program's (512 measured with
-    /// the bus's six-word input slots; 482 with four),
-    /// whose formulas are not evaluated in the tick (the model update runs at low priority).
+    /// the bus's six-word input slots; 482 with four, and 482 with six since the compiler
+    /// keeps the servo's address in a register: kept at 516, as that is no design's
+    /// guarantee), whose formulas are not evaluated in the tick (the model update runs at
+    /// low priority).
     pub const FIXED: u32 = 516;
     /// A harmonic term in a program without kernel terms (25.9 measured).
     pub const HARMONIC: u32 = 26;

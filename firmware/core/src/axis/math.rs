@@ -1,58 +1,74 @@
-//! Single-precision `exp(-x)` and `tanh` from `+ - * /` only, so that the host and every
-//! target compute them bit for bit alike (`libm`'s and the FPU-less targets' routines are
-//! not guaranteed to agree to the last bit, and `micromath`'s approximations are too coarse
-//! near zero for a friction law).
+//! Single-precision `exp(-x)` and a smoothed sign from `+ - * /` only (correctly rounded
+//! in IEEE arithmetic), so that the host and every target compute
+//! them bit for bit alike (`libm`'s exponential is not guaranteed to agree to the last bit
+//! with another implementation, and `micromath`'s approximations are too coarse near zero
+//! for a friction law).
 
-/// `log2(e)`.
-const LOG2_E: f32 = core::f32::consts::LOG2_E;
-/// `ln(2)` in two parts (Cody and Waite): the first has 9 significant bits, so `n` times it
-/// is exact and `x - n ln2` loses nothing for the exponents `exp_neg` meets.
-const LN_2_HI: f32 = 355.0 / 512.0;
-const LN_2_LO: f32 = -2.121_944_4e-4;
+/// Entries of the `exp(-x)` table per unit of `x`, and its extent.
+const EXP_STEPS_PER_UNIT: f32 = 32.0;
+const EXP_TABLE_LEN: usize = 512;
 
-/// `exp(-x)` for `x >= 0` (0 above 87, 1 for negative or NaN input), relative error below
-/// 2e-6.
-#[inline]
-pub fn exp_neg(x: f32) -> f32 {
-    // NaN and negative input: the value at zero (callers pass squares and magnitudes).
-    if x.is_nan() || x <= 0.0 {
-        return 1.0;
+/// `[exp(-x_i), exp(-x_(i+1)) - exp(-x_i)]` at `x_i = i / 32`, so that a lookup is one load
+/// pair and one multiply-add.
+static EXP_NEG_TABLE: [[f32; 2]; EXP_TABLE_LEN] = exp_neg_table();
+
+/// `exp(-x)` in f64 at compile time: `(exp(-x / 16))^16`, the inner one by its Taylor series
+/// (f64 in const fn is exact IEEE arithmetic, the same on every host).
+const fn exp_neg_f64(x: f64) -> f64 {
+    let y = x / 16.0;
+    let (mut term, mut sum, mut n) = (1.0, 1.0, 1);
+    while n < 25 {
+        term = -term * y / (n as f64);
+        sum += term;
+        n += 1;
     }
-    if x > 87.0 {
-        return 0.0;
+    let mut k = 0;
+    while k < 4 {
+        sum *= sum;
+        k += 1;
     }
-    // exp(-x) = 2^-n exp(-u), u = x - n ln2 in [0, ln2).
-    let n = (x * LOG2_E) as i32;
-    let mut u = (x - n as f32 * LN_2_HI) - n as f32 * LN_2_LO;
-    // The product above can round u just below 0 or to ln2; both stay accurate.
-    if u < 0.0 {
-        u = 0.0;
-    }
-    // Taylor series of exp(-u) to the 7th power (error below u^8/8! < 1.3e-6).
-    let mut p = 1.0 / 5040.0 - u * (1.0 / 40320.0);
-    p = 1.0 / 720.0 - u * p;
-    p = 1.0 / 120.0 - u * p;
-    p = 1.0 / 24.0 - u * p;
-    p = 1.0 / 6.0 - u * p;
-    p = 0.5 - u * p;
-    p = 1.0 - u * p;
-    p = 1.0 - u * p;
-    // 2^-n as an f32 bit pattern (n <= 125 here, so the exponent stays normal).
-    p * f32::from_bits(((127 - n) as u32) << 23)
+    sum
 }
 
-/// `tanh(y)` (0 for NaN), absolute error below 4e-6.
-#[inline]
-pub fn tanh(y: f32) -> f32 {
-    let t = exp_neg(2.0 * y.abs());
-    let m = (1.0 - t) / (1.0 + t);
-    if y < 0.0 {
-        -m
-    } else if y > 0.0 {
-        m
-    } else {
-        0.0
+const fn exp_neg_table() -> [[f32; 2]; EXP_TABLE_LEN] {
+    let mut table = [[0.0f32; 2]; EXP_TABLE_LEN];
+    let mut i = 0;
+    while i < EXP_TABLE_LEN {
+        let a = exp_neg_f64(i as f64 / EXP_STEPS_PER_UNIT as f64);
+        let b = exp_neg_f64((i + 1) as f64 / EXP_STEPS_PER_UNIT as f64);
+        table[i] = [a as f32, (b - a) as f32];
+        i += 1;
     }
+    table
+}
+
+/// `exp(-x)` for `x >= 0` by linear interpolation in a table (relative error below 1.3e-4;
+/// 0 from `x = 16` on, where it is below 1.2e-7; 1 for negative or NaN input). A friction
+/// law needs no more, and a lookup is a few instructions where a series is thirty.
+#[inline]
+pub fn exp_neg(x: f32) -> f32 {
+    // NaN and negative input: the value at zero (callers pass squares).
+    let scaled = if x > 0.0 { x * EXP_STEPS_PER_UNIT } else { 0.0 };
+    let index = scaled as usize;
+    match EXP_NEG_TABLE.get(index) {
+        Some(&[value, step]) => value + (scaled - index as f32) * step,
+        None => 0.0,
+    }
+}
+
+/// A smoothed sign close to `tanh(y)` (within 0.025): the Pade form
+/// `y (27 + y^2) / (27 + 9 y^2)` up to `|y| = 3`, where it reaches +-1 with zero slope, and
+/// the sign beyond; with its slope `((9 - y^2) / (9 + 3 y^2))^2`. One division, where
+/// `tanh` needs an exponential. NaN gives NaN.
+#[inline]
+pub fn smooth_sign(y: f32) -> (f32, f32) {
+    if y.abs() >= 3.0 {
+        return (if y > 0.0 { 1.0 } else { -1.0 }, 0.0);
+    }
+    let y2 = y * y;
+    let inv_den = 1.0 / (27.0 + 9.0 * y2);
+    let ratio = (27.0 - 3.0 * y2) * inv_den;
+    (y * (27.0 + y2) * inv_den, ratio * ratio)
 }
 
 #[cfg(test)]
@@ -61,15 +77,20 @@ mod tests {
 
     #[test]
     fn exp_neg_matches_f64_over_its_range() {
-        let mut worst = 0.0f64;
+        let (mut worst, mut worst_abs) = (0.0f64, 0.0f64);
         let mut x = 0.0f32;
-        while x < 80.0 {
+        while x < 40.0 {
             let got = exp_neg(x) as f64;
             let want = (-(x as f64)).exp();
-            worst = worst.max(((got - want) / want).abs());
+            if x < 16.0 {
+                worst = worst.max(((got - want) / want).abs());
+            }
+            worst_abs = worst_abs.max((got - want).abs());
             x += 0.000_731;
         }
-        assert!(worst < 2e-6, "worst relative error {worst:e}");
+        assert!(worst < 1.3e-4, "worst relative error {worst:e}");
+        assert!(worst_abs < 1.3e-4, "worst absolute error {worst_abs:e}");
+        assert!((exp_neg(16.0) as f64) < 1.2e-7 && exp_neg(15.99) > 0.0);
         assert_eq!(exp_neg(0.0), 1.0);
         assert_eq!(exp_neg(-3.0), 1.0);
         assert_eq!(exp_neg(f32::NAN), 1.0);
@@ -78,19 +99,22 @@ mod tests {
     }
 
     #[test]
-    fn tanh_matches_f64_and_is_odd() {
-        let mut worst = 0.0f64;
+    fn smooth_sign_follows_its_formula_and_tanh() {
+        let (mut worst, mut from_tanh) = (0.0f64, 0.0f64);
         let mut y = -20.0f32;
         while y < 20.0 {
-            let got = tanh(y) as f64;
-            worst = worst.max((got - (y as f64).tanh()).abs());
-            assert_eq!(tanh(-y), -tanh(y));
+            let (s, slope) = smooth_sign(y);
+            let yf = y as f64;
+            let (want, want_slope) = if yf.abs() >= 3.0 { (yf.signum(), 0.0) } else { (yf * (27.0 + yf * yf) / (27.0 + 9.0 * yf * yf), ((9.0 - yf * yf) / (9.0 + 3.0 * yf * yf)).powi(2)) };
+            worst = worst.max((s as f64 - want).abs()).max((slope as f64 - want_slope).abs());
+            from_tanh = from_tanh.max((s as f64 - yf.tanh()).abs());
+            assert_eq!(smooth_sign(-y).0, -s);
             y += 0.000_377;
         }
-        assert!(worst < 4e-6, "worst absolute error {worst:e}");
-        assert_eq!(tanh(0.0), 0.0);
-        assert_eq!(tanh(f32::NAN), 0.0);
-        assert_eq!(tanh(f32::INFINITY), 1.0);
-        assert_eq!(tanh(f32::NEG_INFINITY), -1.0);
+        assert!(worst < 5e-7, "worst absolute error {worst:e}");
+        assert!(from_tanh < 0.025, "{from_tanh}");
+        assert_eq!(smooth_sign(0.0), (0.0, 1.0));
+        assert_eq!(smooth_sign(f32::INFINITY), (1.0, 0.0));
+        assert!(smooth_sign(f32::NAN).0.is_nan());
     }
 }

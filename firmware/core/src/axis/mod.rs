@@ -66,7 +66,8 @@ pub struct AxisParams {
     pub ripple: Option<Ripple>,
 }
 
-/// Coulomb friction with a Stribeck peak: `F(v) = -(Fc + (Fs - Fc) exp(-(v/vs)^2)) tanh(v/v_smooth)`.
+/// Coulomb friction with a Stribeck peak: `F(v) = -(Fc + (Fs - Fc) exp(-(v/vs)^2)) s(v/v_smooth)`,
+/// `s(y)` a smoothed sign close to `tanh` ([`math::smooth_sign`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Friction {

@@ -1,7 +1,7 @@
 //! The coefficients of an activated axis twin and its per-tick state.
 
 use super::discretise::{zoh, Continuous};
-use super::math::{exp_neg, tanh};
+use super::math::{exp_neg, smooth_sign};
 use super::{AxisError, AxisParams, MAX_CMD_DELAY_TICKS};
 use crate::synth::sin_q31;
 
@@ -41,17 +41,30 @@ pub struct AxisModel {
     // Mode rows over [v, f, q, q'].
     p3: [f32; 4],
     p4: [f32; 4],
-    friction: Option<FrictionCoef>,
-    hysteresis: Option<(f32, f32, f32)>,
-    ripple: Option<(f32, f32, u32, u32)>,
+    // The effects' coefficients (zero when absent) and which are present: `step` runs one
+    // of eight instances without the absent ones' branches.
+    effects: u8,
+    friction: FrictionCoef,
+    /// Dahl stiffness, 1 / limit force, limit force.
+    hysteresis: (f32, f32, f32),
+    /// First and second harmonic (m), turns per nm, phase.
+    ripple: (f32, f32, u32, u32),
 }
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+const FRICTION: u8 = 1;
+const HYSTERESIS: u8 = 2;
+const RIPPLE: u8 = 4;
+
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
 struct FrictionCoef {
     coulomb: f32,
     stribeck_excess: f32,
     inv_stribeck: f32,
     inv_smooth: f32,
+    /// `THETA / v_smooth`.
+    inv_smooth_theta: f32,
+    /// `-2 THETA (Fs - Fc) / vs`: the Stribeck term's slope factor.
+    stribeck_slope_theta: f32,
 }
 
 /// The running state of an axis twin, relative to the command so that single precision
@@ -111,12 +124,17 @@ impl AxisModel {
         };
         let (phi, gamma) = zoh(&continuous, TICK_S);
         let c = |x: f64| x as f32;
-        let friction = p.friction.map(|f| FrictionCoef {
+        let friction = p.friction.map_or(FrictionCoef::default(), |f| FrictionCoef {
             coulomb: f.coulomb_mps2,
             stribeck_excess: f.static_mps2 - f.coulomb_mps2,
             inv_stribeck: 1.0 / f.stribeck_mps,
             inv_smooth: 1.0 / f.smooth_mps,
+            inv_smooth_theta: THETA / f.smooth_mps,
+            stribeck_slope_theta: -2.0 * THETA * (f.static_mps2 - f.coulomb_mps2) / f.stribeck_mps,
         });
+        let effects = if p.friction.is_some() { FRICTION } else { 0 }
+            | if p.hysteresis.is_some() { HYSTERESIS } else { 0 }
+            | if p.ripple.is_some() { RIPPLE } else { 0 };
         Ok(Self {
             delay: p.cmd_delay_ticks as usize,
             kp: p.kp_per_s2,
@@ -133,16 +151,32 @@ impl AxisModel {
             gf: [c(gamma[0][1]), c(gamma[1][1]), c(gamma[2][1]), c(gamma[3][1]), c(gamma[4][1])],
             p3: [c(phi[3][1]), c(phi[3][2]), c(phi[3][3]), c(phi[3][4])],
             p4: [c(phi[4][1]), c(phi[4][2]), c(phi[4][3]), c(phi[4][4])],
+            effects,
             friction,
-            hysteresis: p.hysteresis.map(|h| (h.stiffness_per_s2, 1.0 / h.force_mps2, h.force_mps2)),
-            ripple: p.ripple.map(|r| (r.amp_nm * 1e-9, r.harmonic2_nm * 1e-9, r.turns_per_nm, r.phase_turns)),
+            hysteresis: p.hysteresis.map_or((0.0, 0.0, 0.0), |h| (h.stiffness_per_s2, 1.0 / h.force_mps2, h.force_mps2)),
+            ripple: p.ripple.map_or((0.0, 0.0, 0, 0), |r| (r.amp_nm * 1e-9, r.harmonic2_nm * 1e-9, r.turns_per_nm, r.phase_turns)),
         })
     }
 
     /// One servo tick with the command position `cmd_pos_nm`: the axis's dynamic error at
-    /// the TCP this tick (TCP minus command, before the tick's motion), picometres.
-    #[inline]
+    /// the TCP this tick (TCP minus command, before the tick's motion), picometres. Out of
+    /// line: inlined, its register use made the servo tick's other kernel terms dearer.
+    #[inline(never)]
     pub fn step(&self, st: &mut AxisState, cmd_pos_nm: i32) -> i32 {
+        match self.effects {
+            0 => self.step_with::<false, false, false>(st, cmd_pos_nm),
+            FRICTION => self.step_with::<true, false, false>(st, cmd_pos_nm),
+            HYSTERESIS => self.step_with::<false, true, false>(st, cmd_pos_nm),
+            RIPPLE => self.step_with::<false, false, true>(st, cmd_pos_nm),
+            3 => self.step_with::<true, true, false>(st, cmd_pos_nm),
+            5 => self.step_with::<true, false, true>(st, cmd_pos_nm),
+            6 => self.step_with::<false, true, true>(st, cmd_pos_nm),
+            _ => self.step_with::<true, true, true>(st, cmd_pos_nm),
+        }
+    }
+
+    #[inline(always)]
+    fn step_with<const F: bool, const H: bool, const R: bool>(&self, st: &mut AxisState, cmd_pos_nm: i32) -> i32 {
         if !st.primed {
             st.history = [cmd_pos_nm; HISTORY];
             st.primed = true;
@@ -158,7 +192,8 @@ impl AxisModel {
 
         // The controller on the encoder reading (with its interpolation error).
         let mut e = st.w;
-        if let Some((a1, a2, turns_per_nm, phase)) = self.ripple {
+        if R {
+            let (a1, a2, turns_per_nm, phase) = self.ripple;
             let x_nm = r_nm.wrapping_sub((st.w * 1e9) as i32);
             let theta = (x_nm as u32).wrapping_mul(turns_per_nm).wrapping_add(phase);
             e -= a1 * (sin_q31(theta) as f32 * Q31) + a2 * (sin_q31(theta.wrapping_mul(2)) as f32 * Q31);
@@ -168,23 +203,26 @@ impl AxisModel {
         st.e_prev = e;
         // TCP - command = (r - command) - (r - x) + q; the first part exact in nanometres.
         let lag_nm = r_nm.wrapping_sub(cmd_pos_nm);
-        let out_pm = lag_nm.saturating_mul(1000).saturating_add(((st.q - st.w) * 1e12) as i32);
+        // The lag is a few ticks of command motion (far below 2 mm); |q - w| < 2 mm (the reset).
+        let out_pm = lag_nm.wrapping_mul(1000).wrapping_add(((st.q - st.w) * 1e12) as i32);
 
         // Over the tick with last tick's force command; friction linearly implicit in the
         // next velocity, hysteresis from last tick's motion.
         let (v, f, u_prev) = (st.v, st.f, st.u_prev);
         let v_free = self.p11 * v + self.p12 * f + self.gu[1] * u_prev;
         let mut force = -st.dahl;
-        if let Some(fr) = &self.friction {
+        if F {
+            // F(v) = -(Fc + (Fs - Fc) exp(-(v/vs)^2)) s(v / v_smooth), s the smoothed sign;
+            // applied as F(v) + F'(v) THETA (v_next - v), solved for v_next.
+            let fr = &self.friction;
             let z = v * fr.inv_stribeck;
             let ex = exp_neg(z * z);
             let level = fr.coulomb + fr.stribeck_excess * ex;
-            let th = tanh(v * fr.inv_smooth);
-            let slope = -(fr.stribeck_excess * ex * (-2.0 * z * fr.inv_stribeck) * th + level * (1.0 - th * th) * fr.inv_smooth);
+            let (sign, sign_slope) = smooth_sign(v * fr.inv_smooth);
+            let slope_theta = -(fr.stribeck_slope_theta * ex * z * sign + level * sign_slope * fr.inv_smooth_theta);
+            let f0 = -level * sign;
             let g = self.gf[1];
-            let f0 = -level * th;
-            let v_next = (v_free + g * (f0 - slope * THETA * v)) / (1.0 - g * slope * THETA);
-            force += f0 + slope * THETA * (v_next - v);
+            force += f0 + slope_theta * (v_free + g * f0 - v) / (1.0 - g * slope_theta);
         }
         let step_x = self.p01 * v + self.p02 * f + self.gu[0] * u_prev + self.gf[0] * force;
         let (q, qd) = (st.q, st.qd);
@@ -194,14 +232,15 @@ impl AxisModel {
         st.f = self.p22 * f + self.gu[2] * u_prev;
         st.w -= step_x;
         st.u_prev = u;
-        if let Some((stiffness, inv_force, force_max)) = self.hysteresis {
+        if H {
+            let (stiffness, inv_force, force_max) = self.hysteresis;
             let sign = if step_x > 0.0 { 1.0 } else if step_x < 0.0 { -1.0 } else { 0.0 };
             let h = st.dahl + stiffness * step_x * (1.0 - st.dahl * inv_force * sign);
             st.dahl = if h > force_max { force_max } else if h < -force_max { -force_max } else { h };
         }
         // NaN compares false, and a non-finite velocity, force or rate reaches the
         // following error or the mode within a tick.
-        if !(st.w > -DIVERGED_M && st.w < DIVERGED_M && st.q > -DIVERGED_M && st.q < DIVERGED_M) {
+        if !(st.w.abs() + st.q.abs() < DIVERGED_M) {
             self.reset(st);
         }
         out_pm

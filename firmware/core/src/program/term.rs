@@ -165,20 +165,24 @@ pub mod tick_cost {
     /// (2^17 nm per 4 ticks or more, 262 mm/s): a library call whose length depends on the
     /// operands (161 measured with, at most 234 on the bench's worst tick).
     pub const VELOCITY_64_BIT_DIVISION: u32 = 260;
-    /// A drift term, with its 64-bit step every 256 ticks (41).
-    pub const DRIFT: u32 = 43;
-    /// An axis-coupling term (90 measured with the bus's X acceleration and spindle words;
-    /// 48 when the servo passed constant zeros the compiler could fold).
-    pub const AXIS_COUPLING: u32 = 94;
-    /// A servo-axis twin without effects: the linear axis and the deviation's controller,
-    /// slide and mode in single precision.
-    pub const AXIS: u32 = 250;
-    /// More for the axis's friction law (two exponentials and a division).
-    pub const AXIS_FRICTION: u32 = 110;
-    /// More for its presliding hysteresis.
-    pub const AXIS_HYSTERESIS: u32 = 30;
-    /// More for its encoder interpolation error (two table sines).
-    pub const AXIS_RIPPLE: u32 = 45;
+    /// A drift term, with its 64-bit step every 256 ticks (41; beside a velocity-sign bank
+    /// 44 since the servo-axis term joined the kernels).
+    pub const DRIFT: u32 = 45;
+    /// An axis-coupling term (90 measured with the bus's X acceleration and spindle words,
+    /// 48 when the servo passed constant zeros the compiler could fold; beside a Dahl bank
+    /// 97 since the servo-axis term joined the kernels, so that pair, 802, is refused).
+    pub const AXIS_COUPLING: u32 = 97;
+    /// A servo-axis twin without effects: controller, slide, current loop and mode in single
+    /// precision, a call out of line (717 measured for the paper program with it: what it
+    /// adds to `FIXED + KERNELS`, rounded up).
+    pub const AXIS: u32 = 161;
+    /// More for the axis's friction law: a table exponential, the smoothed sign and the
+    /// implicit step, each with a division (786 measured with it).
+    pub const AXIS_FRICTION: u32 = 72;
+    /// More for its presliding hysteresis (746 measured with it).
+    pub const AXIS_HYSTERESIS: u32 = 31;
+    /// More for its encoder interpolation error, two table sines (754 measured with it).
+    pub const AXIS_RIPPLE: u32 = 39;
 }
 
 impl TickTerm {

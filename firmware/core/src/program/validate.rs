@@ -299,23 +299,43 @@ mod tests {
         let cosine = laguerre(TermInput::PositionSine { turns_per_nm: 4295, phase_turns: 1 << 30 }, 0.93);
         let drift = TickTerm::Drift { offset_pm: 1, decay_pm: 1, tau_ticks: 8000 };
         let coupling = TickTerm::AxisCoupling { x_gain_pm_per_mps2: 1, spindle_amp_pm: 1, spindle_phase_turns: 0 };
-        // Accepted: eight harmonics, the terms of each `fit --effect` (friction, hysteresis,
-        // force ripple, drift, coupling), one bank with either other.
+        let axis = |friction: bool, hysteresis: bool, ripple: bool| {
+            TickTerm::Axis(crate::axis::AxisParams {
+                cmd_delay_ticks: 2,
+                kp_per_s2: 2.3e5,
+                ki_per_s3: 2e7,
+                kd_per_s: 400.0,
+                vff_per_s: 10.0,
+                aff: 0.3,
+                viscous_per_s: 6.7,
+                current_tau_s: 8e-5,
+                mode_freq_hz: 90.0,
+                mode_damping: 0.28,
+                mode_tcp_gain: 2.4,
+                friction: friction.then_some(crate::axis::Friction { coulomb_mps2: 0.07, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 }),
+                hysteresis: hysteresis.then_some(crate::axis::Hysteresis { force_mps2: 0.05, stiffness_per_s2: 6e4 }),
+                ripple: ripple.then_some(crate::axis::Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_000, phase_turns: 0 }),
+            })
+        };
+        // Accepted: eight harmonics, the terms of each `fit --effect` (the axis twin with
+        // friction, hysteresis or encoder error; drift; coupling), one bank with a drift.
         let eight: std::vec::Vec<TickTerm> = (2..10).map(harmonic).collect();
-        for terms in [&eight[..], &[velocity], &[dahl], &[sine, cosine], &[drift], &[coupling], &[velocity, drift], &[dahl, coupling]] {
+        let fitted = [axis(true, false, false), axis(false, true, false), axis(false, false, true)];
+        for terms in [&eight[..], &fitted[..1], &fitted[1..2], &fitted[2..], &[velocity], &[dahl], &[sine, cosine], &[drift], &[coupling], &[velocity, drift], &[dahl, drift]] {
             let program = with_terms(terms);
             assert_eq!(program.validate(), Ok(()), "{terms:?}: {}", program.tick_cost());
         }
         // Just over: two velocity-sign banks, the ripple's two banks with a drift, a bank with
-        // a drift and a coupling.
-        for terms in [&[velocity, velocity][..], &[sine, cosine, drift], &[velocity, drift, coupling]] {
+        // a drift and a coupling, the Dahl bank with a coupling, the axis twin with all three
+        // effects or with friction and a coupling.
+        for terms in [&[velocity, velocity][..], &[sine, cosine, drift], &[velocity, drift, coupling], &[dahl, coupling], &[axis(true, true, true)], &[axis(true, false, false), coupling]] {
             assert!(matches!(with_terms(terms).validate(), Err(ProgramError::TickBudget { .. })), "{terms:?}");
         }
         // Rejected, with the cost: three banks with a drift and a coupling, a bank whose pole
         // needs 64-bit stages.
         let three = with_terms(&[velocity, dahl, sine, drift, coupling]);
         let cost = three.tick_cost();
-        assert_eq!(cost, 516 + 42 + 131 + 147 + 109 + 43 + 94);
+        assert_eq!(cost, 516 + 42 + 131 + 147 + 109 + 45 + 97);
         assert_eq!(three.validate(), Err(ProgramError::TickBudget { cost: cost as u16, budget: 800 }));
         let slow_pole = with_terms(&[laguerre(TermInput::PositionSine { turns_per_nm: 4295, phase_turns: 0 }, 0.999)]);
         assert!(matches!(slow_pole.validate(), Err(ProgramError::TickBudget { .. })));

@@ -204,11 +204,14 @@ fn simulate(c: &Candidate, cmd_um: &[f64]) -> (Vec<f64>, Vec<f64>) {
         if friction {
             let v = s[1];
             let z = v / vs;
-            let ex = (-z * z).exp();
+            // The firmware's table (linear interpolation of exp(-x), 0 from x = 16 on).
+            let ex = f64::from(sts_twin_core::axis::math::exp_neg((z * z) as f32));
             let level = fc + (fs - fc) * ex;
-            let th = (v / sm).tanh();
+            // The firmware's smoothed sign (a Pade form of tanh, saturating at |y| = 3).
+            let y = v / sm;
+            let (th, th_slope) = if y.abs() >= 3.0 { (y.signum(), 0.0) } else { (y * (27.0 + y * y) / (27.0 + 9.0 * y * y), ((9.0 - y * y) / (9.0 + 3.0 * y * y)).powi(2)) };
             let f0 = -level * th;
-            let slope = -((fs - fc) * ex * (-2.0 * z / vs) * th + level * (1.0 - th * th) / sm);
+            let slope = -((fs - fc) * ex * (-2.0 * z / vs) * th + level * th_slope / sm);
             let g = gamma[1][1];
             let v_next = (free[1] + g * (f0 - slope * THETA * v)) / (1.0 - g * slope * THETA);
             force += f0 + slope * THETA * (v_next - v);

@@ -179,7 +179,15 @@ fn target_value(sample: &GroupSample, target: Target) -> f64 {
 }
 
 fn run_search(samples: &[&GroupSample], target: Target, search: &SearchConfig, progress: &mut dyn FnMut(usize, &str)) -> anyhow::Result<SearchResult> {
-    let rows: Vec<&GroupSample> = samples.iter().copied().filter(|s| trains(s, target)).collect();
+    let mut rows: Vec<&GroupSample> = samples.iter().copied().filter(|s| trains(s, target)).collect();
+    if rows.len() < 4 && target == Target::Phase {
+        // Per-tick terms (a servo-axis twin) can leave the formulas almost nothing: the
+        // phase then trains on the four largest residuals (its amplitude model keeps the
+        // prediction near zero wherever they are smaller).
+        rows = samples.to_vec();
+        rows.sort_by(|a, b| b.targets.de_amp_um.total_cmp(&a.targets.de_amp_um));
+        rows.truncate(4);
+    }
     if rows.len() < 4 {
         anyhow::bail!("only {} groups can train the {target:?} model; at least 4 are needed", rows.len());
     }

@@ -63,6 +63,29 @@ enum Slot {
 const SLOTS: usize = 20;
 
 impl Slot {
+    /// The range the firmware accepts (`AxisParams::check`), kept inside by the fit.
+    fn bounds(self) -> (f64, f64) {
+        match self {
+            Slot::Kp => (1.0, 1e9),
+            Slot::Ki => (1e-6, 1e12),
+            Slot::Kd => (1e-6, 1e6),
+            Slot::Vff => (-1e6, 1e6),
+            Slot::Aff => (-10.0, 10.0),
+            Slot::Viscous => (1e-6, 1e6),
+            Slot::Tau => (1e-6, 0.1),
+            Slot::ModeHz => (1.0, 3000.0),
+            Slot::Zeta => (0.001, 10.0),
+            Slot::Gain => (-100.0, 100.0),
+            Slot::Coulomb | Slot::Static | Slot::DahlForce => (1e-6, 1e3),
+            Slot::Stribeck => (1e-7, 1.0),
+            Slot::Smooth => (1e-8, 1.0),
+            Slot::DahlStiffness => (1.0, 1e10),
+            Slot::RippleAmp | Slot::Ripple2 => (-1e4, 1e4),
+            Slot::RipplePhase => (-1e3, 1e3),
+            Slot::RipplePitch => (0.01, 1e6),
+        }
+    }
+
     /// `Some(scale)` for an additive parameter, `None` for a log-scale one.
     fn additive(self) -> Option<f64> {
         match self {
@@ -292,6 +315,8 @@ fn levenberg_marquardt(start: Candidate, free: &[Slot], sample: &Sample, what: F
             Some(scale) => *x += step * scale,
             None => *x *= step.clamp(-0.7, 0.7).exp(),
         }
+        let (lo, hi) = slot.bounds();
+        *x = x.clamp(lo, hi);
         out
     };
     for _ in 0..iterations {

@@ -66,7 +66,7 @@ fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u6
     let d = diagnose(&data, reference).expect("diagnose");
     let (c, _) = compare(&data, reference).expect("compare");
     let refit_rms_um = if refit && d.verdict != "none" {
-        let prepared = prepare(&data, &[d.verdict.clone()]).expect("prepare");
+        let prepared = prepare(&data, std::slice::from_ref(&d.verdict)).expect("prepare");
         let model = fit(&prepared.dataset, "suite", &fit_config(suite), &mut |_| {}).expect("fit");
         let model = prepared.attach(model).expect("attach");
         Some(model.validation.waveform_rms_um)
@@ -120,28 +120,30 @@ fn run_suite(suite: &Suite) {
         all_ok &= rate >= need;
     }
     println!("\nrefit with --effect <verdict>: reference RMS -> held-out RMS (fall; ratio to the clean held-out RMS {:.1} nm)", clean_rms * 1e3);
-    // Asserted where the twin's terms model the effect exactly (drift, other axes) or its
-    // formulas carry it (linear changes at the command frequency); printed for the effects
-    // whose Laguerre terms are known to fall short (see BENCHMARKS.md).
-    let asserted = ["thermal-drift", "axis-coupling", "structural-mode", "loop-delay", "sensor-gain"];
+    // Every effect's error falls by half at least. Within 1.5x the clean twin's error:
+    // asserted where the terms model the effect exactly (drift, other axes) or the formulas
+    // carry it (linear changes at the command frequency); printed for the servo-axis twin's
+    // three, whose identification still misses on some seeds (see BENCHMARKS.md).
+    let axis_effects = ["coulomb-friction", "presliding-hysteresis", "force-ripple"];
     let mut fall_ok = true;
     for (effect, seed, before, after, clean) in &falls {
         let fall = 1.0 - after / before;
-        let checked = asserted.contains(&effect.as_str());
-        let met = fall >= 0.5;
+        let within = after / clean <= 1.5;
+        let checked = !axis_effects.contains(&effect.as_str());
+        let met = fall >= 0.5 && (within || !checked);
         println!(
             "  {effect:<22} seed {seed}: {:.1} -> {:.1} nm, fall {:.0}%, {:.2}x clean{}",
             before * 1e3,
             after * 1e3,
             fall * 100.0,
             after / clean,
-            if met { "" } else if checked { "  FAILS" } else { "  (not met: known shortfall)" }
+            if !met { "  FAILS" } else if !within { "  (above 1.5x clean: known shortfall)" } else { "" }
         );
-        fall_ok &= met || !checked;
+        fall_ok &= met;
     }
     let total: usize = (0..labels.len()).map(|i| confusion[i][i]).sum();
     let cases = labels.len() as u64 * suite.seeds;
-    println!("\noverall: {total}/{cases} correct; every asserted refit's error fell by at least 50%: {fall_ok}");
+    println!("\noverall: {total}/{cases} correct; every refit's error fell by at least 50% (and ended within 1.5x clean where asserted): {fall_ok}");
     if suite.seeds >= 20 {
         assert!(all_ok, "a per-effect rate is below its target");
     } else {
@@ -149,7 +151,7 @@ fn run_suite(suite: &Suite) {
         assert!(total as f64 >= 0.9 * cases as f64, "only {total} of {cases} verdicts right");
         assert_eq!(confusion[labels.len() - 1][labels.len() - 1], suite.seeds as usize, "clean data must give `none`");
     }
-    assert!(fall_ok, "an asserted refit did not halve the error");
+    assert!(fall_ok, "a refit did not halve the error, or ended above 1.5x clean where asserted");
 }
 
 /// CI's share: the 99 groups shortened to 5.5 s, one seed per effect (and clean), each refitted.

@@ -240,6 +240,7 @@ impl AxisModel {
         }
         // NaN compares false, and a non-finite velocity, force or rate reaches the
         // following error or the mode within a tick.
+        #[allow(clippy::neg_cmp_op_on_partial_ord)] // NaN must fail it too, in one comparison
         if !(st.w.abs() + st.q.abs() < DIVERGED_M) {
             self.reset(st);
         }

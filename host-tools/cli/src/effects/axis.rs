@@ -5,7 +5,7 @@
 //!
 //! The fit is local, so it starts from a grid: command delays of 1-3 ticks times servo
 //! bandwidths of 30, 100 and 300 Hz (controller gains of a well-damped PID at that
-//! bandwidth), first with the effect and the linear servo on the encoder, the best start
+//! bandwidth), the servo and the effect fitted together on the encoder, the best start
 //! kept; then the mode from a grid of frequencies on the probe; then everything on both.
 //! The simulation here is f64 and computes the whole axis (the firmware's runs the
 //! deviation only, in f32); both share the discretisation ([`zoh`]).
@@ -429,10 +429,12 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisF
     let searched: Vec<(Candidate, f64)> = starts
         .iter()
         .map(|&start| {
-            let (linear, _) = levenberg_marquardt(start, &SERVO, &coarse, Fit::Encoder, 20);
+            // Servo and effect together: the servo alone, fitted first, bends to the effect's
+            // part of the encoder error and ends in another minimum (kp twice the true one
+            // on a weak friction).
             let mut free: Vec<Slot> = SERVO.to_vec();
             free.extend(&encoder_slots);
-            levenberg_marquardt(linear, &free, &coarse, Fit::Encoder, 25)
+            levenberg_marquardt(start, &free, &coarse, Fit::Encoder, 45)
         })
         .collect();
     let (best, _) = searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or_else(|| anyhow::anyhow!("no start"))?;

@@ -69,20 +69,10 @@ fn axis_coupling() -> TickTerm {
 /// smoothing velocities above the ramp's, so both exponentials run their full series.
 fn axis(friction: bool, hysteresis: bool, ripple: bool) -> TickTerm {
     TickTerm::Axis(AxisParams {
-        cmd_delay_ticks: 2,
-        kp_per_s2: 234_467.0,
-        ki_per_s3: 20_004_000.0,
-        kd_per_s: 396.1,
-        vff_per_s: 10.0,
-        aff: 0.3,
-        viscous_per_s: 6.67,
-        current_tau_s: 80e-6,
-        mode_freq_hz: 89.554,
-        mode_damping: 0.28,
-        mode_tcp_gain: 2.3662,
         friction: friction.then_some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 0.5, smooth_mps: 0.1 }),
         hysteresis: hysteresis.then_some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 }),
         ripple: ripple.then_some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_383, phase_turns: 1 << 29 }),
+        ..sts_hil_tests::twin::default_axis()
     })
 }
 

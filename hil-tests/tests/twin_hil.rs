@@ -69,22 +69,7 @@ fn dac_codes_are_bit_identical_to_the_host_core() {
 fn the_axis_twin_is_bit_identical_to_the_host_core() {
     use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
     let _serial = sts_hil_tests::serial();
-    let axis = AxisParams {
-        cmd_delay_ticks: 2,
-        kp_per_s2: 234_467.0,
-        ki_per_s3: 20_004_000.0,
-        kd_per_s: 396.1,
-        vff_per_s: 10.0,
-        aff: 0.3,
-        viscous_per_s: 6.67,
-        current_tau_s: 80e-6,
-        mode_freq_hz: 89.554,
-        mode_damping: 0.28,
-        mode_tcp_gain: 2.3662,
-        friction: None,
-        hysteresis: None,
-        ripple: None,
-    };
+    let axis = sts_hil_tests::twin::default_axis();
     let variants = [
         AxisParams { friction: Some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 }), ..axis },
         AxisParams { hysteresis: Some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 }), ..axis },

@@ -2,11 +2,10 @@
 //! from the command alone, with the nonlinear effects a linear error model cannot carry
 //! (Coulomb/Stribeck friction, presliding hysteresis, the encoder's interpolation error).
 //!
-//! What the twin adds to the predicted error is the *deviation* these effects cause: the
-//! TCP of the nonlinear axis minus the TCP of the same axis without them. Both are
-//! simulated side by side, the linear one relative to the command and the nonlinear one
-//! relative to the linear, so that single precision stays accurate to far below a
-//! nanometre at any absolute position.
+//! Its output is the axis's whole dynamic error at the TCP (TCP minus command), the effects
+//! included; the program's formulas are fitted on what it leaves. The state is kept relative
+//! to the command, so that single precision stays accurate to far below a nanometre at any
+//! absolute position.
 //!
 //! The model (all forces per kg of moving mass, which is not identifiable from motion data):
 //! a PID position controller with velocity and acceleration feedforward on the encoder
@@ -19,7 +18,7 @@
 //! Parameters come from `sts-twin fit --effect` (identified from a measurement); the
 //! firmware validates them ([`AxisParams::check`]) and computes the coefficients when the
 //! program is activated ([`AxisModel::new`]). A diverging state (an unstable parameter set)
-//! is reset and reported, never output.
+//! is reset to rest and counted ([`AxisState::resets`]), never output.
 
 pub mod discretise;
 pub mod math;

@@ -56,9 +56,9 @@ pub enum TickTerm {
         /// Output weight of each stage, picometres per unit stage output.
         gains_pm: [i32; LAGUERRE_STAGES],
     },
-    /// A servo-axis twin ([`crate::axis`]): the TCP deviation that friction, presliding
-    /// hysteresis or the encoder's interpolation error cause, simulated every tick from the
-    /// command through the identified controller, slide and structural mode.
+    /// A servo-axis twin ([`crate::axis`]): the axis's dynamic error at the TCP, friction,
+    /// presliding hysteresis or the encoder's interpolation error included, simulated every
+    /// tick from the command through the identified controller, slide and structural mode.
     Axis(AxisParams),
 }
 

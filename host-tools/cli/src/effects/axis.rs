@@ -7,8 +7,8 @@
 //! bandwidths of 30, 100 and 300 Hz (controller gains of a well-damped PID at that
 //! bandwidth), the servo and the effect fitted together on the encoder, the best start
 //! kept; then the mode from a grid of frequencies on the probe; then everything on both.
-//! The simulation here is f64 and computes the whole axis (the firmware's runs the
-//! deviation only, in f32); both share the discretisation ([`zoh`]).
+//! The simulation here is f64 (the firmware's is f32); both simulate the whole axis with the
+//! same laws and share the discretisation ([`zoh`]).
 
 use std::f64::consts::PI;
 
@@ -173,8 +173,11 @@ impl Candidate {
 const SERVO: [Slot; 7] = [Slot::Kp, Slot::Ki, Slot::Kd, Slot::Vff, Slot::Aff, Slot::Viscous, Slot::Tau];
 const MODE: [Slot; 3] = [Slot::ModeHz, Slot::Zeta, Slot::Gain];
 
-/// The whole axis over a command (um): encoder reading and TCP, um.
-fn simulate(c: &Candidate, cmd_um: &[f64]) -> (Vec<f64>, Vec<f64>) {
+/// The transition and input matrices of the tick (`phi`, `gamma` of [`zoh`]).
+type Discrete = ([[f64; STATES]; STATES], [[f64; 2]; STATES]);
+
+/// A candidate's linear part over one tick.
+fn discretise(c: &Candidate) -> Discrete {
     let continuous = Continuous {
         viscous_per_s: c.get(Slot::Viscous),
         current_tau_s: c.get(Slot::Tau),
@@ -182,7 +185,12 @@ fn simulate(c: &Candidate, cmd_um: &[f64]) -> (Vec<f64>, Vec<f64>) {
         mode_damping: c.get(Slot::Zeta),
         mode_tcp_gain: c.get(Slot::Gain),
     };
-    let (phi, gamma) = zoh(&continuous, TICK_S);
+    zoh(&continuous, TICK_S)
+}
+
+/// The whole axis over a command (um), its linear part `discrete`: encoder reading and TCP, um.
+fn simulate(c: &Candidate, discrete: &Discrete, cmd_um: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let (phi, gamma) = discrete;
     let (kp, ki_t, kd_t) = (c.get(Slot::Kp), c.get(Slot::Ki) * TICK_S, c.get(Slot::Kd) / TICK_S);
     let (vff_t, aff_t2) = (c.get(Slot::Vff) / TICK_S, c.get(Slot::Aff) / (TICK_S * TICK_S));
     let friction = c.effects.friction;
@@ -270,12 +278,13 @@ struct Sample<'a> {
 
 impl Sample<'_> {
     fn residuals(&self, c: &Candidate, what: Fit) -> Vec<f64> {
+        let discrete = discretise(c);
         let parts: Vec<Vec<f64>> = self
             .groups
             .par_iter()
             .map(|&gi| {
                 let g = &self.dataset.groups[gi];
-                let (enc, tcp) = simulate(c, &g.z_cmd_um);
+                let (enc, tcp) = simulate(c, &discrete, &g.z_cmd_um);
                 let mut out = Vec::new();
                 for k in (g.len() / 12..g.len()).step_by(self.stride) {
                     if what != Fit::Tcp {

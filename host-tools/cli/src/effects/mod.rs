@@ -15,7 +15,8 @@
 //! How: the terms are fitted first: drift and coupling on what the formulas can never explain
 //! (each group's dynamic error minus its own sine at the command frequency, regressors likewise
 //! made orthogonal to that sine per group), the axis twin on the whole encoder and probe
-//! readings (it simulates the whole axis; its term adds only the effects' deviation). The dataset's `z_tcp_um` is then reduced by the terms'
+//! readings (it simulates the whole axis; its term is the axis's whole dynamic error, and the
+//! formulas are fitted on what it leaves). The dataset's `z_tcp_um` is then reduced by the terms'
 //! full output (their share at the command frequency included), and the usual fit trains
 //! the amplitude and phase formulas on that, so that formulas plus terms reproduce the
 //! measurement without counting anything twice. Held-out figures of the fit then score
@@ -129,15 +130,10 @@ fn term_input(kind: &TermInput, pos: &[i32]) -> Vec<f64> {
     }
 }
 
-/// Weight of the penalty on a term's whole output energy: the fit sees only what the formulas
-/// cannot explain, so a combination of stages that is nearly a pure sine at the command
-/// frequency is undetermined by it; the penalty keeps such combinations small.
-pub const OUTPUT_PENALTY: f64 = 1e-2;
-
-/// The ripple's pitch: the position sine (unfiltered) that best explains the slowest groups,
+/// The ripple's pitch, um: the position sine (unfiltered) that best explains the slowest groups,
 /// where the servo follows a position-periodic error without filtering (peak command velocity
 /// at most 100 um/s, or the slowest fifth of the groups).
-fn ripple_pitch(dataset: &Dataset, inputs: &[GroupInputs]) -> Vec<TermInput> {
+fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
     let vpeak: Vec<f64> = dataset.manifest.groups.iter().map(|g| 2.0 * PI * g.freq_hz * g.amp_um).collect();
     let mut sorted = vpeak.clone();
     sorted.sort_by(f64::total_cmp);
@@ -162,8 +158,7 @@ fn ripple_pitch(dataset: &Dataset, inputs: &[GroupInputs]) -> Vec<TermInput> {
         })
         .collect();
     let best = (0..candidates.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
-    let turns_per_nm = candidates[best];
-    vec![TermInput::PositionSine { turns_per_nm, phase_turns: 0 }, TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 }]
+    4_294_967_296.0 / f64::from(candidates[best]) / 1000.0
 }
 
 /// Prepares `fit --effect` for the named effects: fits their terms and returns the dataset
@@ -251,12 +246,7 @@ pub fn terms_output(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64
 /// and a record per effect with its parameters (per kg of moving mass) and the axis's fit.
 fn fit_axis(dataset: &Dataset, inputs: &[GroupInputs], names: &[String]) -> anyhow::Result<(TickTerm, Vec<EffectRecord>)> {
     let has = |n: &str| names.iter().any(|x| x == n);
-    let ripple_pitch_um = if has("force-ripple") {
-        let TermInput::PositionSine { turns_per_nm, .. } = ripple_pitch(dataset, inputs)[0] else { unreachable!("ripple_pitch gives position sines") };
-        Some(4_294_967_296.0 / f64::from(turns_per_nm) / 1000.0)
-    } else {
-        None
-    };
+    let ripple_pitch_um = has("force-ripple").then(|| ripple_pitch_um(dataset, inputs));
     let effects = axis::AxisEffects { friction: has("coulomb-friction"), hysteresis: has("presliding-hysteresis"), ripple_pitch_um };
     let fit = axis::identify(dataset, effects).context("identifying the servo axis")?;
     let p = fit.params;

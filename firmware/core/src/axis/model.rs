@@ -259,28 +259,7 @@ impl AxisModel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::axis::{Friction, Hysteresis, Ripple};
-
-    /// The default emulated machine's axis, per kg of its 45 kg slide.
-    fn machine() -> AxisParams {
-        let m = 45.0;
-        AxisParams {
-            cmd_delay_ticks: 2,
-            kp_per_s2: 10.551e6 / m,
-            ki_per_s3: 900.18e6 / m,
-            kd_per_s: 0.017826e6 / m,
-            vff_per_s: 450.0 / m,
-            aff: 13.5 / m,
-            viscous_per_s: 300.0 / m,
-            current_tau_s: 80e-6,
-            mode_freq_hz: 89.554,
-            mode_damping: 0.28,
-            mode_tcp_gain: 2.3662,
-            friction: None,
-            hysteresis: None,
-            ripple: None,
-        }
-    }
+    use crate::axis::{machine_for_tests as machine, Friction, Hysteresis, Ripple};
 
     /// A 40 Hz, 10 um sine command, nm.
     fn command(k: u32) -> i32 {

@@ -301,20 +301,10 @@ mod tests {
         let coupling = TickTerm::AxisCoupling { x_gain_pm_per_mps2: 1, spindle_amp_pm: 1, spindle_phase_turns: 0 };
         let axis = |friction: bool, hysteresis: bool, ripple: bool| {
             TickTerm::Axis(crate::axis::AxisParams {
-                cmd_delay_ticks: 2,
-                kp_per_s2: 2.3e5,
-                ki_per_s3: 2e7,
-                kd_per_s: 400.0,
-                vff_per_s: 10.0,
-                aff: 0.3,
-                viscous_per_s: 6.7,
-                current_tau_s: 8e-5,
-                mode_freq_hz: 90.0,
-                mode_damping: 0.28,
-                mode_tcp_gain: 2.4,
                 friction: friction.then_some(crate::axis::Friction { coulomb_mps2: 0.07, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 }),
                 hysteresis: hysteresis.then_some(crate::axis::Hysteresis { force_mps2: 0.05, stiffness_per_s2: 6e4 }),
                 ripple: ripple.then_some(crate::axis::Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_000, phase_turns: 0 }),
+                ..crate::axis::machine_for_tests()
             })
         };
         // Accepted: eight harmonics, the terms of each `fit --effect` (the axis twin with

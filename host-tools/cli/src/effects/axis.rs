@@ -7,6 +7,9 @@
 //! bandwidths of 30, 100 and 300 Hz (controller gains of a well-damped PID at that
 //! bandwidth), the servo and the effect fitted together on the encoder, the best start
 //! kept; then the mode from a grid of frequencies on the probe; then everything on both.
+//! The encoder ripple's phase and amplitudes enter each stage by linear least squares
+//! ([`ripple_linear`]): over a travel of several pitches a local fit of the phase has a
+//! minimum every turn.
 //! The simulation here is f64 (the firmware's is f32); both simulate the whole axis with the
 //! same laws and share the discretisation ([`zoh`]).
 
@@ -155,8 +158,9 @@ impl Candidate {
     }
 
     /// The slots of the effects that show in the encoder reading (friction and hysteresis
-    /// move the slide against the loop) and in the probe only (the loop follows the
-    /// encoder's error, so it moves the slide, not the reading).
+    /// move the slide against the loop) and those fitted on the probe (the loop follows
+    /// the encoder's error, so at low speed it moves the slide, not the reading; the start
+    /// search adds the ripple's shape on the encoder too, where fast groups show it).
     fn effect_slots(&self) -> (Vec<Slot>, Vec<Slot>) {
         let mut encoder = Vec::new();
         if self.effects.friction {
@@ -172,6 +176,8 @@ impl Candidate {
 
 const SERVO: [Slot; 7] = [Slot::Kp, Slot::Ki, Slot::Kd, Slot::Vff, Slot::Aff, Slot::Viscous, Slot::Tau];
 const MODE: [Slot; 3] = [Slot::ModeHz, Slot::Zeta, Slot::Gain];
+/// The ripple's amplitudes and phase (its pitch comes from a search, refined last).
+const RIPPLE_SHAPE: [Slot; 3] = [Slot::RippleAmp, Slot::RipplePhase, Slot::Ripple2];
 
 /// The transition and input matrices of the tick (`phi`, `gamma` of [`zoh`]).
 type Discrete = ([[f64; STATES]; STATES], [[f64; 2]; STATES]);
@@ -381,6 +387,45 @@ fn levenberg_marquardt(start: Candidate, free: &[Slot], sample: &Sample, what: F
     (c, cost)
 }
 
+/// The ripple's amplitudes and phase for the candidate's servo, by linear least squares:
+/// the interpolation error moves the readings nearly linearly in `a cos(phase)`,
+/// `a sin(phase)` and the second harmonic's two parts (the position it is read at differs
+/// from the command by nanometres), so four unit-ripple simulations give the regressors.
+/// The phase of a ripple over many pitches has a minimum every turn; this lands in the right
+/// one, which a local fit from a guessed phase often does not.
+fn ripple_linear(c: &Candidate, sample: &Sample, what: Fit) -> Candidate {
+    let with = |amp: f64, phase: f64, second: f64| {
+        let mut out = *c;
+        out.v[Slot::RippleAmp as usize] = amp;
+        out.v[Slot::RipplePhase as usize] = phase;
+        out.v[Slot::Ripple2 as usize] = second;
+        out
+    };
+    let unit_nm = 10.0;
+    let r0 = sample.residuals(&with(0.0, 0.0, 0.0), what);
+    let columns: Vec<Vec<f64>> = [(unit_nm, 0.0, 0.0), (unit_nm, PI / 2.0, 0.0), (0.0, 0.0, unit_nm), (0.0, PI / 4.0, unit_nm)]
+        .par_iter()
+        .map(|&(a, ph, a2)| sample.residuals(&with(a, ph, a2), what).iter().zip(&r0).map(|(r, r0)| (r0 - r) / unit_nm).collect())
+        .collect();
+    let mut normal = vec![vec![0.0; 4]; 4];
+    let mut rhs = vec![0.0; 4];
+    for i in 0..4 {
+        for j in 0..=i {
+            let v: f64 = columns[i].iter().zip(&columns[j]).map(|(x, y)| x * y).sum();
+            normal[i][j] = v;
+            normal[j][i] = v;
+        }
+        rhs[i] = columns[i].iter().zip(&r0).map(|(x, y)| x * y).sum();
+    }
+    let b = solve_ridge(normal, rhs);
+    if b.iter().any(|x| !x.is_finite()) {
+        return *c;
+    }
+    let phase = b[1].atan2(b[0]);
+    // The model's second harmonic keeps twice the first's phase: its part along that.
+    with(b[0].hypot(b[1]), phase, b[2] * (2.0 * phase).cos() + b[3] * (2.0 * phase).sin())
+}
+
 /// The identified axis and how well it reproduces the measurement.
 #[derive(Clone, Debug)]
 pub struct AxisFit {
@@ -443,7 +488,14 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisF
             // on a weak friction).
             let mut free: Vec<Slot> = SERVO.to_vec();
             free.extend(&encoder_slots);
-            levenberg_marquardt(start, &free, &coarse, Fit::Encoder, 45)
+            if !ripple {
+                return levenberg_marquardt(start, &free, &coarse, Fit::Encoder, 45);
+            }
+            // The ripple shows in the reading where the loop cannot follow it (fast groups):
+            // its phase and amplitudes for the start's servo, then both.
+            free.extend(RIPPLE_SHAPE);
+            let lin = ripple_linear(&start, &coarse, Fit::Encoder);
+            levenberg_marquardt(lin, &free, &coarse, Fit::Encoder, 45)
         })
         .collect();
     let (best, _) = searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or_else(|| anyhow::anyhow!("no start"))?;
@@ -453,15 +505,16 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisF
     tcp_free.extend(&probe_slots);
     let mut mode_best: Option<(Candidate, f64)> = None;
     for mode_hz in [40.0, 90.0, 200.0, 500.0] {
-        for phase in if ripple { vec![0.0, PI / 2.0, PI, 1.5 * PI] } else { vec![0.0] } {
-            let mut c = best;
-            c.v[Slot::ModeHz as usize] = mode_hz;
-            c.v[Slot::RipplePhase as usize] = phase;
-            let (m, _) = levenberg_marquardt(c, &MODE, &coarse, Fit::Tcp, 15);
-            let fitted = levenberg_marquardt(m, &tcp_free, &coarse, Fit::Tcp, 20);
-            if mode_best.as_ref().is_none_or(|b| fitted.1 < b.1) {
-                mode_best = Some(fitted);
-            }
+        let mut c = best;
+        c.v[Slot::ModeHz as usize] = mode_hz;
+        let (mut m, _) = levenberg_marquardt(c, &MODE, &coarse, Fit::Tcp, 15);
+        if ripple {
+            // On the probe, where the slow groups carry the ripple whole.
+            m = ripple_linear(&m, &coarse, Fit::Tcp);
+        }
+        let fitted = levenberg_marquardt(m, &tcp_free, &coarse, Fit::Tcp, 20);
+        if mode_best.as_ref().is_none_or(|b| fitted.1 < b.1) {
+            mode_best = Some(fitted);
         }
     }
     let (c, _) = mode_best.ok_or_else(|| anyhow::anyhow!("no mode start"))?;

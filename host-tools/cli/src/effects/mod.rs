@@ -139,26 +139,28 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
     sorted.sort_by(f64::total_cmp);
     let limit = sorted.get(sorted.len() / 5).copied().unwrap_or(0.0).max(100.0);
     let slow: Vec<&GroupInputs> = inputs.iter().zip(&vpeak).filter(|(_, v)| **v <= limit).map(|(g, _)| g).collect();
-    let candidates: Vec<u32> = (0..60).map(|i| (4_294_967_296.0 / (1000.0 * 1.04f64.powi(i))).round() as u32).collect();
-    let sse: Vec<f64> = candidates
-        .par_iter()
-        .map(|&turns_per_nm| {
-            let kinds = [TermInput::PositionSine { turns_per_nm, phase_turns: 0 }, TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 }];
-            let stats: Vec<Stats> = slow
-                .iter()
-                .map(|g| {
-                    let cols: Vec<Vec<f64>> =
-                        kinds.iter().map(|k| project_out_fundamental(&term_input(k, &g.pos_nm)[g.start..], &g.theta[g.start..])).collect();
-                    Stats::from_columns(&cols, &g.target)
-                })
-                .collect();
-            let refs: Vec<&Stats> = stats.iter().collect();
-            let theta = solve(&refs);
-            stats.iter().map(|s| s.sse(&theta)).sum()
-        })
-        .collect();
-    let best = (0..candidates.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
-    4_294_967_296.0 / f64::from(candidates[best]) / 1000.0
+    let sse_of = |turns_per_nm: u32| -> f64 {
+        let kinds = [TermInput::PositionSine { turns_per_nm, phase_turns: 0 }, TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 }];
+        let stats: Vec<Stats> = slow
+            .iter()
+            .map(|g| {
+                let cols: Vec<Vec<f64>> = kinds.iter().map(|k| project_out_fundamental(&term_input(k, &g.pos_nm)[g.start..], &g.theta[g.start..])).collect();
+                Stats::from_columns(&cols, &g.target)
+            })
+            .collect();
+        let refs: Vec<&Stats> = stats.iter().collect();
+        let theta = solve(&refs);
+        stats.iter().map(|s| s.sse(&theta)).sum()
+    };
+    let best_of = |pitches_um: Vec<f64>| -> f64 {
+        let sse: Vec<f64> = pitches_um.par_iter().map(|&p| sse_of((4_294_967_296.0 / (1000.0 * p)).round() as u32)).collect();
+        let best = (0..pitches_um.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
+        pitches_um[best]
+    };
+    // 1-10 um in 4% steps, then the best step's neighbourhood in 0.1% steps: the phase over
+    // the groups' travel (a few pitches) must be right to a few degrees for the axis fit.
+    let coarse_um = best_of((0..60).map(|i| 1.04f64.powi(i)).collect());
+    best_of((-40..=40).map(|i| coarse_um * 1.001f64.powi(i)).collect())
 }
 
 /// Prepares `fit --effect` for the named effects: fits their terms and returns the dataset

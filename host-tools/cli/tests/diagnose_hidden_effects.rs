@@ -13,6 +13,9 @@
 //! STS_SUITE_SEEDS=20 STS_SUITE_FIT_SEEDS=3 STS_SUITE_GRID=paper \
 //!   cargo test --release -p sts-twin --test diagnose_hidden_effects -- --ignored --nocapture
 //! ```
+//!
+//! `STS_SUITE_EFFECTS=coulomb-friction,force-ripple` runs only those hidden effects (`none`
+//! for the clean cases), e.g. to refit many seeds of the slow ones.
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -25,6 +28,8 @@ use sts_twin::fit::{fit, FitConfig};
 use sts_twin::model::ModelFile;
 
 struct Suite {
+    /// The hidden effects run (`none`: clean data); all when empty.
+    only: Vec<String>,
     seeds: u64,
     fit_seeds: u64,
     paper_grid: bool,
@@ -52,6 +57,29 @@ struct Outcome {
     verdict: String,
     reference_rms_um: f64,
     refit_rms_um: Option<f64>,
+    /// How much the measurement itself depends on the emulator's integration step, nm.
+    step_dependence_nm: f64,
+}
+
+/// The RMS change of the encoder reading when the emulator integrates with 16 sub-steps per
+/// tick instead of its 4, over the slow groups (1 and 5 Hz, 3 s), nm. Large only where the
+/// machine hunts: where a friction's Stribeck zone takes more damping than the servo gives,
+/// the slide oscillates by itself, and the oscillation's phase depends on everything down to
+/// the integration step, so no twin driven by the command can predict it.
+fn step_dependence_nm(effects: &[EffectSpec], seed: u64) -> f64 {
+    let config = MeasureConfig { effects: effects.to_vec(), seed, freqs_hz: vec![1.0, 5.0], duration_s: 3.0, ..MeasureConfig::default() };
+    let mut fine = config.clone();
+    fine.plant.servo.substeps = 16;
+    let a = sts_emulator::measure::run(&config, &|_| {}).expect("measurement");
+    let b = sts_emulator::measure::run(&fine, &|_| {}).expect("measurement");
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (ga, gb) in a.groups.iter().zip(&b.groups) {
+        for (x, y) in ga.z_enc_um.iter().zip(&gb.z_enc_um) {
+            sum += (x - y).powi(2);
+            n += 1;
+        }
+    }
+    (sum / n.max(1) as f64).sqrt() * 1e3
 }
 
 fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u64, refit: bool) -> Outcome {
@@ -62,7 +90,7 @@ fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u6
         }
         None => Vec::new(),
     };
-    let data = measure(suite, effects, 100 + seed);
+    let data = measure(suite, effects.clone(), 100 + seed);
     let d = diagnose(&data, reference).expect("diagnose");
     let (c, _) = compare(&data, reference).expect("compare");
     let refit_rms_um = if refit && d.verdict != "none" {
@@ -78,7 +106,8 @@ fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u6
             println!("    missed: {} explains {:.1}% (p = {:.1e}, significant {})", r.effect, r.explained_fraction * 100.0, r.p_value, r.significant);
         }
     }
-    Outcome { verdict: d.verdict, reference_rms_um: c.waveform_rms_um, refit_rms_um }
+    let step_dependence_nm = if refit { step_dependence_nm(&effects, 100 + seed) } else { 0.0 };
+    Outcome { verdict: d.verdict, reference_rms_um: c.waveform_rms_um, refit_rms_um, step_dependence_nm }
 }
 
 fn run_suite(suite: &Suite) {
@@ -90,17 +119,20 @@ fn run_suite(suite: &Suite) {
     let mut labels: Vec<&str> = EFFECT_NAMES.to_vec();
     labels.push("none");
     let mut confusion = vec![vec![0usize; labels.len()]; labels.len()];
-    let mut falls: Vec<(String, u64, f64, f64, f64)> = Vec::new();
+    let mut falls: Vec<(String, u64, f64, f64, f64, f64)> = Vec::new();
     // Seeds outermost, so that a partial run still covers every effect.
     for seed in 0..suite.seeds {
         for (row, truth) in labels.iter().enumerate() {
+            if !suite.only.is_empty() && !suite.only.iter().any(|o| o == truth) {
+                continue;
+            }
             let effect = if *truth == "none" { None } else { Some(*truth) };
             let refit = effect.is_some() && seed < suite.fit_seeds;
             let o = run_case(suite, &reference, effect, seed, refit);
             let col = labels.iter().position(|l| *l == o.verdict).unwrap_or(labels.len() - 1);
             confusion[row][col] += 1;
             if let Some(after) = o.refit_rms_um {
-                falls.push((truth.to_string(), seed, o.reference_rms_um, after, clean_rms));
+                falls.push((truth.to_string(), seed, o.reference_rms_um, after, clean_rms, o.step_dependence_nm));
             }
             println!("{truth:<22} seed {seed:>2}: verdict {:<22} reference RMS {:.1} nm{}", o.verdict, o.reference_rms_um * 1e3, o.refit_rms_um.map_or(String::new(), |r| format!(", refit held-out RMS {:.1} nm", r * 1e3)));
         }
@@ -113,51 +145,64 @@ fn run_suite(suite: &Suite) {
         println!("{l:<22} {}", confusion[i].iter().map(|n| format!("{n:>9}")).collect::<String>());
     }
     let mut all_ok = true;
+    let run = |l: &str| suite.only.is_empty() || suite.only.iter().any(|o| o == l);
     for (i, l) in labels.iter().enumerate() {
+        if !run(l) {
+            continue;
+        }
         let rate = confusion[i][i] as f64 / suite.seeds as f64;
         let need = if *l == "none" { 0.95 } else { 0.90 };
         println!("{l:<22} correct {:>5.1}% (target {:.0}%)", rate * 100.0, need * 100.0);
         all_ok &= rate >= need;
     }
     println!("\nrefit with --effect <verdict>: reference RMS -> held-out RMS (fall; ratio to the clean held-out RMS {:.1} nm)", clean_rms * 1e3);
-    // Every effect's error falls by half at least. Within 1.5x the clean twin's error:
-    // asserted where the terms model the effect exactly (drift, other axes) or the formulas
-    // carry it (linear changes at the command frequency); printed for the servo-axis twin's
-    // three, whose identification still misses on some seeds (see BENCHMARKS.md).
-    let axis_effects = ["coulomb-friction", "presliding-hysteresis", "force-ripple"];
+    // Every effect's error falls by half at least and ends within 1.5x the clean twin's
+    // error, except where the measurement itself is not determined that finely: where it
+    // changes by more than the probe's noise (5 nm) with the emulator's integration step
+    // (a hunting axis), the 1.5x is printed, not asserted.
     let mut fall_ok = true;
-    for (effect, seed, before, after, clean) in &falls {
+    let mut unpredictable = 0;
+    for (effect, seed, before, after, clean, step_nm) in &falls {
         let fall = 1.0 - after / before;
         let within = after / clean <= 1.5;
-        let checked = !axis_effects.contains(&effect.as_str());
-        let met = fall >= 0.5 && (within || !checked);
+        let determined = *step_nm <= 5.0;
+        unpredictable += usize::from(!determined);
+        let met = fall >= 0.5 && (within || !determined);
         println!(
             "  {effect:<22} seed {seed}: {:.1} -> {:.1} nm, fall {:.0}%, {:.2}x clean{}",
             before * 1e3,
             after * 1e3,
             fall * 100.0,
             after / clean,
-            if !met { "  FAILS" } else if !within { "  (above 1.5x clean: known shortfall)" } else { "" }
+            if !met {
+                "  FAILS".to_string()
+            } else if !within {
+                format!("  (the machine hunts: its reading changes by {step_nm:.1} nm with the emulator's integration step)")
+            } else {
+                String::new()
+            }
         );
         fall_ok &= met;
     }
     let total: usize = (0..labels.len()).map(|i| confusion[i][i]).sum();
-    let cases = labels.len() as u64 * suite.seeds;
-    println!("\noverall: {total}/{cases} correct; every refit's error fell by at least 50% (and ended within 1.5x clean where asserted): {fall_ok}");
+    let cases = labels.iter().filter(|l| run(l)).count() as u64 * suite.seeds;
+    println!("\noverall: {total}/{cases} correct; every refit's error fell by at least 50% and ended within 1.5x clean ({unpredictable} of {} hunting, 1.5x not asserted): {fall_ok}", falls.len());
     if suite.seeds >= 20 {
         assert!(all_ok, "a per-effect rate is below its target");
     } else {
         // Few seeds: the overall rate must still reach 90% and every clean case must be `none`.
         assert!(total as f64 >= 0.9 * cases as f64, "only {total} of {cases} verdicts right");
-        assert_eq!(confusion[labels.len() - 1][labels.len() - 1], suite.seeds as usize, "clean data must give `none`");
+        if run("none") {
+            assert_eq!(confusion[labels.len() - 1][labels.len() - 1], suite.seeds as usize, "clean data must give `none`");
+        }
     }
-    assert!(fall_ok, "a refit did not halve the error, or ended above 1.5x clean where asserted");
+    assert!(fall_ok, "a refit did not halve the error, or ended above 1.5x clean on a determined measurement");
 }
 
 /// CI's share: the 99 groups shortened to 5.5 s, one seed per effect (and clean), each refitted.
 #[test]
 fn ci_suite() {
-    run_suite(&Suite { seeds: env_u64("STS_SUITE_CI_SEEDS", 1), fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1), paper_grid: false, epochs: 10 });
+    run_suite(&Suite { only: Vec::new(), seeds: env_u64("STS_SUITE_CI_SEEDS", 1), fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1), paper_grid: false, epochs: 10 });
 }
 
 /// The full run (see the module docs for the command).
@@ -165,6 +210,7 @@ fn ci_suite() {
 #[ignore]
 fn full_suite() {
     run_suite(&Suite {
+        only: std::env::var("STS_SUITE_EFFECTS").map_or(Vec::new(), |e| e.split(',').map(str::to_string).collect()),
         seeds: env_u64("STS_SUITE_SEEDS", 20),
         fit_seeds: env_u64("STS_SUITE_FIT_SEEDS", 3),
         paper_grid: std::env::var("STS_SUITE_GRID").map_or(true, |g| g == "paper"),

@@ -86,7 +86,10 @@ pub fn handle_request(
 /// The status report.
 pub fn status(models: &Models, servo: &mut impl ServoAccess, config_source: ConfigSource) -> Status {
     servo.with(|s| Status {
-        counters: *s.counters(),
+        counters: {
+            s.count_axis_resets();
+            *s.counters()
+        },
         enabled: s.enabled(),
         gain: s.gain(),
         degraded: s.degraded(),

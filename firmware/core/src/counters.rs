@@ -38,12 +38,15 @@ pub struct Counters {
     pub config_store_errors: u32,
     /// Feature settings rejected (`SetFeatureConfig` with a zero or too long window).
     pub rejected_feature_configs: u32,
+    /// Servo-axis twin states reset to rest after diverging (a model whose loop is unstable
+    /// on this motion; the term restarts, its output never leaves the bound).
+    pub axis_resets: u32,
 }
 
 impl Counters {
     /// Sum of the fault counters (wrapping): underruns, overruns, DAC saturations, frame
-    /// errors, rejected programs and parameters, model faults, stuck and saturated inputs,
-    /// config store errors. Every output slot reports it.
+    /// errors, rejected programs and parameters, model faults, axis twin resets, stuck and
+    /// saturated inputs, config store errors. Every output slot reports it.
     pub fn fault_sum(&self) -> u32 {
         self.bus_underruns
             .wrapping_add(self.bus_overruns)
@@ -53,6 +56,7 @@ impl Counters {
             .wrapping_add(self.rejected_params)
             .wrapping_add(self.rejected_feature_configs)
             .wrapping_add(self.model_faults)
+            .wrapping_add(self.axis_resets)
             .wrapping_add(self.input_stuck)
             .wrapping_add(self.input_saturated)
             .wrapping_add(self.config_store_errors)

@@ -369,6 +369,8 @@ pub struct Servo {
     /// The last model output applied, per result slot (an error result carries the previous
     /// one over).
     last_outputs: [ModelOutput; 2],
+    /// [`Synth::axis_resets`] when last taken into `counters`.
+    axis_resets_seen: u32,
 }
 
 impl Servo {
@@ -404,6 +406,7 @@ impl Servo {
             model_active: false,
             program_id: None,
             last_outputs: [ModelOutput::default(); 2],
+            axis_resets_seen: 0,
             last_dac: 0,
             model_countdown: first_request_countdown(&timing),
             timing,
@@ -654,6 +657,7 @@ impl Servo {
     /// synthesiser's update to it for the tick that will apply it (its due tick, or the next
     /// tick if that has passed), so that this tick has little to do.
     pub fn deliver(&mut self, result: ModelResult) {
+        self.count_axis_resets();
         // The tick that will apply it (see `apply_due`).
         let next = self.counters.ticks;
         let apply_tick = if result.due_tick >= next {
@@ -721,6 +725,18 @@ impl Servo {
     /// The counters.
     pub fn counters(&self) -> &Counters {
         &self.counters
+    }
+
+    /// Takes the axis twin resets since the last call into the counters. The tick counts
+    /// them only in the term's state (at no cost); this runs with every model delivery and
+    /// before a status report.
+    pub fn count_axis_resets(&mut self) {
+        let total = self.synth.axis_resets();
+        let new = total.wrapping_sub(self.axis_resets_seen);
+        if new != 0 {
+            self.axis_resets_seen = total;
+            self.update_counters(|c| c.axis_resets = c.axis_resets.wrapping_add(new));
+        }
     }
 
     /// Changes the counters (the board adds what it sees: overruns, frame errors, store

@@ -896,6 +896,11 @@ struct KernelSlot {
 
 impl KernelSlot {
     const EMPTY: Self = Self { term: None, state: KernelState::REST };
+
+    /// Resets of the axis twin state this cell holds (0 for other terms).
+    fn axis_resets(&self) -> u32 {
+        self.state.axis.as_ref().map_or(0, |(_, state)| state.resets)
+    }
 }
 
 /// Storage cells per term slot: the live one and one for a prepared restart.
@@ -986,6 +991,8 @@ pub struct Synth {
     banks: [Harmonics; 2],
     /// Kernel terms and their states, two cells per slot (see [`KernelIndex`]).
     cells: [KernelSlot; CELLS],
+    /// Axis twin resets of the states overwritten so far (the cells hold the others').
+    axis_resets_retired: u32,
 }
 
 impl Eq for Synth {}
@@ -1002,7 +1009,19 @@ impl Synth {
             prepared: None,
             ticks: 0,
             ramp_ticks,
+            axis_resets_retired: 0,
         }
+    }
+
+    /// Servo-axis twin states reset after diverging, since the synthesiser started (wrapping;
+    /// counted off the tick: the tick only counts in the state it steps).
+    pub fn axis_resets(&self) -> u32 {
+        self.cells.iter().fold(self.axis_resets_retired, |sum, cell| sum.wrapping_add(cell.axis_resets()))
+    }
+
+    /// Keeps the count of the state in `cell`, which is about to be overwritten.
+    fn retire(&mut self, cell: usize) {
+        self.axis_resets_retired = self.axis_resets_retired.wrapping_add(self.cells[cell].axis_resets());
     }
 
     #[inline(always)]
@@ -1069,7 +1088,10 @@ impl Synth {
         let ticks = self.ticks;
         for i in 0..MAX_TERMS {
             match terms.get(i) {
-                Some(term) if start & (1 << i) != 0 => *self.slot_mut(i) = KernelSlot { term: Some(*term), state: KernelState::start(term, ticks) },
+                Some(term) if start & (1 << i) != 0 => {
+                    self.retire(self.harmonics().kernels.cell_of_slot[i & 7] as usize & (CELLS - 1));
+                    *self.slot_mut(i) = KernelSlot { term: Some(*term), state: KernelState::start(term, ticks) };
+                }
                 _ if stop & (1 << i) != 0 => self.slot_mut(i).term = None,
                 _ => {}
             }
@@ -1097,7 +1119,10 @@ impl Synth {
             if (stop | start) & (1 << i) != 0 {
                 let spare = (next.kernels.cell_of_slot[i] ^ 1) as usize & (CELLS - 1);
                 self.cells[spare] = match terms.get(i) {
-                    Some(term) if start & (1 << i) != 0 => KernelSlot { term: Some(*term), state: KernelState::start(term, at_ticks) },
+                    Some(term) if start & (1 << i) != 0 => {
+                        self.retire(spare);
+                        KernelSlot { term: Some(*term), state: KernelState::start(term, at_ticks) }
+                    }
                     _ => KernelSlot { term: None, ..self.cells[spare] },
                 };
                 next.kernels.cell_of_slot[i] = spare as u8;

@@ -239,3 +239,48 @@ fn the_paper_program_runs_in_the_pipeline() {
     assert!(out.amp_um().is_finite() && out.amp_um() > 0.0);
     assert_eq!(twin.servo().counters().model_faults, 0);
 }
+
+#[test]
+fn a_diverging_axis_twin_is_counted_and_its_output_stays_bounded() {
+    use sts_twin_core::axis::AxisParams;
+    // The default emulated machine's axis per kg, with a derivative gain far beyond what the
+    // tick can carry: valid parameters whose loop diverges on any motion.
+    let m = 45.0;
+    let unstable = AxisParams {
+        cmd_delay_ticks: 2,
+        kp_per_s2: 10.551e6 / m,
+        ki_per_s3: 900.18e6 / m,
+        kd_per_s: 9e5,
+        vff_per_s: 450.0 / m,
+        aff: 13.5 / m,
+        viscous_per_s: 300.0 / m,
+        current_tau_s: 80e-6,
+        mode_freq_hz: 89.554,
+        mode_damping: 0.28,
+        mode_tcp_gain: 2.3662,
+        friction: None,
+        hysteresis: None,
+        ripple: None,
+    };
+    let mut twin = booted_twin();
+    let mut b = ProgramBuilder::new();
+    b.id(8).constant(2.0).feature(4).mul().store(REG_AMP_UM);
+    b.constant(-0.2).feature(0).mul().store(REG_PHASE_DEG);
+    b.term(sts_twin_core::program::TickTerm::Axis(unstable));
+    assert_eq!(twin.handle(Request::UploadProgram { program: b.finish().unwrap(), activate: true }), Response::Ack);
+    let faults = twin.servo().fault_count();
+    let outputs: Vec<OutputSlot> = (0..8000).map(|k| twin.tick(Some(&input(k)))).collect();
+    let status = match twin.handle(Request::GetStatus) {
+        Response::Status(status) => status,
+        other => panic!("unexpected {other:?}"),
+    };
+    assert_eq!(status.program_id, Some(8));
+    assert!(status.counters.axis_resets > 10, "{:?}", status.counters);
+    // The resets are faults in the output slots' count (taken in with the model deliveries,
+    // the last ones by the status report), beside the DAC saturations the excursions cause.
+    assert_eq!(twin.servo().fault_count(), status.counters.fault_sum());
+    assert!(twin.servo().fault_count() >= faults + status.counters.axis_resets);
+    assert!(outputs.last().unwrap().fault_count > faults + 10);
+    // The twin's output never leaves the divergence bound (1 mm of error and mode).
+    assert!(outputs.iter().all(|o| o.de_pred_pm.unsigned_abs() <= 2_100_000_000));
+}

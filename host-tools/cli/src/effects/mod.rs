@@ -252,6 +252,19 @@ fn fit_axis(dataset: &Dataset, inputs: &[GroupInputs], names: &[String]) -> anyh
     let effects = axis::AxisEffects { friction: has("coulomb-friction"), hysteresis: has("presliding-hysteresis"), ripple_pitch_um };
     let fit = axis::identify(dataset, effects).context("identifying the servo axis")?;
     let p = fit.params;
+    // The firmware resets a diverging axis (counted, but its output swings to the bound
+    // first): an axis that diverges on the measurement's own motions is refused here.
+    let model = sts_twin_core::axis::AxisModel::new(&p).map_err(|e| anyhow::anyhow!("the identified axis is not usable: {e:?}"))?;
+    let diverged = dataset.groups.par_iter().zip(dataset.manifest.groups.par_iter()).find_map_any(|(g, info)| {
+        let mut state = sts_twin_core::axis::AxisState::INITIAL;
+        for z in &g.z_cmd_um {
+            model.step(&mut state, (z * 1000.0).round() as i32);
+        }
+        (state.resets > 0).then(|| info.file.clone())
+    });
+    if let Some(file) = diverged {
+        anyhow::bail!("the identified servo axis diverges on the motion of {file} (its loop is unstable there: {p:?}); the measurement may not show enough of the axis to identify it");
+    }
     let shared = |params: &mut Vec<(String, f64)>| {
         params.extend([
             ("servo_kp_per_s2".to_string(), f64::from(p.kp_per_s2)),

@@ -67,7 +67,7 @@ pub fn degraded_reasons(degraded: u16) -> Vec<String> {
 /// One line per non-zero fault counter of `c` (informational counters such as ticks,
 /// model updates and slew-limited ticks are not faults and are left out).
 fn counter_lines(c: &Counters) -> Vec<String> {
-    let entries: [(u32, &str); 13] = [
+    let entries: [(u32, &str); 14] = [
         (c.input_stuck, "episodes of a stuck or dead accelerometer (compensation ramped out until it recovered)"),
         (c.input_saturated, "episodes of accelerometer saturation (compensation ramped out until it recovered)"),
         (c.bus_underruns, "bus underruns: the host's sample for a tick came late or not at all (the DAC held its value)"),
@@ -77,6 +77,7 @@ fn counter_lines(c: &Counters) -> Vec<String> {
         (c.rejected_programs, "uploaded models rejected as malformed (the previous model stayed in force)"),
         (c.rejected_params, "parameter sets rejected (e.g. K_dv zero or not finite; the previous parameters stayed in force)"),
         (c.rejected_feature_configs, "feature settings rejected (a zero or too long window; the previous settings stayed in force)"),
+        (c.axis_resets, "servo-axis twin restarts after it diverged (its identified loop is unstable on this motion; refit it)"),
         (c.frame_errors, "control frames dropped as corrupt (CRC, stuffing or length; the host retries)"),
         (c.dac_saturations, "ticks with the DAC target clamped at full scale"),
         (c.config_store_errors, "config store errors (a corrupt record at boot or a failed save)"),
@@ -137,7 +138,7 @@ mod tests {
     #[test]
     fn every_fault_counter_is_reported_with_its_count() {
         type SetCounter = fn(&mut Counters);
-        let set: [(SetCounter, &str); 13] = [
+        let set: [(SetCounter, &str); 14] = [
             (|c| c.input_stuck = 2, "2 episodes of a stuck or dead accelerometer"),
             (|c| c.input_saturated = 3, "3 episodes of accelerometer saturation"),
             (|c| c.bus_underruns = 40, "40 bus underruns"),
@@ -147,6 +148,7 @@ mod tests {
             (|c| c.rejected_programs = 7, "7 uploaded models rejected"),
             (|c| c.rejected_params = 8, "8 parameter sets rejected (e.g. K_dv"),
             (|c| c.rejected_feature_configs = 13, "13 feature settings rejected"),
+            (|c| c.axis_resets = 14, "14 servo-axis twin restarts"),
             (|c| c.frame_errors = 9, "9 control frames dropped as corrupt"),
             (|c| c.dac_saturations = 10, "10 ticks with the DAC target clamped"),
             (|c| c.config_store_errors = 11, "11 config store errors"),

@@ -281,11 +281,16 @@ fn fit_axis(dataset: &Dataset, inputs: &[GroupInputs], names: &[String]) -> anyh
     for name in names {
         let mut params: Vec<(String, f64)> = match name.as_str() {
             "coulomb-friction" => p.friction.map_or_else(Vec::new, |f| {
+                // The Stribeck zone's steepest fall of friction with velocity (at vs / sqrt 2)
+                // is negative damping; near the servo's own damping the axis hunts there
+                // (oscillates by itself, in a phase no twin can predict from the command).
+                let negative_damping = (f64::from(f.static_mps2) - f64::from(f.coulomb_mps2)) * 2f64.sqrt() * (-0.5f64).exp() / f64::from(f.stribeck_mps);
                 vec![
                     ("coulomb_mps2".to_string(), f64::from(f.coulomb_mps2)),
                     ("static_mps2".to_string(), f64::from(f.static_mps2)),
                     ("stribeck_velocity_um_per_s".to_string(), f64::from(f.stribeck_mps) * 1e6),
                     ("smoothing_velocity_um_per_s".to_string(), f64::from(f.smooth_mps) * 1e6),
+                    ("stribeck_damping_ratio".to_string(), negative_damping / f64::from(p.kd_per_s + p.viscous_per_s)),
                 ]
             }),
             "presliding-hysteresis" => p.hysteresis.map_or_else(Vec::new, |h| {

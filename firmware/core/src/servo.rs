@@ -783,6 +783,47 @@ mod tests {
     const STEP_40HZ: i32 = (4_294_967_296.0f64 * 40.0 / 8000.0) as i64 as i32;
 
     #[test]
+    fn a_diverging_axis_twin_is_counted_and_its_output_stays_bounded() {
+        use crate::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
+        use crate::program::{ProgramBuilder, TickTerm, REG_AMP_UM, REG_PHASE_DEG};
+        use crate::twin::Twin;
+        use crate::wire::{Request, Response};
+        // A derivative gain far beyond what the tick can carry: valid parameters whose loop
+        // diverges on any motion.
+        let unstable = crate::axis::AxisParams { kd_per_s: 9e5, ..crate::axis::machine_for_tests() };
+        let mut twin = Twin::boot(FeatureConfig { window_samples: 2000, ..FeatureConfig::DEFAULT }, ServoConfig { model_interval_ticks: 400, model_latency_ticks: 200, ..ServoConfig::default() }, &[]);
+        let mut b = ProgramBuilder::new();
+        b.id(8).constant(0.5).store(REG_AMP_UM).constant(0.0).store(REG_PHASE_DEG);
+        b.term(TickTerm::Axis(unstable));
+        assert_eq!(twin.handle(Request::UploadProgram { program: b.finish().unwrap(), activate: true }), Response::Ack);
+        assert_eq!(twin.handle(Request::SetEnabled(true)), Response::Ack);
+        let faults = twin.servo().fault_count();
+        // A 40 Hz, 3 um command.
+        let input = |k: u32| {
+            let turns = (40.0 * f64::from(k) / 8000.0).fract();
+            let sine = libm::sin(2.0 * core::f64::consts::PI * turns);
+            InputSlot { tick: k, acc_code: (-5000.0 * sine) as i16, flags: IN_FLAG_PHASE_VALID, cmd_phase_turns: (turns * 4_294_967_296.0) as u64 as u32, cmd_pos_nm: (3000.0 * sine) as i32, ..Default::default() }
+        };
+        let mut outputs: heapless::Vec<OutputSlot, 8000> = heapless::Vec::new();
+        for k in 0..8000 {
+            outputs.push(twin.tick(Some(&input(k)))).unwrap();
+        }
+        let status = match twin.handle(Request::GetStatus) {
+            Response::Status(status) => status,
+            other => panic!("unexpected {other:?}"),
+        };
+        assert_eq!(status.program_id, Some(8));
+        assert!(status.counters.axis_resets > 10, "{:?}", status.counters);
+        // The resets are faults in the output slots' count (taken in with the model deliveries,
+        // the last ones by the status report), beside the DAC saturations the excursions cause.
+        assert_eq!(twin.servo().fault_count(), status.counters.fault_sum());
+        assert!(twin.servo().fault_count() >= faults + status.counters.axis_resets);
+        assert!(outputs[7999].fault_count > faults + 10);
+        // The twin's output never leaves the divergence bound (1 mm of error and mode).
+        assert!(outputs.iter().all(|o| o.de_pred_pm.unsigned_abs() <= 2_100_000_000));
+    }
+
+    #[test]
     fn model_timing_follows_the_window_within_bounds_in_whole_blocks() {
         let config = ServoConfig::default();
         assert_eq!(ModelTiming::new(&config, 40_000), ModelTiming { interval_ticks: 800, latency_ticks: 400 });

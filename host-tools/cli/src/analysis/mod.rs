@@ -77,7 +77,86 @@ pub fn group_samples_skipping(dataset: &Dataset, config: &FeatureConfig, skip_s:
             let targets = targets::group_targets(group, fs, info.freq_hz).map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
             Ok(GroupSample { index, info: info.clone(), features, feature_start: start, targets })
         })
-        .collect()
+        .collect::<anyhow::Result<Vec<_>>>()
+        .map(|mut samples| {
+            unwrap_phases(&mut samples, crate::fit::PHASE_MIN_AMP_UM);
+            samples
+        })
+}
+
+/// Puts the measured phases on one branch: the cut (at +-180 degrees as measured) moves into
+/// the widest gap between the phases of the groups whose amplitude is at least `min_amp_um`,
+/// on the side that moves fewer of them by 360 degrees. Otherwise an error nearly opposite
+/// to the command (a probe that reads a few percent short, say) splits into phases near +180
+/// and near -180, which no smooth formula fits. Nothing changes when the cut already lies in
+/// the widest gap.
+pub fn unwrap_phases(samples: &mut [GroupSample], min_amp_um: f64) {
+    let phases: Vec<f64> = samples.iter().filter(|s| s.targets.de_amp_um >= min_amp_um).map(|s| s.targets.de_phase_deg).collect();
+    if let Some(branch) = Branch::of(phases) {
+        for s in samples.iter_mut() {
+            s.targets.de_phase_deg = branch.put(s.targets.de_phase_deg);
+        }
+    }
+}
+
+/// A branch of the phase other than (-180, 180]: phases beyond `cut_deg` on the side
+/// `shift_above` move by 360 degrees.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Branch {
+    cut_deg: f64,
+    shift_above: bool,
+}
+
+impl Branch {
+    /// The branch for `phases` (in (-180, 180]); `None` when the usual one serves.
+    fn of(mut phases: Vec<f64>) -> Option<Branch> {
+        if phases.len() < 2 {
+            return None;
+        }
+        phases.sort_by(f64::total_cmp);
+    // The gap across +-180 first: on a tie it wins and nothing moves.
+    let across = phases[0] + 360.0 - phases[phases.len() - 1];
+    let (mut widest, mut cut_deg) = (across, None);
+    for pair in phases.windows(2) {
+        if pair[1] - pair[0] > widest {
+            widest = pair[1] - pair[0];
+            cut_deg = Some(0.5 * (pair[0] + pair[1]));
+        }
+    }
+    let cut_deg = cut_deg?;
+    let above = phases.iter().filter(|&&p| p > cut_deg).count();
+    Some(Branch { cut_deg, shift_above: above <= phases.len() - above })
+    }
+
+    fn put(self, phase_deg: f64) -> f64 {
+        if self.shift_above && phase_deg > self.cut_deg {
+            phase_deg - 360.0
+        } else if !self.shift_above && phase_deg < self.cut_deg {
+            phase_deg + 360.0
+        } else {
+            phase_deg
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Branch;
+
+    #[test]
+    fn phases_around_180_degrees_stay_together() {
+        // An error nearly opposite to the command: 170..180 and -180..-165, plus a few
+        // groups near -120. The widest gap is between -120 and 170 degrees.
+        let phases = vec![171.0, 178.0, -179.0, -172.0, -166.0, -125.0, -118.0];
+        let branch = Branch::of(phases.clone()).expect("a new branch");
+        let put: Vec<f64> = phases.iter().map(|&p| branch.put(p)).collect();
+        // The two above the cut move down (fewer than the five below).
+        assert_eq!(put, vec![-189.0, -182.0, -179.0, -172.0, -166.0, -125.0, -118.0]);
+        // Spread around 0: the usual branch, nothing moves.
+        assert_eq!(Branch::of(vec![-40.0, -10.0, 5.0, 60.0]), None);
+        // A lone phase: nothing to keep together.
+        assert_eq!(Branch::of(vec![179.0]), None);
+    }
 }
 
 /// The training table as CSV: one row per group with its file, command, features f1..f12

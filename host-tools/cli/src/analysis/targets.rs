@@ -17,7 +17,8 @@ pub struct GroupTargets {
     pub cmd: SineFit,
     /// Dynamic-error amplitude at the command frequency, um.
     pub de_amp_um: f64,
-    /// Dynamic-error phase relative to the command phase, degrees in (-180, 180].
+    /// Dynamic-error phase relative to the command phase, degrees: in (-180, 180] as measured,
+    /// then on the dataset's branch ([`super::unwrap_phases`]).
     pub de_phase_deg: f64,
     /// The dynamic error's fit (phase relative to t = 0).
     pub de: SineFit,

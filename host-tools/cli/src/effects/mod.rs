@@ -322,28 +322,56 @@ fn fit_axis(dataset: &Dataset, inputs: &[GroupInputs], names: &[String]) -> anyh
 
 fn fit_drift(dataset: &Dataset, inputs: &[GroupInputs], fs: f64) -> (TickTerm, Vec<(String, f64)>) {
     // The drift is what the sine removal leaves as each group's mean; fit on the DE directly.
-    let mut best: Option<(f64, Vec<f64>, f64)> = None;
-    for tau in [100.0, 200.0, 400.0, 700.0, 1000.0, 1500.0, 2500.0, 4000.0, 8000.0] {
+    // Offset and decay are linear given the time constant: least squares at each of a grid
+    // of time constants, then a golden-section search of log(tau) between the best one's
+    // neighbours (a tau off by a grid step leaves the early drift, where it is steepest).
+    let targets: Vec<Vec<f64>> = dataset
+        .groups
+        .par_iter()
+        .zip(inputs.par_iter())
+        .map(|(g, gi)| {
+            let de: Vec<f64> = (gi.start..g.len()).map(|k| g.z_tcp_um[k] - g.z_cmd_um[k]).collect();
+            project_out_fundamental_keep_mean(&de, &gi.theta[gi.start..])
+        })
+        .collect();
+    let fit_at = |tau: f64| -> (Vec<f64>, f64) {
         let stats: Vec<Stats> = dataset
             .groups
-            .iter()
-            .zip(&dataset.manifest.groups)
-            .zip(inputs)
-            .map(|((g, info), gi)| {
-                let de: Vec<f64> = (gi.start..g.len()).map(|k| g.z_tcp_um[k] - g.z_cmd_um[k]).collect();
-                let y = project_out_fundamental_keep_mean(&de, &gi.theta[gi.start..]);
+            .par_iter()
+            .zip(dataset.manifest.groups.par_iter())
+            .zip(inputs.par_iter().zip(targets.par_iter()))
+            .map(|((g, info), (gi, y))| {
                 let e: Vec<f64> = g.t_s[gi.start..].iter().map(|t| (-(info.start_s + t) / tau).exp()).collect();
-                Stats::from_columns(&[vec![1.0; e.len()], e], &y)
+                Stats::from_columns(&[vec![1.0; e.len()], e], y)
             })
             .collect();
         let refs: Vec<&Stats> = stats.iter().collect();
         let theta = solve(&refs);
-        let sse: f64 = stats.iter().map(|s| s.sse(&theta)).sum();
-        if best.as_ref().is_none_or(|b| sse < b.2) {
-            best = Some((tau, theta, sse));
+        let sse = stats.iter().map(|s| s.sse(&theta)).sum();
+        (theta, sse)
+    };
+    const GRID_S: [f64; 9] = [100.0, 200.0, 400.0, 700.0, 1000.0, 1500.0, 2500.0, 4000.0, 8000.0];
+    let sse: Vec<f64> = GRID_S.iter().map(|&tau| fit_at(tau).1).collect();
+    let best = (0..GRID_S.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(4);
+    let (mut lo, mut hi) = (GRID_S[best.saturating_sub(1)].ln(), GRID_S[(best + 1).min(GRID_S.len() - 1)].ln());
+    let ratio = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut a, mut b) = (hi - ratio * (hi - lo), lo + ratio * (hi - lo));
+    let (mut fa, mut fb) = (fit_at(a.exp()).1, fit_at(b.exp()).1);
+    for _ in 0..20 {
+        if fa <= fb {
+            (hi, b, fb) = (b, a, fa);
+            a = hi - ratio * (hi - lo);
+            fa = fit_at(a.exp()).1;
+        } else {
+            (lo, a, fa) = (a, b, fb);
+            b = lo + ratio * (hi - lo);
+            fb = fit_at(b.exp()).1;
         }
     }
-    let (tau, theta, _) = best.unwrap_or((1000.0, vec![0.0, 0.0], 0.0));
+    // The best of the search and the grid point (the search cannot do worse than either end).
+    let searched = if fa <= fb { a.exp() } else { b.exp() };
+    let tau = if fa.min(fb) < sse[best] { searched } else { GRID_S[best] };
+    let (theta, _) = fit_at(tau);
     let term = TickTerm::Drift { offset_pm: (theta[0] * 1e6).round() as i32, decay_pm: (theta[1] * 1e6).round() as i32, tau_ticks: (tau * fs).round() as u32 };
     (term, vec![("offset_um".into(), theta[0]), ("decay_um".into(), theta[1]), ("time_constant_s".into(), tau)])
 }

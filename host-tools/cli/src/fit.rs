@@ -510,6 +510,7 @@ pub fn fit_samples(
         program: ProgramListing { id: program.id, code_hex: hex_encode(&program.code), consts: program.consts.to_vec(), terms: program.terms.len() },
         program_postcard_hex: hex_encode(bytes),
         validation,
+        probe_gain: None,
     })
 }
 

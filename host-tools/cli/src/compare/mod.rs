@@ -184,6 +184,8 @@ pub struct GroupWaves {
 
 /// Compares `model` with `dataset`. Also returns each group's last-second waveforms.
 pub fn compare(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<(Comparison, Vec<GroupWaves>)> {
+    let corrected = model.probe_corrected(dataset);
+    let dataset: &Dataset = &corrected;
     let program = model.firmware_program()?;
     let mut feature_config = model.feature_config;
     feature_config.sample_rate_hz = dataset.manifest.sample_rate_hz as f32;

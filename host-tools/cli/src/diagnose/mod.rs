@@ -225,6 +225,8 @@ pub fn contexts<'a>(dataset: &'a Dataset, samples: &'a [GroupSample], model: &Mo
 
 /// Diagnoses `model` on `dataset`.
 pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<Diagnosis> {
+    let corrected = model.probe_corrected(dataset);
+    let dataset: &Dataset = &corrected;
     let mut feature_config = model.feature_config;
     feature_config.sample_rate_hz = dataset.manifest.sample_rate_hz as f32;
     let skip_s = model.training.as_ref().map_or(analysis::DEFAULT_SKIP_S, |t| t.skip_s);

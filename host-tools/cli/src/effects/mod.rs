@@ -10,7 +10,8 @@
 //! | `coulomb-friction`, `presliding-hysteresis`, `force-ripple` | one servo-axis twin ([`axis`], [`sts_twin_core::axis`]): the controller, slide, mode and the effects simulated from the command, identified on the encoder and probe readings |
 //! | `thermal-drift` | `offset + decay exp(-t / tau)` over machine time |
 //! | `axis-coupling` | X acceleration gain and the spindle's once-per-revolution sine |
-//! | `structural-mode`, `loop-delay`, `sensor-gain` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
+//! | `structural-mode`, `loop-delay` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
+//! | `sensor-gain` | a probe gain (estimated on the slowest groups) is taken out of the readings and recorded in the model file, so that `compare` and `diagnose` read data as the fit did; an accelerometer gain is carried by the refitted formulas |
 //!
 //! How: the terms are fitted first: drift and coupling on what the formulas can never explain
 //! (each group's dynamic error minus its own sine at the command frequency, regressors likewise
@@ -62,6 +63,42 @@ pub struct Prepared {
     pub terms: Vec<TickTerm>,
     /// What was added.
     pub records: Vec<EffectRecord>,
+    /// The probe's gain, when `sensor-gain` found it off one (the dataset is corrected).
+    pub probe_gain: Option<f64>,
+}
+
+/// A probe gain closer to one than this is not corrected.
+const PROBE_GAIN_TOLERANCE: f64 = 0.005;
+
+/// The probe's gain: the in-phase ratio of the probe reading to the command on the slowest
+/// groups (the lowest command frequency), over their second half, where the servo follows
+/// the command to a small fraction of a percent.
+fn probe_gain(dataset: &Dataset) -> f64 {
+    let slowest = dataset.manifest.groups.iter().map(|g| g.freq_hz).fold(f64::INFINITY, f64::min);
+    let (mut num, mut den) = (0.0, 0.0);
+    for (g, info) in dataset.groups.iter().zip(&dataset.manifest.groups) {
+        if info.freq_hz > slowest {
+            continue;
+        }
+        let half = &g.z_cmd_um[g.len() / 2..];
+        let mean = half.iter().sum::<f64>() / half.len().max(1) as f64;
+        for (c, t) in half.iter().zip(&g.z_tcp_um[g.len() / 2..]) {
+            num += (c - mean) * t;
+            den += (c - mean) * (c - mean);
+        }
+    }
+    if den > 0.0 && (num / den).is_finite() {
+        num / den
+    } else {
+        1.0
+    }
+}
+
+/// `dataset` with its probe readings divided by `gain`.
+pub fn with_probe_gain(dataset: &Dataset, gain: f64) -> Dataset {
+    let mut out = dataset.clone();
+    out.groups.par_iter_mut().for_each(|g| g.z_tcp_um.iter_mut().for_each(|z| *z /= gain));
+    out
 }
 
 /// Per-group inputs of the term regressors (what the firmware sees), whole group.
@@ -171,6 +208,23 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
             anyhow::bail!("--effect: unknown effect {n:?} (known: {})", EFFECTS.join(", "));
         }
     }
+    if names.iter().any(|n| n == "sensor-gain") {
+        // A probe gain is taken out of the readings first (the twin models the tool, not the
+        // probe); an accelerometer gain is carried by the refitted formulas.
+        let gain = probe_gain(dataset);
+        let significant = (gain - 1.0).abs() >= PROBE_GAIN_TOLERANCE;
+        let others: Vec<String> = names.iter().filter(|n| *n != "sensor-gain").cloned().collect();
+        let corrected = if significant { with_probe_gain(dataset, gain) } else { dataset.clone() };
+        let mut prepared = prepare(&corrected, &others)?;
+        let note = if significant {
+            format!("the probe reads {:+.2}%: its readings are divided by {gain:.5} here and, from the model file, in compare and diagnose", (gain - 1.0) * 100.0)
+        } else {
+            "probe gain within 0.5% of one: a changed accelerometer gain, carried by the refitted amplitude and phase formulas".to_string()
+        };
+        prepared.records.insert(0, EffectRecord { effect: "sensor-gain".into(), params: vec![("probe_gain".into(), gain)], terms: 0, note });
+        prepared.probe_gain = significant.then_some(gain);
+        return Ok(prepared);
+    }
     let fs = dataset.manifest.sample_rate_hz;
     let inputs: Vec<GroupInputs> = dataset
         .manifest
@@ -219,7 +273,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
             *z -= o;
         }
     });
-    Ok(Prepared { dataset: reduced, terms, records })
+    Ok(Prepared { dataset: reduced, terms, records, probe_gain: None })
 }
 
 /// The terms' output over a group, um, computed by the firmware's synthesiser.
@@ -420,6 +474,7 @@ fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> anyhow::Result<(Ti
 impl Prepared {
     /// Appends the terms to a model fitted on [`Prepared::dataset`] (program, listing, id).
     pub fn attach(&self, mut model: ModelFile) -> anyhow::Result<ModelFile> {
+        model.probe_gain = self.probe_gain;
         if self.terms.is_empty() {
             return Ok(model);
         }
@@ -461,6 +516,28 @@ pub fn read_records(path: &Path) -> anyhow::Result<Vec<EffectRecord>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_probe_gain_is_found_on_the_slowest_groups_and_taken_out() {
+        use sts_emulator::{measure::MeasureConfig, EffectSpec};
+        let measure = |spec: &str| {
+            let effects = vec![spec.parse::<EffectSpec>().expect("effect")];
+            let config = MeasureConfig { effects, freqs_hz: vec![1.0, 20.0, 40.0], amps_um: vec![4.0, 8.0], duration_s: 3.0, seed: 3, ..MeasureConfig::default() };
+            sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
+        };
+        let short = measure("sensor-gain:probe_gain=0.94,acc_gain=1");
+        let prepared = prepare(&short, &["sensor-gain".to_string()]).expect("prepare");
+        let gain = prepared.probe_gain.expect("a probe gain 6% short is corrected");
+        assert!((gain - 0.94).abs() < 5e-4, "gain {gain}");
+        // The corrected readings are the probe's divided by the gain.
+        let (raw, fixed) = (&short.groups[3].z_tcp_um, &prepared.dataset.groups[3].z_tcp_um);
+        assert!(raw.iter().zip(fixed).all(|(r, f)| (r / gain - f).abs() < 1e-12));
+        // An accelerometer gain leaves the probe alone.
+        let acc = measure("sensor-gain:probe_gain=1,acc_gain=1.08");
+        let prepared = prepare(&acc, &["sensor-gain".to_string()]).expect("prepare");
+        assert_eq!(prepared.probe_gain, None);
+        assert_eq!(prepared.dataset.groups[3].z_tcp_um, acc.groups[3].z_tcp_um);
+    }
 
     fn sine_group(freq_hz: f64, amp_um: f64, n: usize) -> GroupData {
         let mut g = GroupData::with_len(n);

@@ -185,6 +185,21 @@ pub struct ModelFile {
     pub program: ProgramListing,
     /// The program as postcard bytes, hex: what is uploaded to the firmware.
     pub program_postcard_hex: String,
+    /// The probe's gain found by `fit --effect sensor-gain` when it is not one: the model is
+    /// of the tool, so `compare` and `diagnose` divide a dataset's probe readings by it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub probe_gain: Option<f64>,
+}
+
+impl ModelFile {
+    /// `dataset` as this model reads it: the probe readings divided by the model's probe gain
+    /// (borrowed unchanged when there is none).
+    pub fn probe_corrected<'a>(&self, dataset: &'a sts_dataset::Dataset) -> std::borrow::Cow<'a, sts_dataset::Dataset> {
+        match self.probe_gain {
+            Some(gain) => std::borrow::Cow::Owned(crate::effects::with_probe_gain(dataset, gain)),
+            None => std::borrow::Cow::Borrowed(dataset),
+        }
+    }
 }
 
 impl ModelFile {

@@ -1261,13 +1261,18 @@ impl Synth {
         }
     }
 
-    /// Restarts the kernel terms' filter states (a new motion from rest), keeping the model.
+    /// Restarts the kernel terms' filter states (a new motion from rest), keeping the model
+    /// and the count of axis twin resets ([`Synth::axis_resets`]).
     pub fn restart_kernels(&mut self) {
         for i in 0..MAX_TERMS {
             let slot = self.slot_mut(i);
             if slot.term.is_some() {
                 let keep = slot.state;
-                let axis = keep.axis.map(|(model, _)| (model, AxisState::INITIAL));
+                let axis = keep.axis.map(|(model, state)| {
+                    let mut rest = AxisState::INITIAL;
+                    rest.resets = state.resets;
+                    (model, rest)
+                });
                 slot.state = KernelState { stages: keep.stages.rested(), pos_hist: [0; 4], dahl_q30: 0, primed: false, axis, ..keep };
             }
         }
@@ -1287,6 +1292,32 @@ impl Synth {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn axis_twin_resets_are_counted_across_restarts_and_replacements() {
+        // A derivative gain far beyond what the tick can carry: it diverges on any motion.
+        let unstable = TickTerm::Axis(crate::axis::AxisParams { kd_per_s: 9e5, ..crate::axis::machine_for_tests() });
+        let mut synth = Synth::new(0);
+        synth.update(&ModelOutput::default(), &[unstable]);
+        let run = |synth: &mut Synth| {
+            for k in 0..2000 {
+                let cmd_pos_nm = (3000.0 * libm::sin(2.0 * core::f64::consts::PI * 40.0 * f64::from(k) / 8000.0)) as i32;
+                synth.next_input(&TickInput { cmd_phase_turns: 0, cmd_pos_nm, x_acc_um_per_s2: 0, spindle_turns: 0 });
+            }
+            synth.axis_resets()
+        };
+        let first = run(&mut synth);
+        assert!(first > 0);
+        // A restart from rest keeps the count, and the next motion adds to it.
+        synth.restart_kernels();
+        assert_eq!(synth.axis_resets(), first);
+        let second = run(&mut synth);
+        assert!(second > first);
+        // Replacing the term (another program) keeps the old state's count.
+        synth.update(&ModelOutput::default(), &[]);
+        synth.update(&ModelOutput::default(), &[TickTerm::Axis(crate::axis::machine_for_tests())]);
+        assert_eq!(synth.axis_resets(), second);
+    }
 
     fn output(amp_um: f32, phase_deg: f32) -> ModelOutput {
         let mut out = ModelOutput::default();

@@ -239,4 +239,3 @@ fn the_paper_program_runs_in_the_pipeline() {
     assert!(out.amp_um().is_finite() && out.amp_um() > 0.0);
     assert_eq!(twin.servo().counters().model_faults, 0);
 }
-

@@ -114,18 +114,18 @@ impl Branch {
             return None;
         }
         phases.sort_by(f64::total_cmp);
-    // The gap across +-180 first: on a tie it wins and nothing moves.
-    let across = phases[0] + 360.0 - phases[phases.len() - 1];
-    let (mut widest, mut cut_deg) = (across, None);
-    for pair in phases.windows(2) {
-        if pair[1] - pair[0] > widest {
-            widest = pair[1] - pair[0];
-            cut_deg = Some(0.5 * (pair[0] + pair[1]));
+        // The gap across +-180 first: on a tie it wins and nothing moves.
+        let across = phases[0] + 360.0 - phases[phases.len() - 1];
+        let (mut widest, mut cut_deg) = (across, None);
+        for pair in phases.windows(2) {
+            if pair[1] - pair[0] > widest {
+                widest = pair[1] - pair[0];
+                cut_deg = Some(0.5 * (pair[0] + pair[1]));
+            }
         }
-    }
-    let cut_deg = cut_deg?;
-    let above = phases.iter().filter(|&&p| p > cut_deg).count();
-    Some(Branch { cut_deg, shift_above: above <= phases.len() - above })
+        let cut_deg = cut_deg?;
+        let above = phases.iter().filter(|&&p| p > cut_deg).count();
+        Some(Branch { cut_deg, shift_above: above <= phases.len() - above })
     }
 
     fn put(self, phase_deg: f64) -> f64 {
@@ -137,6 +137,27 @@ impl Branch {
             phase_deg
         }
     }
+}
+
+
+/// The training table as CSV: one row per group with its file, command, features f1..f12
+/// (labels as in the formulas) and targets, for inspection or `sts-twin regress`.
+pub fn training_table_csv(samples: &[GroupSample]) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::from("file,freq_hz,amp_um");
+    for label in sts_twin_core::features::FEATURE_LABELS {
+        out.push(',');
+        out.push_str(label);
+    }
+    out.push_str(",de_amp_um,de_phase_deg\n");
+    for s in samples {
+        let _ = write!(out, "{},{},{}", s.info.file, s.info.freq_hz, s.info.amp_um);
+        for f in s.features {
+            let _ = write!(out, ",{f}");
+        }
+        let _ = writeln!(out, ",{},{}", s.targets.de_amp_um, s.targets.de_phase_deg);
+    }
+    out
 }
 
 #[cfg(test)]
@@ -157,24 +178,4 @@ mod tests {
         // A lone phase: nothing to keep together.
         assert_eq!(Branch::of(vec![179.0]), None);
     }
-}
-
-/// The training table as CSV: one row per group with its file, command, features f1..f12
-/// (labels as in the formulas) and targets, for inspection or `sts-twin regress`.
-pub fn training_table_csv(samples: &[GroupSample]) -> String {
-    use std::fmt::Write as _;
-    let mut out = String::from("file,freq_hz,amp_um");
-    for label in sts_twin_core::features::FEATURE_LABELS {
-        out.push(',');
-        out.push_str(label);
-    }
-    out.push_str(",de_amp_um,de_phase_deg\n");
-    for s in samples {
-        let _ = write!(out, "{},{},{}", s.info.file, s.info.freq_hz, s.info.amp_um);
-        for f in s.features {
-            let _ = write!(out, ",{f}");
-        }
-        let _ = writeln!(out, ",{},{}", s.targets.de_amp_um, s.targets.de_phase_deg);
-    }
-    out
 }

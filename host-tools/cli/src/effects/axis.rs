@@ -21,6 +21,7 @@ use sts_twin_core::axis::discretise::{zoh, Continuous, STATES};
 use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
 
 use crate::diagnose::linalg::solve_ridge;
+use crate::diagnose::{solve, Stats};
 
 /// Servo tick, s (the dataset's rate is checked to be 8 kHz by the caller).
 const TICK_S: f64 = 1.0 / 8000.0;
@@ -346,17 +347,9 @@ fn levenberg_marquardt(start: Candidate, free: &[Slot], sample: &Sample, what: F
                 rs.iter().zip(&r).map(|(a, b)| (a - b) / h).collect()
             })
             .collect();
-        let nf = free.len();
-        let mut jtj = vec![vec![0.0; nf]; nf];
-        let mut jtr = vec![0.0; nf];
-        for a in 0..nf {
-            for b in 0..=a {
-                let v: f64 = jac[a].iter().zip(&jac[b]).map(|(x, y)| x * y).sum();
-                jtj[a][b] = v;
-                jtj[b][a] = v;
-            }
-            jtr[a] = -jac[a].iter().zip(&r).map(|(x, y)| x * y).sum::<f64>();
-        }
+        // J'J and -J'r: the normal equations of the step.
+        let Stats { xtx: jtj, xtr, .. } = Stats::from_columns(&jac, &r);
+        let jtr: Vec<f64> = xtr.iter().map(|v| -v).collect();
         let mut improved = false;
         for _ in 0..8 {
             let mut a = jtj.clone();
@@ -407,17 +400,7 @@ fn ripple_linear(c: &Candidate, sample: &Sample, what: Fit) -> Candidate {
         .par_iter()
         .map(|&(a, ph, a2)| sample.residuals(&with(a, ph, a2), what).iter().zip(&r0).map(|(r, r0)| (r0 - r) / unit_nm).collect())
         .collect();
-    let mut normal = vec![vec![0.0; 4]; 4];
-    let mut rhs = vec![0.0; 4];
-    for i in 0..4 {
-        for j in 0..=i {
-            let v: f64 = columns[i].iter().zip(&columns[j]).map(|(x, y)| x * y).sum();
-            normal[i][j] = v;
-            normal[j][i] = v;
-        }
-        rhs[i] = columns[i].iter().zip(&r0).map(|(x, y)| x * y).sum();
-    }
-    let b = solve_ridge(normal, rhs);
+    let b = solve(&[&Stats::from_columns(&columns, &r0)]);
     if b.iter().any(|x| !x.is_finite()) {
         return *c;
     }

@@ -214,7 +214,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
         let gain = probe_gain(dataset);
         let significant = (gain - 1.0).abs() >= PROBE_GAIN_TOLERANCE;
         let others: Vec<String> = names.iter().filter(|n| *n != "sensor-gain").cloned().collect();
-        let corrected = if significant { with_probe_gain(dataset, gain) } else { dataset.clone() };
+        let corrected = if significant { std::borrow::Cow::Owned(with_probe_gain(dataset, gain)) } else { std::borrow::Cow::Borrowed(dataset) };
         let mut prepared = prepare(&corrected, &others)?;
         let note = if significant {
             format!("the probe reads {:+.2}%: its readings are divided by {gain:.5} here and, from the model file, in compare and diagnose", (gain - 1.0) * 100.0)
@@ -267,23 +267,40 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
     // The dataset without the terms' output, through the firmware's own synthesiser.
     let mut reduced = dataset.clone();
     let program = sts_twin_core::program::Program { terms: terms.iter().copied().collect(), ..sts_twin_core::program::Program::empty(0) };
-    reduced.groups.par_iter_mut().zip(dataset.manifest.groups.par_iter()).for_each(|(g, info)| {
-        let out = terms_output(&program.terms, g, info.start_s, fs);
-        for (z, o) in g.z_tcp_um.iter_mut().zip(out) {
-            *z -= o;
-        }
-    });
+    let diverged: Vec<Option<String>> = reduced
+        .groups
+        .par_iter_mut()
+        .zip(dataset.manifest.groups.par_iter())
+        .map(|(g, info)| {
+            let (out, axis_resets) = terms_output_counted(&program.terms, g, info.start_s, fs);
+            for (z, o) in g.z_tcp_um.iter_mut().zip(out) {
+                *z -= o;
+            }
+            // The firmware resets a diverging axis twin (counted, but its output swings to the
+            // bound first): one that diverges on the measurement's own motions is refused.
+            (axis_resets > 0).then(|| info.file.clone())
+        })
+        .collect();
+    if let Some(file) = diverged.into_iter().flatten().next() {
+        let axis = terms.iter().find_map(|t| if let TickTerm::Axis(p) = t { Some(p) } else { None });
+        anyhow::bail!("the identified servo axis diverges on the motion of {file} (its loop is unstable there: {axis:?}); the measurement may not show enough of the axis to identify it");
+    }
     Ok(Prepared { dataset: reduced, terms, records, probe_gain: None })
 }
 
 /// The terms' output over a group, um, computed by the firmware's synthesiser.
 pub fn terms_output(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64) -> Vec<f64> {
+    terms_output_counted(terms, group, start_s, fs).0
+}
+
+/// [`terms_output`] and the resets of a diverging axis twin over the group.
+fn terms_output_counted(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64) -> (Vec<f64>, u32) {
     use sts_twin_core::synth::{Synth, TickInput};
     let mut synth = Synth::new(0);
     synth.set_time_ticks((start_s.max(0.0) * fs).round() as u64);
     synth.update(&sts_twin_core::program::ModelOutput::default(), terms);
     synth.restart_kernels();
-    (0..group.len())
+    let out = (0..group.len())
         .map(|k| {
             let x_acc = group.x_acc_mps2.as_ref().map_or(0.0, |v| v[k]);
             let spindle_deg = group.spindle_deg.as_ref().map_or(0.0, |v| v[k]);
@@ -295,7 +312,8 @@ pub fn terms_output(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64
             };
             f64::from(synth.next_input(&input)) * 1e-6
         })
-        .collect()
+        .collect();
+    (out, synth.axis_resets())
 }
 
 /// The servo-axis twin for friction, hysteresis and encoder error (any of them): one term,
@@ -306,19 +324,6 @@ fn fit_axis(dataset: &Dataset, inputs: &[GroupInputs], names: &[String]) -> anyh
     let effects = axis::AxisEffects { friction: has("coulomb-friction"), hysteresis: has("presliding-hysteresis"), ripple_pitch_um };
     let fit = axis::identify(dataset, effects).context("identifying the servo axis")?;
     let p = fit.params;
-    // The firmware resets a diverging axis (counted, but its output swings to the bound
-    // first): an axis that diverges on the measurement's own motions is refused here.
-    let model = sts_twin_core::axis::AxisModel::new(&p).map_err(|e| anyhow::anyhow!("the identified axis is not usable: {e:?}"))?;
-    let diverged = dataset.groups.par_iter().zip(dataset.manifest.groups.par_iter()).find_map_any(|(g, info)| {
-        let mut state = sts_twin_core::axis::AxisState::INITIAL;
-        for z in &g.z_cmd_um {
-            model.step(&mut state, (z * 1000.0).round() as i32);
-        }
-        (state.resets > 0).then(|| info.file.clone())
-    });
-    if let Some(file) = diverged {
-        anyhow::bail!("the identified servo axis diverges on the motion of {file} (its loop is unstable there: {p:?}); the measurement may not show enough of the axis to identify it");
-    }
     let shared = |params: &mut Vec<(String, f64)>| {
         params.extend([
             ("servo_kp_per_s2".to_string(), f64::from(p.kp_per_s2)),

@@ -15,7 +15,8 @@
 //! ```
 //!
 //! `STS_SUITE_EFFECTS=coulomb-friction,force-ripple` runs only those hidden effects (`none`
-//! for the clean cases), e.g. to refit many seeds of the slow ones.
+//! for the clean cases), e.g. to refit many seeds of the slow ones; `STS_SUITE_FIRST_SEED=10`
+//! starts at seed 10 (to split a run over several processes).
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -30,6 +31,8 @@ use sts_twin::model::ModelFile;
 struct Suite {
     /// The hidden effects run (`none`: clean data); all when empty.
     only: Vec<String>,
+    /// The first seed; `seeds` seeds from it run.
+    first_seed: u64,
     seeds: u64,
     fit_seeds: u64,
     paper_grid: bool,
@@ -121,13 +124,13 @@ fn run_suite(suite: &Suite) {
     let mut confusion = vec![vec![0usize; labels.len()]; labels.len()];
     let mut falls: Vec<(String, u64, f64, f64, f64, f64)> = Vec::new();
     // Seeds outermost, so that a partial run still covers every effect.
-    for seed in 0..suite.seeds {
+    for seed in suite.first_seed..suite.first_seed + suite.seeds {
         for (row, truth) in labels.iter().enumerate() {
             if !suite.only.is_empty() && !suite.only.iter().any(|o| o == truth) {
                 continue;
             }
             let effect = if *truth == "none" { None } else { Some(*truth) };
-            let refit = effect.is_some() && seed < suite.fit_seeds;
+            let refit = effect.is_some() && seed - suite.first_seed < suite.fit_seeds;
             let o = run_case(suite, &reference, effect, seed, refit);
             let col = labels.iter().position(|l| *l == o.verdict).unwrap_or(labels.len() - 1);
             confusion[row][col] += 1;
@@ -202,7 +205,7 @@ fn run_suite(suite: &Suite) {
 /// CI's share: the 99 groups shortened to 5.5 s, one seed per effect (and clean), each refitted.
 #[test]
 fn ci_suite() {
-    run_suite(&Suite { only: Vec::new(), seeds: env_u64("STS_SUITE_CI_SEEDS", 1), fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1), paper_grid: false, epochs: 10 });
+    run_suite(&Suite { only: Vec::new(), first_seed: 0, seeds: env_u64("STS_SUITE_CI_SEEDS", 1), fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1), paper_grid: false, epochs: 10 });
 }
 
 /// The full run (see the module docs for the command).
@@ -211,6 +214,7 @@ fn ci_suite() {
 fn full_suite() {
     run_suite(&Suite {
         only: std::env::var("STS_SUITE_EFFECTS").map_or(Vec::new(), |e| e.split(',').map(str::to_string).collect()),
+        first_seed: env_u64("STS_SUITE_FIRST_SEED", 0),
         seeds: env_u64("STS_SUITE_SEEDS", 20),
         fit_seeds: env_u64("STS_SUITE_FIT_SEEDS", 3),
         paper_grid: std::env::var("STS_SUITE_GRID").map_or(true, |g| g == "paper"),

@@ -2,6 +2,7 @@
 //! fixed-point code) and targets (the measured dynamic error's amplitude and phase).
 
 pub mod features;
+pub mod repeat;
 pub mod sine;
 pub mod targets;
 

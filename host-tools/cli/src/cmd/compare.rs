@@ -43,6 +43,9 @@ fn print_text(label: &str, c: &Comparison) {
         let l: Vec<String> = c.other_lines.iter().map(|l| format!("{} Hz {:.1}", l.freq_hz, l.amp_um * 1e3)).collect();
         println!("  other residual lines (nm): {}", l.join(", "));
     }
+    if let Some(text) = c.repeatability.describe(|i| (c.groups[i].freq_hz, c.groups[i].amp_um)) {
+        println!("  not repeating: {text}");
+    }
     println!("  worst groups:");
     for i in c.worst(5) {
         let g = &c.groups[i];

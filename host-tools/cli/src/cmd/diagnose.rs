@@ -47,11 +47,19 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             "model_cv_rms_um": d.model_cv_rms_um,
             "summary": d.summary,
             "test": d.test,
+            "repeatability": {
+                "floor_um": d.repeatability.floor_um,
+                "not_repeating_groups": d.repeatability.not_repeating.iter().map(|&i| dataset.manifest.groups.get(i).map_or_else(String::new, |g| g.file.clone())).collect::<Vec<_>>(),
+                "note": d.not_repeating,
+            },
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         println!("verdict: {}", d.verdict);
         println!("{}", d.summary);
+        if let Some(text) = &d.not_repeating {
+            println!("note: {text}");
+        }
         println!("ranking (explained fraction of the held-out residual):");
         for (i, r) in d.ranking.iter().enumerate() {
             let params: Vec<String> = r.params.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect();

@@ -17,6 +17,7 @@ use sts_dataset::{Dataset, GroupData};
 use sts_twin_core::program::{ModelOutput, Program};
 use sts_twin_core::synth::{Synth, TickInput};
 
+use crate::analysis::repeat::Repeatability;
 use crate::analysis::{self, GroupSample};
 use crate::fit::{phase_r_squared, r_squared, PHASE_MIN_AMP_UM};
 use crate::model::ModelFile;
@@ -103,6 +104,9 @@ pub struct Comparison {
     pub other_lines: Vec<Line>,
     /// Residual against position, velocity, acceleration (normalised by their peaks).
     pub binned: Vec<Binned>,
+    /// The part of the measured error that does not repeat from one period to the next (no
+    /// model driven by the command can predict it); positions follow `groups`.
+    pub repeatability: Repeatability,
     /// Per group, in dataset order.
     pub groups: Vec<GroupComparison>,
 }
@@ -250,6 +254,7 @@ pub fn compare(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<(Comparis
     let harmonics_um = (0..MAX_ORDER).map(|k| groups.iter().map(|g| g.residual_harmonics_um[k]).sum::<f64>() / ng).collect();
     let other_lines = signals::other_lines(&groups, &spectra, fs, 6);
     let binned = signals::binned_residuals(dataset, &samples, &waves, 24);
+    let repeatability = Repeatability::of_samples(dataset, &samples);
     let comparison = Comparison {
         model: model.description.clone(),
         waveform_rms_um,
@@ -260,6 +265,7 @@ pub fn compare(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<(Comparis
         harmonics_um,
         other_lines,
         binned,
+        repeatability,
         groups,
     };
     Ok((comparison, waves))

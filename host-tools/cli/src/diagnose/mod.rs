@@ -38,6 +38,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use sts_dataset::Dataset;
 
+use crate::analysis::repeat::{group_non_repeating_um, Repeatability};
 use crate::analysis::{self, GroupSample};
 use crate::compare::predict_group;
 use crate::model::ModelFile;
@@ -85,6 +86,11 @@ pub struct Diagnosis {
     pub summary: String,
     /// The statistical test, stated.
     pub test: String,
+    /// The part of the measured error that does not repeat from one period to the next
+    /// (positions of the diagnosed groups); see [`Diagnosis::not_repeating`].
+    pub repeatability: Repeatability,
+    /// When some groups do not repeat: which, and why no effect's term can explain that part.
+    pub not_repeating: Option<String>,
 }
 
 /// Everything a candidate may use about one group (last-second window plus whole-group
@@ -296,7 +302,9 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         ALPHA / 8.0,
         model_cv_rms_um * 1e3
     );
-    Diagnosis { verdict, ranking, residual_rms_um, model_cv_rms_um, summary, test }
+    let repeatability = Repeatability::from_groups(ctx.par_iter().map(|c| group_non_repeating_um(c.data, c.sample, c.sample_rate_hz)).collect());
+    let not_repeating = repeatability.describe(|i| (ctx[i].sample.info.freq_hz, ctx[i].sample.info.amp_um));
+    Diagnosis { verdict, ranking, residual_rms_um, model_cv_rms_um, summary, test, repeatability, not_repeating }
 }
 
 #[cfg(test)]

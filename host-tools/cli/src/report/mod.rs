@@ -85,6 +85,9 @@ pub fn render(input: &ReportInput) -> String {
     if let Some(d) = input.diagnosis {
         h.push_str("<h2>Diagnosis</h2>");
         let _ = write!(h, "<p class=\"verdict\" id=\"verdict\">Missing effect: <b>{}</b></p><p>{}</p>", esc(&d.verdict), esc(&d.summary));
+        if let Some(text) = &d.not_repeating {
+            let _ = write!(h, "<p id=\"not-repeating\"><b>Not repeating:</b> {}</p>", esc(text));
+        }
         h.push_str("<table id=\"ranking\"><tr><th>rank</th><th class=\"l\">effect</th><th>explained (held out)</th><th>p-value</th><th class=\"l\">parameters</th><th class=\"l\">evidence</th></tr>");
         for (i, r) in d.ranking.iter().enumerate() {
             let params: Vec<String> = r.params.iter().map(|(k, v)| format!("{k} = {}", tick_label(*v))).collect();

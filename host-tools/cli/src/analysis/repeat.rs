@@ -19,6 +19,10 @@ use super::GroupSample;
 /// itself, robust to up to three quarters of the groups not repeating).
 pub const NOT_REPEATING_RATIO: f64 = 2.0;
 
+/// Nor below this, um: on noiseless (simulated) data the floor is rounding, and a nanometre
+/// that does not repeat is nothing a machinist acts on.
+pub const NOT_REPEATING_MIN_UM: f64 = 0.002;
+
 /// Periods tried for a lag that falls on a whole number of samples.
 const MAX_PERIODS: usize = 8;
 
@@ -78,7 +82,7 @@ pub struct Repeatability {
     /// repeats itself (the probe's noise on a good machine).
     pub floor_um: f64,
     /// Positions of the groups whose non-repeating part exceeds [`NOT_REPEATING_RATIO`] x
-    /// the floor.
+    /// the floor and [`NOT_REPEATING_MIN_UM`].
     pub not_repeating: Vec<usize>,
 }
 
@@ -107,7 +111,7 @@ impl Repeatability {
         let not_repeating = group_rms_um
             .iter()
             .enumerate()
-            .filter(|(_, v)| v.is_some_and(|v| v > NOT_REPEATING_RATIO * floor_um))
+            .filter(|(_, v)| v.is_some_and(|v| v > NOT_REPEATING_MIN_UM && v > NOT_REPEATING_RATIO * floor_um))
             .map(|(i, _)| i)
             .collect();
         Self { group_rms_um, floor_um, not_repeating }
@@ -217,5 +221,8 @@ mod tests {
         assert!(text.contains("2 groups (1 Hz at 9-10 um: 50.0-160.0 nm RMS, against a floor of 5.0 nm"), "{text}");
         let calm = Repeatability::from_groups(vec![Some(0.005); 4]);
         assert!(calm.not_repeating.is_empty() && calm.describe(|_| (1.0, 1.0)).is_none());
+        // Noiseless data: a floor of rounding flags nothing below a nanometre or two.
+        let exact = Repeatability::from_groups(vec![Some(0.0), Some(0.0), Some(1e-9), Some(0.0015), Some(0.0)]);
+        assert!(exact.not_repeating.is_empty(), "{exact:?}");
     }
 }

@@ -463,48 +463,39 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisF
         }
     }
     let (encoder_slots, probe_slots) = starts[0].effect_slots();
+    // Servo and effect together: the servo alone, fitted first, bends to the effect's part of
+    // the encoder error and ends in another minimum (kp twice the true one on a weak friction).
+    let servo_and_effect: Vec<Slot> = SERVO.iter().chain(&encoder_slots).copied().collect();
     let searched: Vec<(Candidate, f64)> = starts
         .iter()
         .map(|&start| {
-            // Servo and effect together: the servo alone, fitted first, bends to the effect's
-            // part of the encoder error and ends in another minimum (kp twice the true one
-            // on a weak friction).
-            let mut free: Vec<Slot> = SERVO.to_vec();
-            free.extend(&encoder_slots);
             if !ripple {
-                return levenberg_marquardt(start, &free, &coarse, Fit::Encoder, 45);
+                return levenberg_marquardt(start, &servo_and_effect, &coarse, Fit::Encoder, 45);
             }
             // The ripple shows in the reading where the loop cannot follow it (fast groups):
             // its phase and amplitudes for the start's servo, then both.
-            free.extend(RIPPLE_SHAPE);
+            let free: Vec<Slot> = servo_and_effect.iter().chain(&RIPPLE_SHAPE).copied().collect();
             let lin = ripple_linear(&start, &coarse, Fit::Encoder);
             levenberg_marquardt(lin, &free, &coarse, Fit::Encoder, 45)
         })
         .collect();
-    let (mut best, mut best_rms) = searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or_else(|| anyhow::anyhow!("no start"))?;
+    let mut best = searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or_else(|| anyhow::anyhow!("no start"))?;
     if effects.friction {
         // The Stribeck velocity from a grid too, from the best servo: a local fit from one
         // guess can trade the Stribeck peak for a friction that rises with velocity (static
         // below Coulomb, Stribeck velocity 18x the true one on a suite draw), which fits
         // the encoder almost as well and the fast groups' probe reading 2x worse.
-        let restarts: Vec<(Candidate, f64)> = [3e-5, 1e-4, 3e-4, 3e-3]
-            .iter()
-            .map(|&stribeck_mps| {
-                let mut c = best;
-                let coulomb = c.v[Slot::Coulomb as usize];
-                c.v[Slot::Static as usize] = c.v[Slot::Static as usize].max(1.5 * coulomb);
-                c.v[Slot::Stribeck as usize] = stribeck_mps;
-                let mut free: Vec<Slot> = SERVO.to_vec();
-                free.extend(&encoder_slots);
-                levenberg_marquardt(c, &free, &coarse, Fit::Encoder, 45)
-            })
-            .collect();
-        for (c, rms) in restarts {
-            if rms < best_rms {
-                (best, best_rms) = (c, rms);
-            }
-        }
+        let restarts = [3e-5, 1e-4, 3e-4, 3e-3].map(|stribeck_mps| {
+            let mut c = best.0;
+            let coulomb = c.v[Slot::Coulomb as usize];
+            c.v[Slot::Static as usize] = c.v[Slot::Static as usize].max(1.5 * coulomb);
+            c.v[Slot::Stribeck as usize] = stribeck_mps;
+            levenberg_marquardt(c, &servo_and_effect, &coarse, Fit::Encoder, 45)
+        });
+        // The first of equals is kept: the grid's best wins a tie.
+        best = std::iter::once(best).chain(restarts).min_by(|a, b| a.1.total_cmp(&b.1)).unwrap_or(best);
     }
+    let (best, _) = best;
 
     // The mode (and the ripple) on the probe, from a grid of frequencies.
     let mut tcp_free: Vec<Slot> = MODE.to_vec();

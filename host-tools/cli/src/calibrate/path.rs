@@ -13,9 +13,9 @@
 
 use std::f64::consts::TAU;
 
-use sts_emulator::{Machine, StepInput};
+use sts_emulator::{Machine, StepInput, StepOutput};
 use sts_twin_core::analogue_path::{AnaloguePath, PATH_POINTS};
-use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
+use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
 use sts_twin_core::features::FeatureConfig;
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::{ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
@@ -32,7 +32,10 @@ pub const PATH_PROGRAM_ID: u32 = 0xCA1B_0001;
 pub struct PathConfig {
     /// Frequencies to measure, Hz, increasing; at most [`PATH_POINTS`].
     pub freqs_hz: Vec<f64>,
-    /// Amplitude of the requested displacement, um.
+    /// Amplitude of the requested displacement, um. Large enough that the slide slides:
+    /// at rest, friction bends a small sine's response (measured on a 3 N / 4.5 N Coulomb /
+    /// static machine at 40 Hz: -30.6 deg with 1 um, -8.7 deg with 8 um, -5.9 deg without
+    /// friction), while a cut's corrections ride on a moving slide.
     pub amp_um: f64,
     /// Time at each frequency before measuring, s.
     pub settle_s: f64,
@@ -46,7 +49,7 @@ impl Default for PathConfig {
     fn default() -> Self {
         Self {
             freqs_hz: vec![5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 80.0],
-            amp_um: 1.0,
+            amp_um: 8.0,
             settle_s: 0.75,
             measure_s: 1.0,
             sample_rate_hz: 8000.0,
@@ -78,10 +81,37 @@ fn phasor(angles: &[f64], values: &[f64]) -> anyhow::Result<(f64, f64)> {
     Ok((fit.coefficients[0], fit.coefficients[1]))
 }
 
+/// The machine held at rest (command zero) while the co-processor's output drives its
+/// analogue input, one tick at a time.
+struct AtRest {
+    tick: u64,
+    analog_in_v: f64,
+    volts_per_code: f64,
+}
+
+impl AtRest {
+    /// Steps the machine with the last output, then ticks the co-processor with the command
+    /// phase `cmd_phase_turns` (turns) and keeps its output for the next step.
+    fn tick(&mut self, coprocessor: &mut dyn Coprocessor, machine: &mut Machine, cmd_phase_turns: f64) -> anyhow::Result<(StepOutput, OutputSlot)> {
+        let out = machine.step(&StepInput { z_cmd_um: 0.0, x_mm: 0.0, spindle_deg: 0.0, analog_in_v: self.analog_in_v, analog_enabled: true });
+        let input = InputSlot {
+            tick: self.tick as u32,
+            acc_code: out.acc_code,
+            flags: IN_FLAG_PHASE_VALID,
+            cmd_phase_turns: turns_u32(cmd_phase_turns),
+            ..Default::default()
+        };
+        let output = coprocessor.tick(&input)?;
+        self.analog_in_v = f64::from(output.dac_code) * self.volts_per_code;
+        self.tick += 1;
+        Ok((out, output))
+    }
+}
+
 /// Measures `H` at each of `config.freqs_hz` with `coprocessor` driving `machine`'s analogue
 /// input. The co-processor is configured here (`params` with an empty path table, a short
-/// feature window, the constant program, compensation on) and left disabled, its program
-/// cleared. `first_tick` is the machine's tick count so far.
+/// feature window, the constant program, compensation on) and left disabled with its output
+/// ramped down to the offset, its program cleared. `first_tick` is the machine's tick count so far.
 pub fn measure_path(
     coprocessor: &mut dyn Coprocessor,
     machine: &mut Machine,
@@ -105,9 +135,7 @@ pub fn measure_path(
     expect_ack("enabling the output", coprocessor.request(Request::SetEnabled(true))?)?;
 
     let rate = config.sample_rate_hz;
-    let mut tick = first_tick;
-    let mut analog_in_v = 0.0;
-    let volts_per_code = f64::from(params.dac_full_scale_v) / 32767.0;
+    let mut rig = AtRest { tick: first_tick, analog_in_v: 0.0, volts_per_code: f64::from(params.dac_full_scale_v) / 32767.0 };
     let mut points = Vec::with_capacity(config.freqs_hz.len());
     // The enable ramp and the first model update come before the first frequency's settling.
     let warmup_s = f64::from(params.enable_ramp_ticks) / rate + 0.25;
@@ -124,24 +152,14 @@ pub fn measure_path(
         let mut tcp_um = Vec::with_capacity(measure_ticks as usize);
         let mut pending: Option<(f64, f64)> = None;
         for k in 0..settle_ticks + measure_ticks + 1 {
-            let out = machine.step(&StepInput { z_cmd_um: 0.0, x_mm: 0.0, spindle_deg: 0.0, analog_in_v, analog_enabled: true });
+            // The phase the output of this tick is for: the next tick's.
+            let next_turns = freq_hz * (k + 1) as f64 / rate;
+            let (out, output) = rig.tick(coprocessor, machine, next_turns)?;
             if let Some((angle, u_um)) = pending.take() {
                 angles.push(angle);
                 requested_um.push(u_um);
                 tcp_um.push(out.z_tcp_um);
             }
-            // The phase the output of this tick is for: the next tick's.
-            let next_turns = freq_hz * (k + 1) as f64 / rate;
-            let input = InputSlot {
-                tick: tick as u32,
-                acc_code: out.acc_code,
-                flags: IN_FLAG_PHASE_VALID,
-                cmd_phase_turns: turns_u32(next_turns),
-                ..Default::default()
-            };
-            let output = coprocessor.tick(&input)?;
-            analog_in_v = f64::from(output.dac_code) * volts_per_code;
-            tick += 1;
             if k >= settle_ticks && k < settle_ticks + measure_ticks {
                 pending = Some((TAU * next_turns.fract(), -f64::from(output.de_pred_pm) * 1e-6));
             }
@@ -161,7 +179,15 @@ pub fn measure_path(
         let phase_deg = (phase_deg + 180.0).rem_euclid(360.0) - 180.0;
         points.push(PathPoint { freq_hz, gain, phase_deg });
     }
+    // Ramp the output down before returning, with the sine still turning, so that what
+    // comes next (a cut, a stored calibration) starts from an output at the offset and a
+    // slide at rest, as after any switch-off, not from the sine cut off mid-stroke.
     expect_ack("disabling the output", coprocessor.request(Request::SetEnabled(false))?)?;
+    let last_freq_hz = config.freqs_hz[config.freqs_hz.len() - 1];
+    let ramp_down_ticks = u64::from(params.enable_ramp_ticks) + (0.25 * rate).round() as u64;
+    for k in 0..ramp_down_ticks {
+        rig.tick(coprocessor, machine, last_freq_hz * (k + 1) as f64 / rate)?;
+    }
     expect_ack("clearing the calibration program", coprocessor.request(Request::ClearProgram)?)?;
     Ok(points)
 }
@@ -198,5 +224,32 @@ mod tests {
         assert!(points[1].phase_deg < -3.0 && points[1].phase_deg > -12.0, "{points:?}");
         let table = path_table(&points).unwrap();
         assert_eq!(table.count, 2);
+        // Left at rest: the output ramped out, not cut off mid-stroke for the next user.
+        match cop.request(Request::GetStatus).unwrap() {
+            sts_twin_core::wire::Response::Status(status) => {
+                assert!(!status.enabled && status.gain == 0.0, "{status:?}");
+                assert_eq!(status.program_id, None);
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn friction_hardly_bends_the_path_measured_with_the_default_amplitude() {
+        let plant = PlantParams::default();
+        let friction = "coulomb-friction:coulomb_n=3,static_n=4.5,stribeck_mps=2e-4".parse::<sts_emulator::EffectSpec>().unwrap();
+        let phase_at_40_hz = |effects: &[sts_emulator::EffectSpec], amp_um: f64| {
+            let mut machine = Machine::new(&plant, effects, 3).unwrap();
+            let mut cop = SimCoprocessor::boot(&[]);
+            let config = PathConfig { freqs_hz: vec![40.0], amp_um, ..PathConfig::default() };
+            let params = machine_params(&plant, plant.interface.offset_v);
+            measure_path(&mut cop, &mut machine, params, &config, 0).unwrap()[0].phase_deg
+        };
+        let linear_deg = phase_at_40_hz(&[], PathConfig::default().amp_um);
+        let small_deg = phase_at_40_hz(std::slice::from_ref(&friction), 1.0);
+        let default_deg = phase_at_40_hz(std::slice::from_ref(&friction), PathConfig::default().amp_um);
+        // A 1 um sine at rest mostly sticks and lags far more; the default one slides.
+        assert!(small_deg < linear_deg - 15.0, "1 um: {small_deg} deg, without friction {linear_deg} deg");
+        assert!((default_deg - linear_deg).abs() < 4.0, "default: {default_deg} deg, without friction {linear_deg} deg");
     }
 }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 
-use crate::calibrate::{calibrate, CalibrationConfig, HilBoard, PathConfig};
+use crate::calibrate::{calibrate, CalibrationConfig, HilBoard};
 use crate::cmd::machine::MachineArgs;
 use crate::hil::HilConfig;
 use crate::rig::SimCoprocessor;
@@ -32,8 +32,12 @@ pub struct Args {
     /// default 5,10,20,30,40,50,60,80).
     #[arg(long, value_delimiter = ',')]
     pub path_freqs: Option<Vec<f64>>,
+    /// Amplitude of the analogue path's measurement sine, um (default 8: large enough that
+    /// the slide slides rather than sticks).
+    #[arg(long)]
+    pub path_amp_um: Option<f64>,
     /// Do not measure the analogue path (an empty table is stored: no phase correction).
-    #[arg(long, conflicts_with = "path_freqs")]
+    #[arg(long, conflicts_with_all = ["path_freqs", "path_amp_um"])]
     pub no_path: bool,
     /// Print the result as JSON.
     #[arg(long)]
@@ -46,8 +50,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut config = CalibrationConfig::full();
     if args.no_path {
         config.path = None;
-    } else if let Some(freqs_hz) = &args.path_freqs {
-        config.path = Some(PathConfig { freqs_hz: freqs_hz.clone(), ..PathConfig::default() });
+    } else if let Some(path) = &mut config.path {
+        if let Some(freqs_hz) = &args.path_freqs {
+            path.freqs_hz = freqs_hz.clone();
+        }
+        if let Some(amp_um) = args.path_amp_um {
+            if !(amp_um.is_finite() && amp_um > 0.0) {
+                anyhow::bail!("--path-amp-um must be a positive number of micrometres, not {amp_um}");
+            }
+            path.amp_um = amp_um;
+        }
     }
     let quiet = args.json;
     let mut progress = |line: &str| {

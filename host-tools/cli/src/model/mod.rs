@@ -20,6 +20,12 @@ use sts_twin_core::program::Program;
 /// The value of the `format` field.
 pub const MODEL_FORMAT: &str = "sts-twin-model/1";
 
+/// A statistic read back from a model file: JSON has no infinity or NaN, so a non-finite
+/// one (an R^2 over groups without variance, say) is written as `null` and read as NaN.
+fn null_as_nan<'de, D: serde::Deserializer<'de>>(deserializer: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(deserializer)?.unwrap_or(f64::NAN))
+}
+
 /// One fitted formula.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Formula {
@@ -30,8 +36,10 @@ pub struct Formula {
     /// Node count.
     pub complexity: usize,
     /// R^2 on all training groups.
+    #[serde(deserialize_with = "null_as_nan")]
     pub r2_train: f64,
     /// R^2 of the held-out predictions of the cross-validation.
+    #[serde(deserialize_with = "null_as_nan")]
     pub r2_cv: f64,
     /// The Pareto front of the final search: formula, loss, complexity, score.
     pub front: Vec<FrontEntry>,
@@ -45,10 +53,12 @@ pub struct FrontEntry {
     /// The formula.
     pub formula: String,
     /// Mean squared error on the training data.
+    #[serde(deserialize_with = "null_as_nan")]
     pub loss: f64,
     /// Node count.
     pub complexity: usize,
     /// The engine's selection score (drop in ln NMSE per added node).
+    #[serde(deserialize_with = "null_as_nan")]
     pub score: f64,
     /// Held-out R^2 of the cross-validation's formulas of at most this complexity.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -97,16 +107,22 @@ pub struct GroupValidation {
     /// Command amplitude, um.
     pub amp_um: f64,
     /// Measured dynamic-error amplitude, um.
+    #[serde(deserialize_with = "null_as_nan")]
     pub measured_amp_um: f64,
     /// Held-out predicted amplitude, um.
+    #[serde(deserialize_with = "null_as_nan")]
     pub predicted_amp_um: f64,
     /// Measured dynamic-error phase, degrees.
+    #[serde(deserialize_with = "null_as_nan")]
     pub measured_phase_deg: f64,
     /// Held-out predicted phase, degrees.
+    #[serde(deserialize_with = "null_as_nan")]
     pub predicted_phase_deg: f64,
     /// Mean absolute error of the predicted waveform over the last second, um.
+    #[serde(deserialize_with = "null_as_nan")]
     pub waveform_mae_um: f64,
     /// RMS error of the predicted waveform over the last second, um.
+    #[serde(deserialize_with = "null_as_nan")]
     pub waveform_rms_um: f64,
 }
 
@@ -116,12 +132,16 @@ pub struct Validation {
     /// Number of folds (groups are assigned round robin).
     pub folds: usize,
     /// R^2 of held-out amplitudes over all groups.
+    #[serde(deserialize_with = "null_as_nan")]
     pub amplitude_r2: f64,
     /// R^2 of held-out phases over the groups whose phase is defined.
+    #[serde(deserialize_with = "null_as_nan")]
     pub phase_r2: f64,
     /// Mean absolute error of the held-out predicted waveform over all groups, um.
+    #[serde(deserialize_with = "null_as_nan")]
     pub waveform_mae_um: f64,
     /// RMS error of the held-out predicted waveform over all groups, um.
+    #[serde(deserialize_with = "null_as_nan")]
     pub waveform_rms_um: f64,
     /// Per group.
     pub groups: Vec<GroupValidation>,
@@ -286,4 +306,21 @@ pub fn hex_decode(text: &str) -> Option<Vec<u8>> {
         return None;
     }
     (0..text.len()).step_by(2).map(|i| u8::from_str_radix(text.get(i..i + 2)?, 16).ok()).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_non_finite_statistic_is_written_as_null_and_read_back() {
+        // A phase R^2 over groups without variance is -inf: JSON writes null, which must
+        // read back (the refit of a presliding-hysteresis dataset wrote one).
+        let validation = Validation { folds: 5, amplitude_r2: 0.99, phase_r2: f64::NEG_INFINITY, waveform_mae_um: 0.004, waveform_rms_um: 0.005, groups: vec![] };
+        let json = serde_json::to_string(&validation).unwrap();
+        assert!(json.contains("\"phase_r2\":null"), "{json}");
+        let back: Validation = serde_json::from_str(&json).unwrap();
+        assert!(back.phase_r2.is_nan());
+        assert_eq!(back.amplitude_r2, 0.99);
+    }
 }

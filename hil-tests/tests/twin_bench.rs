@@ -272,9 +272,9 @@ fn bench_twin_tick_axis() {
     bench("+ axis twin with friction", &[axis(true, false, false)]);
     bench("+ axis twin with hysteresis", &[axis(false, true, false)]);
     bench("+ axis twin with encoder error", &[axis(false, false, true)]);
-    // All three together exceed the budget: the validator refuses them.
-    let all_three = program_with(&[axis(true, true, true)]);
-    assert!(matches!(all_three.validate(), Err(ProgramError::TickBudget { .. })), "{:?}", all_three.validate());
+    // The servo synthesises the axis twin's correction as a harmonic (its simulation runs at
+    // low priority): all three effects cost the tick what one does.
+    bench("+ axis twin with all three", &[axis(true, true, true)]);
 }
 
 #[test]

@@ -11,6 +11,7 @@
 //!   [`handle_request`] and answers; bad frames are counted in the servo's `frame_errors`.
 
 use sts_twin_core::bus::InputSlot;
+use sts_twin_core::commands::DefaultCommandRing;
 use sts_twin_core::config::{ConfigError as RecordError, PersistentConfig, MAX_CONFIG_BYTES};
 use sts_twin_core::control::{handle_request, ConfigWriter, ServoAccess};
 use sts_twin_core::features::{DefaultSpectralRings, FeatureConfig};
@@ -25,6 +26,9 @@ use crate::ConfigStore;
 /// The feature rings, shared lock-free between the servo tick (writer) and the model update
 /// (reader); all atomics.
 pub static RINGS: DefaultSpectralRings = DefaultSpectralRings::new();
+
+/// The recent ticks' commands, from the servo tick to the axis twin's compensator.
+pub static COMMANDS: DefaultCommandRing = DefaultCommandRing::new();
 
 /// State shared by the two halves.
 pub struct TwinShared {
@@ -58,7 +62,7 @@ impl ServoApp for TwinServo {
     #[inline]
     fn tick(&mut self, input: &InputSlot, shared: &SharedCell<TwinShared>) -> TickOutcome {
         shared.with(|s| {
-            let (output, request_model_work) = s.servo.tick(&RINGS, input);
+            let (output, request_model_work) = s.servo.tick(&RINGS, &COMMANDS, input);
             TickOutcome { output, request_model_work }
         })
     }
@@ -141,7 +145,7 @@ impl BackgroundApp for TwinBackground {
         let Some((request, path)) = ctx.shared.with(|s| s.servo.take_request().map(|r| (r, *s.servo.analogue_path()))) else {
             return;
         };
-        let result = self.models.compute(&RINGS, &request, &path);
+        let result = self.models.compute(&RINGS, &COMMANDS, &request, &path);
         ctx.shared.with(|s| s.servo.deliver(result));
     }
 

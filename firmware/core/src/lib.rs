@@ -13,6 +13,7 @@
 //!   saturation counting.
 //! - [`wire`]: the host <-> firmware control messages, COBS framing with a CRC.
 //! - [`bus`]: the per-tick virtual analogue bus shared with the host in lockstep.
+//! - [`commands`]: the recent ticks' commands, from the servo tick to the low-priority side.
 //! - [`servo`]: the whole per-tick pipeline the firmware runs and the host simulates.
 //!
 //! With the `std` feature, [`reference`] adds f64 reference implementations for tests.
@@ -23,6 +24,7 @@
 pub mod analogue_path;
 pub mod axis;
 pub mod bus;
+pub mod commands;
 pub mod config;
 pub mod control;
 pub mod counters;

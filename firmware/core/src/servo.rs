@@ -21,11 +21,13 @@ use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
 use crate::analogue_path::AnaloguePath;
+use crate::axis::compensate::{Compensator, ORDERS};
+use crate::commands::DefaultCommandRing;
 use crate::bus::{InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_ENABLED, OUT_FLAG_MODEL_ACTIVE, OUT_FLAG_SATURATED, OUT_FLAG_SLEWING};
 use crate::features::{DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features};
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
-use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_PHASE_DEG};
-use crate::synth::{Synth, SynthTargets};
+use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_AMP_UM, REG_PHASE_DEG};
+use crate::synth::{deg_to_turns, um_to_pm, Synth, SynthTargets};
 
 pub use crate::counters::Counters;
 
@@ -102,11 +104,14 @@ pub struct ModelRequest {
     /// The command phase's advance per tick at the request, u32 turns (as `i32`, signed):
     /// the command frequency, for the analogue-path correction.
     pub cmd_step_turns: i32,
+    /// The command phase at the request, u32 turns (the axis twin's compensator takes the
+    /// phases of the ticks before from it and the step).
+    pub cmd_phase_turns: u32,
 }
 
 impl ModelRequest {
     /// A request for no real window (what an empty request slot holds).
-    pub const EMPTY: Self = Self { snapshot: FeatureSnapshot::empty(FeatureConfig::DEFAULT), tick: 0, due_tick: 0, cmd_step_turns: 0 };
+    pub const EMPTY: Self = Self { snapshot: FeatureSnapshot::empty(FeatureConfig::DEFAULT), tick: 0, due_tick: 0, cmd_step_turns: 0, cmd_phase_turns: 0 };
 }
 
 /// Where [`Servo::tick`] leaves a model request: written in place, field by field (block
@@ -154,6 +159,8 @@ pub struct ModelResult {
     /// The outcome's output converted for the synthesiser (silent without one), so that
     /// the servo tick applying it need not convert.
     pub targets: SynthTargets,
+    /// Times the axis twin's compensator diverged and was reset since the last result.
+    pub new_axis_resets: u32,
 }
 
 /// The twin programs (active and staged) and the model computation: the low-priority side.
@@ -161,7 +168,17 @@ pub struct Models {
     active: Option<Program>,
     staged: Option<Program>,
     scratch: DefaultScratch,
+    /// The active program's axis twin, compensating (see [`Models::compute`]).
+    compensator: Option<Compensator>,
+    /// The next tick of the command ring the compensator has not simulated.
+    next_command_tick: Option<u64>,
+    /// The compensator's resets already reported.
+    compensator_resets_seen: u32,
 }
+
+/// Ticks of history a compensator starts on (or restarts on, after the low-priority side
+/// fell behind the command ring): 128 ms.
+const COMPENSATOR_START_TICKS: u64 = 1024;
 
 impl Default for Models {
     fn default() -> Self {
@@ -172,7 +189,16 @@ impl Default for Models {
 impl Models {
     /// No program.
     pub const fn new() -> Self {
-        Self { active: None, staged: None, scratch: DefaultScratch::new() }
+        Self { active: None, staged: None, scratch: DefaultScratch::new(), compensator: None, next_command_tick: None, compensator_resets_seen: 0 }
+    }
+
+    /// The active program changed: a new compensator for its axis twin, if it has one.
+    fn activated(&mut self) {
+        let axis = self.active.as_ref().and_then(|p| p.terms.iter().find_map(|t| if let TickTerm::Axis(params) = t { Some(*params) } else { None }));
+        // Parameters the validator let through always give a model.
+        self.compensator = axis.and_then(|params| Compensator::new(&params).ok());
+        self.next_command_tick = None;
+        self.compensator_resets_seen = 0;
     }
 
     /// Validates `program`; stages it, and activates it if asked. A rejected program changes
@@ -181,6 +207,7 @@ impl Models {
         program.validate()?;
         if activate {
             self.active = Some(program);
+            self.activated();
         } else {
             self.staged = Some(program);
         }
@@ -192,6 +219,7 @@ impl Models {
         match self.staged.take() {
             Some(program) => {
                 self.active = Some(program);
+                self.activated();
                 true
             }
             None => false,
@@ -201,6 +229,7 @@ impl Models {
     /// Removes the active program.
     pub fn clear(&mut self) {
         self.active = None;
+        self.activated();
     }
 
     /// Id of the active program.
@@ -216,8 +245,20 @@ impl Models {
     /// Finishes the features of `request`, evaluates the active program on them and corrects
     /// the phases for the analogue path (`path`, see [`crate::analogue_path`]) at the command
     /// frequency of the request.
-    pub fn compute(&mut self, rings: &DefaultSpectralRings, request: &ModelRequest, path: &AnaloguePath) -> ModelResult {
-        let mut result = ModelResult { due_tick: request.due_tick, features: [0.0; 12], outcome: Err(ModelFault::NoProgram), targets: SynthTargets::SILENT };
+    ///
+    /// A program with an axis twin compensates through it: the compensator simulates the
+    /// axis on the ticks' commands up to the request (`commands`) and learns its correction
+    /// ([`crate::axis::compensate`]); its fundamental is added to the program's (after the
+    /// path correction: the compensator's simulation already contains the path) and its
+    /// third harmonic takes the axis term's slot, so that the servo tick runs harmonics only.
+    pub fn compute(&mut self, rings: &DefaultSpectralRings, commands: &DefaultCommandRing, request: &ModelRequest, path: &AnaloguePath) -> ModelResult {
+        let mut result =
+            ModelResult { due_tick: request.due_tick, features: [0.0; 12], outcome: Err(ModelFault::NoProgram), targets: SynthTargets::SILENT, new_axis_resets: 0 };
+        self.compensate(commands, request);
+        if let Some(compensator) = &self.compensator {
+            result.new_axis_resets = compensator.resets().wrapping_sub(self.compensator_resets_seen);
+            self.compensator_resets_seen = compensator.resets();
+        }
         let capture = request.snapshot.capture();
         let features: Features = match rings.finish(&capture, &mut self.scratch) {
             Ok(features) => features,
@@ -231,7 +272,10 @@ impl Models {
             result.outcome = match program.evaluate(&result.features) {
                 Ok(mut output) => {
                     correct_for_path(&mut output, &program.terms, path, request.cmd_step_turns, capture.cfg.sample_rate_hz);
-                    result.targets = SynthTargets::new(&output, &program.terms);
+                    match &self.compensator {
+                        Some(compensator) => result.targets = compensated_targets(&mut output, &program.terms, compensator),
+                        None => result.targets = SynthTargets::new(&output, &program.terms),
+                    }
                     Ok((output, program.terms.clone(), program.id))
                 }
                 Err(err) => Err(ModelFault::Eval(err)),
@@ -239,6 +283,63 @@ impl Models {
         }
         result
     }
+}
+
+impl Models {
+    /// Runs the compensator over the commands since its last run, up to the request's tick,
+    /// and learns from them.
+    fn compensate(&mut self, commands: &DefaultCommandRing, request: &ModelRequest) {
+        let Some(compensator) = &mut self.compensator else {
+            return;
+        };
+        let last = request.tick;
+        let start = match self.next_command_tick {
+            Some(next) if next <= last + 1 && last + 1 - next <= COMPENSATOR_START_TICKS => next,
+            _ => last + 1 - (last + 1).min(COMPENSATOR_START_TICKS),
+        };
+        // The phases of the ticks before the request, from its phase and step (exact for a
+        // command at a steady frequency, as in a cut).
+        let step = request.cmd_step_turns as u32;
+        // A tick missing after simulated ones (this side fell behind and the ring moved on,
+        // or the program started): the simulation restarts from rest at the next one.
+        let mut continuous = self.next_command_tick == Some(start);
+        for tick in start..=last {
+            match commands.get(tick as u32) {
+                Some(pos_nm) => {
+                    if !continuous {
+                        compensator.restart();
+                        continuous = true;
+                    }
+                    compensator.tick(pos_nm, request.cmd_phase_turns.wrapping_sub(step.wrapping_mul((last - tick) as u32)));
+                }
+                None => continuous = false,
+            }
+        }
+        let tick = last + 1;
+        self.next_command_tick = Some(tick);
+        compensator.learn(request.cmd_step_turns);
+    }
+}
+
+/// The synthesiser's targets of a program whose axis twin compensates: its fundamental plus
+/// the compensator's (a correction `u` cancels the error `-u`), and the axis term's slot a
+/// harmonic of the compensator's higher order. The output's fundamental registers are
+/// updated to the sum.
+fn compensated_targets(output: &mut ModelOutput, terms: &[TickTerm], compensator: &Compensator) -> SynthTargets {
+    let correction_nm = compensator.correction_nm();
+    // amp sin(theta + phase) = (amp cos phase) sin theta + (amp sin phase) cos theta.
+    let (amp_um, phase_rad) = (output.amp_um(), output.phase_deg() * (core::f32::consts::PI / 180.0));
+    let re = amp_um * libm::cosf(phase_rad) - correction_nm[0].re * 1e-3;
+    let im = amp_um * libm::sinf(phase_rad) - correction_nm[0].im * 1e-3;
+    output.registers[REG_AMP_UM as usize] = libm::sqrtf(re * re + im * im);
+    output.registers[REG_PHASE_DEG as usize] = libm::atan2f(im, re) * (180.0 / core::f32::consts::PI);
+    let mut targets = SynthTargets::new(output, terms);
+    if let Some(slot) = terms.iter().position(|t| matches!(t, TickTerm::Axis(_))) {
+        let (re, im) = (-correction_nm[1].re * 1e-3, -correction_nm[1].im * 1e-3);
+        let phase_deg = libm::atan2f(im, re) * (180.0 / core::f32::consts::PI);
+        targets.set_harmonic(slot, ORDERS[1], um_to_pm(libm::sqrtf(re * re + im * im)), deg_to_turns(phase_deg));
+    }
+    targets
 }
 
 /// Subtracts the analogue path's phase at the command frequency from the fundamental's
@@ -371,6 +472,11 @@ pub struct Servo {
     last_outputs: [ModelOutput; 2],
     /// [`Synth::axis_resets`] when last taken into `counters`.
     axis_resets_seen: u32,
+    /// Whether the program in force has an axis twin, whose compensator needs the ticks'
+    /// commands ([`Models::compute`]): the tick then stores them in the command ring.
+    push_commands: bool,
+    /// The same for the pending result's program, taking effect with it.
+    pending_push_commands: bool,
 }
 
 impl Servo {
@@ -407,6 +513,8 @@ impl Servo {
             program_id: None,
             last_outputs: [ModelOutput::default(); 2],
             axis_resets_seen: 0,
+            push_commands: false,
+            pending_push_commands: false,
             last_dac: 0,
             model_countdown: first_request_countdown(&timing),
             timing,
@@ -445,9 +553,12 @@ impl Servo {
     /// One servo tick on `input`. Every model interval it leaves a [`ModelRequest`] for the
     /// low-priority side ([`Servo::take_request`]; one not yet taken is replaced) and returns
     /// true with the output.
-    pub fn tick(&mut self, rings: &DefaultSpectralRings, input: &InputSlot) -> (OutputSlot, bool) {
+    pub fn tick(&mut self, rings: &DefaultSpectralRings, commands: &DefaultCommandRing, input: &InputSlot) -> (OutputSlot, bool) {
         let tick = self.counters.ticks;
         self.counters.ticks += 1;
+        if self.push_commands {
+            commands.push(tick as u32, input.cmd_pos_nm);
+        }
         self.health.underrun_run = 0;
         self.check_input(input.acc_code);
         self.features.push(rings, input.acc_code);
@@ -472,6 +583,7 @@ impl Servo {
                 slot.request.tick = tick;
                 slot.request.due_tick = due_tick;
                 slot.request.cmd_step_turns = cmd_step_turns;
+                slot.request.cmd_phase_turns = input.cmd_phase_turns;
                 slot.full = true;
                 requested = true;
                 self.awaiting_due = Some(due_tick);
@@ -603,12 +715,14 @@ impl Servo {
         }
         match self.pending_effect {
             PendingEffect::Output { program_id } => {
+                self.push_commands = self.pending_push_commands;
                 self.counters.model_updates += 1;
                 self.health.degraded &= !DEGRADED_MODEL;
                 self.model_active = true;
                 self.program_id = Some(program_id);
             }
             PendingEffect::NoProgram => {
+                self.push_commands = false;
                 self.model_active = false;
                 self.program_id = None;
             }
@@ -658,6 +772,9 @@ impl Servo {
     /// tick if that has passed), so that this tick has little to do.
     pub fn deliver(&mut self, result: ModelResult) {
         self.count_axis_resets();
+        if result.new_axis_resets != 0 {
+            self.update_counters(|c| c.axis_resets = c.axis_resets.wrapping_add(result.new_axis_resets));
+        }
         // The tick that will apply it (see `apply_due`).
         let next = self.counters.ticks;
         let apply_tick = if result.due_tick >= next {
@@ -675,6 +792,7 @@ impl Servo {
         };
         self.last_outputs[slot] = match &result.outcome {
             Ok((output, terms, _)) => {
+                self.pending_push_commands = terms.iter().any(|t| matches!(t, TickTerm::Axis(_)));
                 self.synth.prepare(&result.targets, terms, ticks_ahead);
                 *output
             }
@@ -847,6 +965,7 @@ mod tests {
         assert_eq!(check, Ok(()));
         let mut servo = std::boxed::Box::new(servo);
         let rings = std::boxed::Box::new(DefaultSpectralRings::new());
+        let commands = std::boxed::Box::new(DefaultCommandRing::new());
         let mut models = std::boxed::Box::new(Models::new());
         let mut b = ProgramBuilder::new();
         b.constant(2.0).feature(4).mul().store(REG_AMP_UM).constant(0.0).store(REG_PHASE_DEG);
@@ -858,7 +977,7 @@ mod tests {
         for k in 0..6000u32 {
             let input = InputSlot { tick: k, acc_code: ((k * 7919) % 4001) as i16 - 2000, flags: IN_FLAG_PHASE_VALID, cmd_phase_turns: k.wrapping_mul(STEP_40HZ as u32), cmd_pos_nm: 0, ..Default::default() };
             let busy = servo.tick_is_busy(0);
-            servo.tick(&rings, &input);
+            servo.tick(&rings, &commands, &input);
             if servo.counters().model_updates != updates {
                 updates = servo.counters().model_updates;
                 applied_on.push((k, busy));
@@ -869,7 +988,7 @@ mod tests {
             }
             if let Some((at, request)) = waiting.filter(|(at, _)| *at == u64::from(k)) {
                 let path = *servo.analogue_path();
-                servo.deliver(models.compute(&rings, &request, &path));
+                servo.deliver(models.compute(&rings, &commands, &request, &path));
                 let _ = at;
                 waiting = None;
             }

@@ -626,6 +626,18 @@ impl SynthTargets {
         }
         targets
     }
+
+    /// Makes slot `slot` a harmonic of `order` with amplitude `amp_pm` and phase
+    /// `phase_turns`, whatever term the program has there (the servo synthesises the axis
+    /// twin's correction so; see `Models::compute`).
+    pub fn set_harmonic(&mut self, slot: usize, order: u32, amp_pm: i32, phase_turns: u32) {
+        if slot < MAX_TERMS {
+            self.term_amp_pm[slot] = amp_pm;
+            self.term_phase_turns[slot] = phase_turns;
+            self.term_orders[slot] = order;
+            self.kernel_mask &= !(1 << slot);
+        }
+    }
 }
 
 /// The harmonic part of a synthesiser: the fundamental's and each term slot's ramp and

@@ -1,6 +1,7 @@
 //! The whole twin in one context: what the host runs to simulate the firmware bit for bit.
 
 use crate::bus::{InputSlot, OutputSlot};
+use crate::commands::DefaultCommandRing;
 use crate::config::{ConfigError, PersistentConfig};
 use crate::control::{handle_request, ConfigWriter};
 use crate::features::{DefaultSpectralRings, FeatureConfig};
@@ -15,6 +16,7 @@ pub struct Twin {
     servo: Servo,
     models: Models,
     rings: DefaultSpectralRings,
+    commands: DefaultCommandRing,
     config_source: ConfigSource,
     store: MemoryStore,
 }
@@ -45,7 +47,7 @@ impl Twin {
         let (servo, _) = Servo::new(feature_config, servo_config, params);
         let mut store = MemoryStore::default();
         let _ = store.record.extend_from_slice(stored);
-        Self { servo, models: Models::new(), rings: DefaultSpectralRings::new(), config_source, store }
+        Self { servo, models: Models::new(), rings: DefaultSpectralRings::new(), commands: DefaultCommandRing::new(), config_source, store }
     }
 
     /// One servo tick, with the model update done at once when one is requested; `None`
@@ -54,10 +56,10 @@ impl Twin {
         let Some(input) = input else {
             return self.servo.underrun();
         };
-        let (output, requested) = self.servo.tick(&self.rings, input);
+        let (output, requested) = self.servo.tick(&self.rings, &self.commands, input);
         if let Some(request) = self.servo.take_request().filter(|_| requested) {
             let path = *self.servo.analogue_path();
-            let result = self.models.compute(&self.rings, &request, &path);
+            let result = self.models.compute(&self.rings, &self.commands, &request, &path);
             self.servo.deliver(result);
         }
         output

@@ -1,6 +1,7 @@
 //! The servo pipeline end to end on the host: model timing, bit-identity of the split
 //! (firmware-like) and the synchronous (host) schedules, faults and fallbacks.
 
+use sts_twin_core::commands::DefaultCommandRing;
 use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID, OUT_FLAG_DEGRADED};
 use sts_twin_core::features::{DefaultSpectralRings, FeatureConfig};
 use sts_twin_core::feedforward::FeedforwardParams;
@@ -83,6 +84,7 @@ fn a_late_computed_model_gives_bit_identical_output() {
     let expected: Vec<OutputSlot> = (0..6000).map(|k| host.tick(Some(&input(k)))).collect();
 
     let rings = Box::new(DefaultSpectralRings::new());
+    let commands = Box::new(DefaultCommandRing::new());
     let (servo, check) = Servo::new(feature_config(), servo_config(), params());
     assert_eq!(check, Ok(()));
     let mut servo = Box::new(servo);
@@ -92,7 +94,7 @@ fn a_late_computed_model_gives_bit_identical_output() {
     let mut queue = Vec::new();
     let latency = servo.model_timing().latency_ticks;
     for k in 0..6000u32 {
-        let (output, requested) = servo.tick(&rings, &input(k));
+        let (output, requested) = servo.tick(&rings, &commands, &input(k));
         assert_eq!(output, expected[k as usize], "tick {k}");
         let request = servo.take_request();
         assert_eq!(requested, request.is_some(), "tick {k}");
@@ -103,7 +105,7 @@ fn a_late_computed_model_gives_bit_identical_output() {
         while let Some(pos) = queue.iter().position(|(at, _)| *at == k) {
             let (_, request) = queue.remove(pos);
             let path = *servo.analogue_path();
-            servo.deliver(models.compute(&rings, &request, &path));
+            servo.deliver(models.compute(&rings, &commands, &request, &path));
         }
     }
     assert_eq!(servo.counters().model_late, 0);

@@ -1,11 +1,15 @@
-//! A servo-axis twin: the Z slide under its position controller, simulated every servo tick
-//! from the command alone, with the nonlinear effects a linear error model cannot carry
+//! A servo-axis twin: the Z slide under its position controller, simulated tick by tick from
+//! the command, with the nonlinear effects a linear error model cannot carry
 //! (Coulomb/Stribeck friction, presliding hysteresis, the encoder's interpolation error).
 //!
-//! Its output is the axis's whole dynamic error at the TCP (TCP minus command), the effects
-//! included; the program's formulas are fitted on what it leaves. The state is kept relative
-//! to the command, so that single precision stays accurate to far below a nanometre at any
-//! absolute position.
+//! Predicting (the host's `compare` and `fit`, through the synthesiser), its output is the
+//! axis's whole dynamic error at the TCP (TCP minus command), the effects included; the
+//! program's formulas are fitted on what it leaves. Compensating (the firmware, and the host
+//! simulating it), the same simulation runs at low priority on the command plus its own
+//! correction and learns the correction that cancels its error ([`compensate`]); the servo
+//! tick only synthesises that correction's harmonics. The state is kept relative to the
+//! command, so that single precision stays accurate to far below a nanometre at any absolute
+//! position.
 //!
 //! The model (all forces per kg of moving mass, which is not identifiable from motion data):
 //! a PID position controller with velocity and acceleration feedforward on the encoder
@@ -20,6 +24,7 @@
 //! program is activated ([`AxisModel::new`]). A diverging state (an unstable parameter set)
 //! is reset to rest and counted ([`AxisState::resets`]), never output.
 
+pub mod compensate;
 pub mod discretise;
 pub mod math;
 mod model;

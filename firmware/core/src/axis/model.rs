@@ -86,6 +86,8 @@ pub struct AxisState {
     e_prev: f32,
     u_prev: f32,
     dahl: f32,
+    /// The displacement added to the delayed command last tick (the analogue input's), nm.
+    added_prev_nm: i32,
     /// Times the state diverged and was reset.
     pub resets: u32,
 }
@@ -106,6 +108,7 @@ impl AxisState {
         e_prev: 0.0,
         u_prev: 0.0,
         dahl: 0.0,
+        added_prev_nm: 0,
         resets: 0,
     };
 }
@@ -164,27 +167,45 @@ impl AxisModel {
     #[inline(never)]
     pub fn step(&self, st: &mut AxisState, cmd_pos_nm: i32) -> i32 {
         match self.effects {
-            0 => self.step_with::<false, false, false>(st, cmd_pos_nm),
-            FRICTION => self.step_with::<true, false, false>(st, cmd_pos_nm),
-            HYSTERESIS => self.step_with::<false, true, false>(st, cmd_pos_nm),
-            RIPPLE => self.step_with::<false, false, true>(st, cmd_pos_nm),
-            3 => self.step_with::<true, true, false>(st, cmd_pos_nm),
-            5 => self.step_with::<true, false, true>(st, cmd_pos_nm),
-            6 => self.step_with::<false, true, true>(st, cmd_pos_nm),
-            _ => self.step_with::<true, true, true>(st, cmd_pos_nm),
+            0 => self.step_with::<false, false, false>(st, cmd_pos_nm, 0),
+            FRICTION => self.step_with::<true, false, false>(st, cmd_pos_nm, 0),
+            HYSTERESIS => self.step_with::<false, true, false>(st, cmd_pos_nm, 0),
+            RIPPLE => self.step_with::<false, false, true>(st, cmd_pos_nm, 0),
+            3 => self.step_with::<true, true, false>(st, cmd_pos_nm, 0),
+            5 => self.step_with::<true, false, true>(st, cmd_pos_nm, 0),
+            6 => self.step_with::<false, true, true>(st, cmd_pos_nm, 0),
+            _ => self.step_with::<true, true, true>(st, cmd_pos_nm, 0),
+        }
+    }
+
+    /// [`AxisModel::step`] with `added_nm` added to the delayed command, as the motion
+    /// controller adds its analogue input's motion pulses: the axis under a correction.
+    #[inline(never)]
+    pub fn step_added(&self, st: &mut AxisState, cmd_pos_nm: i32, added_nm: i32) -> i32 {
+        match self.effects {
+            0 => self.step_with::<false, false, false>(st, cmd_pos_nm, added_nm),
+            FRICTION => self.step_with::<true, false, false>(st, cmd_pos_nm, added_nm),
+            HYSTERESIS => self.step_with::<false, true, false>(st, cmd_pos_nm, added_nm),
+            RIPPLE => self.step_with::<false, false, true>(st, cmd_pos_nm, added_nm),
+            3 => self.step_with::<true, true, false>(st, cmd_pos_nm, added_nm),
+            5 => self.step_with::<true, false, true>(st, cmd_pos_nm, added_nm),
+            6 => self.step_with::<false, true, true>(st, cmd_pos_nm, added_nm),
+            _ => self.step_with::<true, true, true>(st, cmd_pos_nm, added_nm),
         }
     }
 
     #[inline(always)]
-    fn step_with<const F: bool, const H: bool, const R: bool>(&self, st: &mut AxisState, cmd_pos_nm: i32) -> i32 {
+    fn step_with<const F: bool, const H: bool, const R: bool>(&self, st: &mut AxisState, cmd_pos_nm: i32, added_nm: i32) -> i32 {
         if !st.primed {
             st.history = [cmd_pos_nm; HISTORY];
+            st.added_prev_nm = added_nm;
             st.primed = true;
         }
         st.newest = (st.newest + 1) & (HISTORY - 1);
         st.history[st.newest] = cmd_pos_nm;
-        let r_nm = st.history[(st.newest.wrapping_sub(self.delay)) & (HISTORY - 1)];
-        let r_before_nm = st.history[(st.newest.wrapping_sub(self.delay + 1)) & (HISTORY - 1)];
+        let r_nm = st.history[(st.newest.wrapping_sub(self.delay)) & (HISTORY - 1)].wrapping_add(added_nm);
+        let r_before_nm = st.history[(st.newest.wrapping_sub(self.delay + 1)) & (HISTORY - 1)].wrapping_add(st.added_prev_nm);
+        st.added_prev_nm = added_nm;
         let dr_m = r_nm.wrapping_sub(r_before_nm) as f32 * 1e-9;
         let ddr_m = dr_m - st.dr_prev_m;
         st.dr_prev_m = dr_m;
@@ -251,8 +272,8 @@ impl AxisModel {
     #[cold]
     fn reset(&self, st: &mut AxisState) {
         let resets = st.resets.saturating_add(1);
-        let (history, newest) = (st.history, st.newest);
-        *st = AxisState { history, newest, primed: true, resets, ..AxisState::INITIAL };
+        let (history, newest, added_prev_nm) = (st.history, st.newest, st.added_prev_nm);
+        *st = AxisState { history, newest, added_prev_nm, primed: true, resets, ..AxisState::INITIAL };
     }
 }
 

@@ -57,8 +57,11 @@ pub enum TickTerm {
         gains_pm: [i32; LAGUERRE_STAGES],
     },
     /// A servo-axis twin ([`crate::axis`]): the axis's dynamic error at the TCP, friction,
-    /// presliding hysteresis or the encoder's interpolation error included, simulated every
-    /// tick from the command through the identified controller, slide and structural mode.
+    /// presliding hysteresis or the encoder's interpolation error included, simulated tick
+    /// by tick from the command through the identified controller, slide and structural
+    /// mode. The servo compensates through it at low priority
+    /// ([`crate::axis::compensate`]) and synthesises the correction's third harmonic in this
+    /// term's slot (its fundamental joins the program's).
     Axis(AxisParams),
 }
 
@@ -142,9 +145,13 @@ pub mod tick_cost {
     /// A tick without per-tick terms at its worst: the paper program's (512 measured with
     /// the bus's six-word input slots; 482 with four, and 482 with six since the compiler
     /// keeps the servo's address in a register: kept at 516, as that is no design's
-    /// guarantee), whose formulas are not evaluated in the tick (the model update runs at
-    /// low priority).
-    pub const FIXED: u32 = 516;
+    /// guarantee; 514 since the tick tests whether to store the command for an axis twin,
+    /// and the model raised by that test's 5 to 521), whose formulas are not evaluated in
+    /// the tick (the model update runs at low priority).
+    pub const FIXED: u32 = 521;
+    /// More for a servo-axis twin, whose correction is synthesised as a harmonic term: the
+    /// tick stores its command in the ring the twin's compensator reads at low priority.
+    pub const AXIS_COMMANDS: u32 = 9;
     /// A harmonic term in a program without kernel terms (25.9 measured).
     pub const HARMONIC: u32 = 26;
     /// A harmonic term in a program with kernel terms (41.5 measured: the harmonic pass
@@ -172,17 +179,6 @@ pub mod tick_cost {
     /// 48 when the servo passed constant zeros the compiler could fold; beside a Dahl bank
     /// 97 since the servo-axis term joined the kernels, so that pair, 802, is refused).
     pub const AXIS_COUPLING: u32 = 97;
-    /// A servo-axis twin without effects: controller, slide, current loop and mode in single
-    /// precision, a call out of line (717 measured for the paper program with it: what it
-    /// adds to `FIXED + KERNELS`, rounded up).
-    pub const AXIS: u32 = 161;
-    /// More for the axis's friction law: a table exponential, the smoothed sign and the
-    /// implicit step, each with a division (786 measured with it).
-    pub const AXIS_FRICTION: u32 = 72;
-    /// More for its presliding hysteresis (746 measured with it).
-    pub const AXIS_HYSTERESIS: u32 = 31;
-    /// More for its encoder interpolation error, two table sines (754 measured with it).
-    pub const AXIS_RIPPLE: u32 = 39;
 }
 
 impl TickTerm {
@@ -191,15 +187,14 @@ impl TickTerm {
     pub fn tick_cost(&self, with_kernels: bool) -> u32 {
         use tick_cost::*;
         match *self {
+            // The servo synthesises the axis twin's correction as a harmonic in its slot (its
+            // simulation runs at low priority, see `Models::compute`).
             Self::Harmonic { .. } if with_kernels => HARMONIC_BESIDE_KERNELS,
             Self::Harmonic { .. } => HARMONIC,
+            Self::Axis(_) if with_kernels => HARMONIC_BESIDE_KERNELS + AXIS_COMMANDS,
+            Self::Axis(_) => HARMONIC + AXIS_COMMANDS,
             Self::Drift { .. } => DRIFT,
             Self::AxisCoupling { .. } => AXIS_COUPLING,
-            Self::Axis(ref p) => {
-                AXIS + if p.friction.is_some() { AXIS_FRICTION } else { 0 }
-                    + if p.hysteresis.is_some() { AXIS_HYSTERESIS } else { 0 }
-                    + if p.ripple.is_some() { AXIS_RIPPLE } else { 0 }
-            }
             Self::Laguerre { input, pole_q30, ref gains_pm } => {
                 let bank = match input {
                     TermInput::VelocitySign { smooth_nm_per_4_ticks } if smooth_nm_per_4_ticks >= VELOCITY_SMOOTH_32_BIT_LIMIT => {
@@ -218,8 +213,9 @@ impl TickTerm {
         }
     }
 
-    /// Whether the term is a kernel term (anything but a harmonic).
+    /// Whether the servo tick runs the term as a kernel: anything but a harmonic and the
+    /// axis twin, whose correction the servo synthesises as harmonics.
     pub fn is_kernel(&self) -> bool {
-        !matches!(self, Self::Harmonic { .. })
+        !matches!(self, Self::Harmonic { .. } | Self::Axis(_))
     }
 }

@@ -373,7 +373,7 @@ fn fit_axis(dataset: &Dataset, inputs: &[GroupInputs], names: &[String]) -> anyh
             effect: name.clone(),
             params,
             terms: usize::from(first),
-            note: format!("servo-axis twin (controller, slide, mode and the effect, simulated per tick from the command; forces per kg){}", if first { "" } else { ": the term above" }),
+            note: format!("servo-axis twin (controller, slide, mode and the effect, simulated from the command; forces per kg; the firmware compensates through it){}", if first { "" } else { ": the term above" }),
         });
     }
     Ok((TickTerm::Axis(p), records))

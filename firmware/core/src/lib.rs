@@ -7,7 +7,8 @@
 //!   in fixed point with O(1) work per sample.
 //! - [`program`]: the twin program, a small validated stack-machine program holding the
 //!   amplitude model, the phase model and extra error terms, serialised with postcard.
-//! - [`axis`]: a servo-axis twin simulated per tick, for friction, hysteresis and encoder error.
+//! - [`axis`]: a servo-axis twin simulated tick by tick, for friction, hysteresis and encoder
+//!   error, and the compensator that learns the correction through it at low priority.
 //! - [`synth`]: per-tick synthesis of the predicted dynamic error (Eq. 4), phase-continuous.
 //! - [`feedforward`]: predicted error to a DAC code (Eq. 5) with offset, slew limit and
 //!   saturation counting.

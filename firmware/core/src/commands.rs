@@ -58,8 +58,9 @@ impl<const TICKS: usize> CommandRing<TICKS> {
         Self { tick: [NEVER; TICKS], pos_nm: [ZERO; TICKS] }
     }
 
-    /// The servo tick: stores tick `tick`'s command position.
-    #[inline(always)]
+    /// The servo tick: stores tick `tick`'s command position. Out of line: inlined, its
+    /// registers made every program's tick dearer, those that store nothing too.
+    #[inline(never)]
     pub fn push(&self, tick: u32, pos_nm: i32) {
         let i = tick as usize & Self::MASK;
         self.tick[i].store(tick, Ordering::Relaxed);

@@ -39,6 +39,9 @@ const SETTLE_TICKS: u32 = 800;
 const RESPONSE_SETTLE_TICKS: u32 = 800;
 /// Ticks at least measured for the response (rounded up to whole periods).
 const RESPONSE_MEASURE_TICKS: u32 = 400;
+/// Longest command period the compensator learns at, ticks (0.5 Hz): slower motion needs
+/// no dynamic compensation, and the response's simulation grows with the period.
+const MAX_PERIOD_TICKS: u32 = 16_000;
 /// Amplitude of the displacement the response is measured with, nm.
 const RESPONSE_AMP_NM: f32 = 10_000.0;
 /// Relative change of the command frequency beyond which the responses are measured again.
@@ -184,12 +187,16 @@ impl Compensator {
     }
 
     /// The linear twin's response `G` from an added displacement to the TCP at a phase step of
-    /// `step_turns` per tick: a sine simulated from rest, projected over whole periods.
+    /// `step_turns` per tick: a sine simulated from rest, projected over whole periods; zero
+    /// (no learning) beyond half the tick rate or below 0.5 Hz.
     fn response(&self, step_turns: u32) -> Phasor {
         if step_turns == 0 || step_turns >= 1 << 31 {
             return Phasor::ZERO;
         }
         let ticks_per_period = (4_294_967_296.0 / step_turns as f32) as u32 + 1;
+        if ticks_per_period > MAX_PERIOD_TICKS {
+            return Phasor::ZERO;
+        }
         let periods = RESPONSE_MEASURE_TICKS.div_ceil(ticks_per_period.max(1)).max(1);
         let measure_ticks = (periods as f32 * 4_294_967_296.0 / step_turns as f32) as u32;
         let mut state = AxisState::INITIAL;
@@ -281,6 +288,14 @@ mod tests {
         assert!(after < 0.05 * before, "before {before} nm, after {after} nm");
         let amp = comp.correction_nm()[0].amplitude();
         assert!((1000.0..20_000.0).contains(&amp), "fundamental correction {amp} nm");
+    }
+
+    #[test]
+    fn no_response_beyond_the_tick_rates_half_or_below_half_a_hertz() {
+        let comp = Compensator::new(&machine()).unwrap();
+        assert_eq!(comp.response(1 << 31), Phasor::ZERO);
+        assert_eq!(comp.response((4_294_967_296u64 / 8000 / 4) as u32), Phasor::ZERO, "0.25 Hz");
+        assert!(comp.response((4_294_967_296u64 / 8000) as u32).amplitude() > 0.9, "1 Hz");
     }
 
     #[test]

@@ -51,22 +51,7 @@ pub mod twin {
     /// A servo-axis twin of the default emulated machine (per kg of its 45 kg slide) without
     /// effects: the tests and benchmarks add one.
     pub fn default_axis() -> sts_twin_core::axis::AxisParams {
-        sts_twin_core::axis::AxisParams {
-            cmd_delay_ticks: 2,
-            kp_per_s2: 234_467.0,
-            ki_per_s3: 20_004_000.0,
-            kd_per_s: 396.1,
-            vff_per_s: 10.0,
-            aff: 0.3,
-            viscous_per_s: 6.67,
-            current_tau_s: 80e-6,
-            mode_freq_hz: 89.554,
-            mode_damping: 0.28,
-            mode_tcp_gain: 2.3662,
-            friction: None,
-            hysteresis: None,
-            ripple: None,
-        }
+        sts_twin_core::axis::default_machine()
     }
 
     /// Feature window, samples: 0.25 s keeps model updates frequent in short runs.

@@ -908,7 +908,7 @@ mod tests {
         use crate::wire::{Request, Response};
         // A derivative gain far beyond what the tick can carry: valid parameters whose loop
         // diverges on any motion.
-        let unstable = crate::axis::AxisParams { kd_per_s: 9e5, ..crate::axis::machine_for_tests() };
+        let unstable = crate::axis::AxisParams { kd_per_s: 9e5, ..crate::axis::default_machine() };
         let mut twin = Twin::boot(FeatureConfig { window_samples: 2000, ..FeatureConfig::DEFAULT }, ServoConfig { model_interval_ticks: 400, model_latency_ticks: 200, ..ServoConfig::default() }, &[]);
         let mut b = ProgramBuilder::new();
         b.id(8).constant(0.5).store(REG_AMP_UM).constant(0.0).store(REG_PHASE_DEG);

@@ -1308,7 +1308,7 @@ mod tests {
     #[test]
     fn axis_twin_resets_are_counted_across_restarts_and_replacements() {
         // A derivative gain far beyond what the tick can carry: it diverges on any motion.
-        let unstable = TickTerm::Axis(crate::axis::AxisParams { kd_per_s: 9e5, ..crate::axis::machine_for_tests() });
+        let unstable = TickTerm::Axis(crate::axis::AxisParams { kd_per_s: 9e5, ..crate::axis::default_machine() });
         let mut synth = Synth::new(0);
         synth.update(&ModelOutput::default(), &[unstable]);
         let run = |synth: &mut Synth| {
@@ -1327,7 +1327,7 @@ mod tests {
         assert!(second > first);
         // Replacing the term (another program) keeps the old state's count.
         synth.update(&ModelOutput::default(), &[]);
-        synth.update(&ModelOutput::default(), &[TickTerm::Axis(crate::axis::machine_for_tests())]);
+        synth.update(&ModelOutput::default(), &[TickTerm::Axis(crate::axis::default_machine())]);
         assert_eq!(synth.axis_resets(), second);
     }
 

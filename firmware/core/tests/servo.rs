@@ -49,22 +49,8 @@ fn rms_program(id: u32) -> Program {
 /// kg slide) with Coulomb friction.
 fn axis_program(id: u32) -> Program {
     let m = 45.0;
-    let axis = AxisParams {
-        cmd_delay_ticks: 2,
-        kp_per_s2: 10.551e6 / m,
-        ki_per_s3: 900.18e6 / m,
-        kd_per_s: 0.017826e6 / m,
-        vff_per_s: 450.0 / m,
-        aff: 13.5 / m,
-        viscous_per_s: 300.0 / m,
-        current_tau_s: 80e-6,
-        mode_freq_hz: 89.554,
-        mode_damping: 0.28,
-        mode_tcp_gain: 2.3662,
-        friction: Some(Friction { coulomb_mps2: 3.0 / m, static_mps2: 4.5 / m, stribeck_mps: 2e-4, smooth_mps: 1e-5 }),
-        hysteresis: None,
-        ripple: None,
-    };
+    let friction = Friction { coulomb_mps2: 3.0 / m, static_mps2: 4.5 / m, stribeck_mps: 2e-4, smooth_mps: 1e-5 };
+    let axis = AxisParams { friction: Some(friction), ..sts_twin_core::axis::default_machine() };
     let mut program = rms_program(id);
     program.terms.push(TickTerm::Axis(axis)).unwrap();
     program

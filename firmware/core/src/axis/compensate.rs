@@ -240,7 +240,7 @@ impl Compensator {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::axis::{machine_for_tests as machine, Friction};
+    use crate::axis::{default_machine as machine, Friction};
 
     const STEP_40_HZ: u32 = (4_294_967_296u64 / 200) as u32;
 

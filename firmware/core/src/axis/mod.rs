@@ -181,10 +181,10 @@ impl AxisParams {
     }
 }
 
-/// The default emulated machine's axis, per kg of its 45 kg slide, without effects: the
-/// core's tests add one.
-#[cfg(test)]
-pub(crate) fn machine_for_tests() -> AxisParams {
+/// The default emulated machine's axis (sts-emulator's built-in plant), per kg of its 45 kg
+/// slide, without effects: for tests and examples, which add one.
+#[cfg(any(test, feature = "std"))]
+pub fn default_machine() -> AxisParams {
     let m = 45.0;
     AxisParams {
         cmd_delay_ticks: 2,

@@ -280,7 +280,7 @@ impl AxisModel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::axis::{machine_for_tests as machine, Friction, Hysteresis, Ripple};
+    use crate::axis::{default_machine as machine, Friction, Hysteresis, Ripple};
 
     /// A 40 Hz, 10 um sine command, nm.
     fn command(k: u32) -> i32 {

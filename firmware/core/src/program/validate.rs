@@ -304,7 +304,7 @@ mod tests {
                 friction: friction.then_some(crate::axis::Friction { coulomb_mps2: 0.07, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 }),
                 hysteresis: hysteresis.then_some(crate::axis::Hysteresis { force_mps2: 0.05, stiffness_per_s2: 6e4 }),
                 ripple: ripple.then_some(crate::axis::Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_000, phase_turns: 0 }),
-                ..crate::axis::machine_for_tests()
+                ..crate::axis::default_machine()
             })
         };
         // Accepted: eight harmonics, the terms of each `fit --effect` (the axis twin with
@@ -325,7 +325,7 @@ mod tests {
         // needs 64-bit stages.
         let three = with_terms(&[velocity, dahl, sine, drift, coupling]);
         let cost = three.tick_cost();
-        assert_eq!(cost, 521 + 42 + 131 + 147 + 109 + 45 + 97);
+        assert_eq!(cost, 516 + 42 + 134 + 151 + 111 + 46 + 100);
         assert_eq!(three.validate(), Err(ProgramError::TickBudget { cost: cost as u16, budget: 800 }));
         let slow_pole = with_terms(&[laguerre(TermInput::PositionSine { turns_per_nm: 4295, phase_turns: 0 }, 0.999)]);
         assert!(matches!(slow_pole.validate(), Err(ProgramError::TickBudget { .. })));

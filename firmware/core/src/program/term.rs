@@ -161,9 +161,9 @@ pub mod tick_cost {
     pub const HARMONIC_BESIDE_KERNELS: u32 = 42;
     /// Once, when the program has kernel terms (anything but harmonics): running them (41).
     pub const KERNELS: u32 = 42;
-    /// A Laguerre bank on the position sine (108; 111 since the axis twin's command store),
-    /// with 32-bit stages.
-    pub const LAGUERRE_POSITION_SINE: u32 = 111;
+    /// A Laguerre bank on the position sine (108; 669.4 in all since the axis twin's command
+    /// store), with 32-bit stages.
+    pub const LAGUERRE_POSITION_SINE: u32 = 112;
     /// A Laguerre bank on the velocity sign (130; 134), with 32-bit stages and divisions.
     pub const LAGUERRE_VELOCITY_SIGN: u32 = 134;
     /// A Laguerre bank on the Dahl state (146; 151), with 32-bit stages.

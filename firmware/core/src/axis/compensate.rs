@@ -29,8 +29,10 @@ use crate::synth::sin_q31;
 /// Harmonic orders of the correction, of the command frequency.
 pub const ORDERS: [u32; 2] = [1, 3];
 
-/// Fraction of the simulated error's harmonics removed per command period.
-pub const LEARNING_PER_PERIOD: f32 = 0.4;
+/// Fraction of the simulated error's harmonics removed per command period (swept on three
+/// emulated machines in BENCHMARKS.md: faster follows a cut's changing amplitude better, 1.0
+/// already turned one of them worse).
+pub const LEARNING_PER_PERIOD: f32 = 0.6;
 
 /// Ticks the simulated axis settles after starting from rest before its error teaches
 /// anything (0.1 s): it starts at rest under a command already moving.

@@ -6,9 +6,10 @@
 
 use std::path::Path;
 
-use sts_emulator::PlantParams;
+use sts_emulator::{EffectSpec, PlantParams};
+use sts_twin::calibrate::PathPoint;
 use sts_twin::model::ModelFile;
-use sts_twin::rig::{HilCoprocessor, SimCoprocessor};
+use sts_twin::rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
 use sts_twin::trial::{machine_params, run_trial, with_measured_path, TrialConfig, TrialReport};
 
 fn fixture(name: &str) -> ModelFile {
@@ -23,26 +24,41 @@ fn same_cut(a: &TrialReport, b: &TrialReport) -> bool {
     a.form_error_pv_um == b.form_error_pv_um && a.phase_error_deg == b.phase_error_deg && a.form_error_rms_um == b.form_error_rms_um && a.points == b.points
 }
 
+/// The 40 Hz cut on the machine with `effects` (seed 1), the analogue path measured through
+/// the co-processor first.
+fn cut(coprocessor: &mut dyn Coprocessor, effects: &[EffectSpec], model: &ModelFile) -> (TrialReport, Vec<PathPoint>) {
+    let plant = PlantParams::default();
+    let params = machine_params(&plant, plant.interface.offset_v);
+    let config = TrialConfig { freq_hz: 40.0, seed: 1, ..TrialConfig::default() };
+    let (params, path) = with_measured_path(coprocessor, &plant, effects, params, 1).unwrap();
+    (run_trial(coprocessor, &plant, effects, Some(model), params, &config).unwrap(), path)
+}
+
+/// The same cut with the firmware in QEMU and with the core on the host: the same path and the
+/// same cut, number for number (asserted). Returns the cut.
+fn cut_in_qemu_as_on_the_host(effects: &[EffectSpec], model: &ModelFile) -> TrialReport {
+    let (with_sim, sim_path) = cut(&mut SimCoprocessor::boot(&[]), effects, model);
+    let mut hil = HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots");
+    let (with_hil, hil_path) = cut(&mut hil, effects, model);
+    hil.shutdown().unwrap();
+    assert_eq!(sim_path, hil_path, "the analogue path measured through QEMU differs from the host core's");
+    assert!(same_cut(&with_sim, &with_hil), "HIL {with_hil:?} differs from sim {with_sim:?}");
+    with_hil
+}
+
+/// The bare machine's 40 Hz cut (seed 1).
+fn bare_cut(effects: &[EffectSpec]) -> TrialReport {
+    let plant = PlantParams::default();
+    let params = machine_params(&plant, plant.interface.offset_v);
+    let config = TrialConfig { freq_hz: 40.0, seed: 1, ..TrialConfig::default() };
+    run_trial(&mut SimCoprocessor::boot(&[]), &plant, effects, None, params, &config).unwrap()
+}
+
 #[test]
 fn at_40_hz_the_twin_in_qemu_removes_over_90_percent_of_the_form_error() {
     let _serial = sts_hil_tests::serial();
-    let plant = PlantParams::default();
-    let model = model();
-    let params = machine_params(&plant, plant.interface.offset_v);
-    let config = TrialConfig { freq_hz: 40.0, seed: 1, ..TrialConfig::default() };
-
-    let bare = run_trial(&mut SimCoprocessor::boot(&[]), &plant, &[], None, params, &config).unwrap();
-    let mut sim = SimCoprocessor::boot(&[]);
-    let (sim_params, sim_path) = with_measured_path(&mut sim, &plant, &[], params, 1).unwrap();
-    let with_sim = run_trial(&mut sim, &plant, &[], Some(&model), sim_params, &config).unwrap();
-
-    let mut hil = HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots");
-    let (hil_params, hil_path) = with_measured_path(&mut hil, &plant, &[], params, 1).unwrap();
-    let with_hil = run_trial(&mut hil, &plant, &[], Some(&model), hil_params, &config).unwrap();
-    hil.shutdown().unwrap();
-
-    assert_eq!(sim_path, hil_path, "the analogue path measured through QEMU differs from the host core's");
-    assert!(same_cut(&with_sim, &with_hil), "HIL {with_hil:?} differs from sim {with_sim:?}");
+    let bare = bare_cut(&[]);
+    let with_hil = cut_in_qemu_as_on_the_host(&[], &model());
     let reduction = 1.0 - with_hil.form_error_pv_um / bare.form_error_pv_um;
     assert!(reduction >= 0.90, "form error {:.3} -> {:.3} um: only {:.1}% less", bare.form_error_pv_um, with_hil.form_error_pv_um, 100.0 * reduction);
     assert!(with_hil.phase_error_deg.abs() < 0.3, "phase error {:.3} deg", with_hil.phase_error_deg);
@@ -58,25 +74,9 @@ fn at_40_hz_the_twin_in_qemu_removes_over_90_percent_of_the_form_error() {
 #[test]
 fn the_axis_coupling_term_removes_the_spindle_error_in_the_cut() {
     let _serial = sts_hil_tests::serial();
-    let plant = PlantParams::default();
-    let effects = vec!["axis-coupling:x_um_per_mps2=1.2,spindle_um=0.08,spindle_phase_deg=30".parse().unwrap()];
-    let params = machine_params(&plant, plant.interface.offset_v);
-    let config = TrialConfig { freq_hz: 40.0, seed: 1, ..TrialConfig::default() };
-    let coupled = fixture("twin-axis-coupling.json");
-
-    let mut sim = SimCoprocessor::boot(&[]);
-    let (sim_params, _) = with_measured_path(&mut sim, &plant, &effects, params, 1).unwrap();
-    let without_term = run_trial(&mut sim, &plant, &effects, Some(&model()), sim_params, &config).unwrap();
-    let mut sim = SimCoprocessor::boot(&[]);
-    let (sim_params, _) = with_measured_path(&mut sim, &plant, &effects, params, 1).unwrap();
-    let with_sim = run_trial(&mut sim, &plant, &effects, Some(&coupled), sim_params, &config).unwrap();
-
-    let mut hil = HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots");
-    let (hil_params, _) = with_measured_path(&mut hil, &plant, &effects, params, 1).unwrap();
-    let with_hil = run_trial(&mut hil, &plant, &effects, Some(&coupled), hil_params, &config).unwrap();
-    hil.shutdown().unwrap();
-
-    assert!(same_cut(&with_sim, &with_hil), "HIL {with_hil:?} differs from sim {with_sim:?}");
+    let effects = ["axis-coupling:x_um_per_mps2=1.2,spindle_um=0.08,spindle_phase_deg=30".parse().unwrap()];
+    let (without_term, _) = cut(&mut SimCoprocessor::boot(&[]), &effects, &model());
+    let with_hil = cut_in_qemu_as_on_the_host(&effects, &fixture("twin-axis-coupling.json"));
     assert!(
         with_hil.form_error_rms_um < 0.5 * without_term.form_error_rms_um && with_hil.form_error_pv_um < 0.7 * without_term.form_error_pv_um,
         "with the term {:.3} um PV / {:.3} um RMS, without {:.3} / {:.3}",
@@ -96,23 +96,9 @@ fn the_axis_coupling_term_removes_the_spindle_error_in_the_cut() {
 #[test]
 fn the_axis_twin_compensates_friction_in_the_cut() {
     let _serial = sts_hil_tests::serial();
-    let plant = PlantParams::default();
-    let effects = vec!["coulomb-friction:coulomb_n=3,static_n=4.5,stribeck_mps=2e-4".parse().unwrap()];
-    let params = machine_params(&plant, plant.interface.offset_v);
-    let config = TrialConfig { freq_hz: 40.0, seed: 1, ..TrialConfig::default() };
-    let axis_twin = fixture("twin-friction-axis.json");
-
-    let bare = run_trial(&mut SimCoprocessor::boot(&[]), &plant, &effects, None, params, &config).unwrap();
-    let mut sim = SimCoprocessor::boot(&[]);
-    let (sim_params, _) = with_measured_path(&mut sim, &plant, &effects, params, 1).unwrap();
-    let with_sim = run_trial(&mut sim, &plant, &effects, Some(&axis_twin), sim_params, &config).unwrap();
-
-    let mut hil = HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots");
-    let (hil_params, _) = with_measured_path(&mut hil, &plant, &effects, params, 1).unwrap();
-    let with_hil = run_trial(&mut hil, &plant, &effects, Some(&axis_twin), hil_params, &config).unwrap();
-    hil.shutdown().unwrap();
-
-    assert!(same_cut(&with_sim, &with_hil), "HIL {with_hil:?} differs from sim {with_sim:?}");
+    let effects = ["coulomb-friction:coulomb_n=3,static_n=4.5,stribeck_mps=2e-4".parse().unwrap()];
+    let bare = bare_cut(&effects);
+    let with_hil = cut_in_qemu_as_on_the_host(&effects, &fixture("twin-friction-axis.json"));
     assert!(
         with_hil.form_error_pv_um < 0.15 * bare.form_error_pv_um,
         "form error {:.3} -> {:.3} um PV",

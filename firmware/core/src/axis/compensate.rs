@@ -203,6 +203,9 @@ impl Compensator {
         }
         // mu per tick: the fraction per period over the ticks of a period.
         let mu = LEARNING_PER_PERIOD * (step as f32 * (1.0 / 4_294_967_296.0));
+        if !(self.command_nm.re.is_finite() && self.command_nm.im.is_finite() && self.command_mean_nm.is_finite()) {
+            (self.command_nm, self.command_mean_nm) = (Phasor::ZERO, 0.0);
+        }
         let amplitude_nm = self.command_nm.amplitude();
         if amplitude_nm >= MIN_COMMAND_NM {
             for ((r, sum), inverse) in self.relative.iter_mut().zip(sums).zip(self.inverse_response) {

@@ -48,12 +48,6 @@ pub mod twin {
     use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
     use sts_twin_core::wire::{Request, Response, Status};
 
-    /// A servo-axis twin of the default emulated machine (per kg of its 45 kg slide) without
-    /// effects: the tests and benchmarks add one.
-    pub fn default_axis() -> sts_twin_core::axis::AxisParams {
-        sts_twin_core::axis::default_machine()
-    }
-
     /// Feature window, samples: 0.25 s keeps model updates frequent in short runs.
     pub const WINDOW: u32 = 2000;
     /// Ticks over which the gain ramps between 0 and 1.

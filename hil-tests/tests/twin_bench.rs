@@ -72,7 +72,7 @@ fn axis(friction: bool, hysteresis: bool, ripple: bool) -> TickTerm {
         friction: friction.then_some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 0.5, smooth_mps: 0.1 }),
         hysteresis: hysteresis.then_some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 }),
         ripple: ripple.then_some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_383, phase_turns: 1 << 29 }),
-        ..sts_hil_tests::twin::default_axis()
+        ..sts_twin_core::axis::default_machine()
     })
 }
 

@@ -69,7 +69,7 @@ fn dac_codes_are_bit_identical_to_the_host_core() {
 fn the_axis_twin_is_bit_identical_to_the_host_core() {
     use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
     let _serial = sts_hil_tests::serial();
-    let axis = sts_hil_tests::twin::default_axis();
+    let axis = sts_twin_core::axis::default_machine();
     let variants = [
         AxisParams { friction: Some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 }), ..axis },
         AxisParams { hysteresis: Some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 }), ..axis },

@@ -283,9 +283,7 @@ impl Models {
         }
         result
     }
-}
 
-impl Models {
     /// Runs the compensator over the commands since its last run, up to the request's tick,
     /// and learns from them.
     fn compensate(&mut self, commands: &DefaultCommandRing, request: &ModelRequest) {
@@ -329,17 +327,20 @@ fn compensated_targets(output: &mut ModelOutput, terms: &[TickTerm], compensator
     let correction_nm = compensator.correction_nm();
     // amp sin(theta + phase) = (amp cos phase) sin theta + (amp sin phase) cos theta.
     let (amp_um, phase_rad) = (output.amp_um(), output.phase_deg() * (core::f32::consts::PI / 180.0));
-    let re = amp_um * libm::cosf(phase_rad) - correction_nm[0].re * 1e-3;
-    let im = amp_um * libm::sinf(phase_rad) - correction_nm[0].im * 1e-3;
-    output.registers[REG_AMP_UM as usize] = libm::sqrtf(re * re + im * im);
-    output.registers[REG_PHASE_DEG as usize] = libm::atan2f(im, re) * (180.0 / core::f32::consts::PI);
+    let (amp_um, phase_deg) = amp_phase_deg(amp_um * libm::cosf(phase_rad) - correction_nm[0].re * 1e-3, amp_um * libm::sinf(phase_rad) - correction_nm[0].im * 1e-3);
+    output.registers[REG_AMP_UM as usize] = amp_um;
+    output.registers[REG_PHASE_DEG as usize] = phase_deg;
     let mut targets = SynthTargets::new(output, terms);
     if let Some(slot) = terms.iter().position(|t| matches!(t, TickTerm::Axis(_))) {
-        let (re, im) = (-correction_nm[1].re * 1e-3, -correction_nm[1].im * 1e-3);
-        let phase_deg = libm::atan2f(im, re) * (180.0 / core::f32::consts::PI);
-        targets.set_harmonic(slot, ORDERS[1], um_to_pm(libm::sqrtf(re * re + im * im)), deg_to_turns(phase_deg));
+        let (amp_um, phase_deg) = amp_phase_deg(-correction_nm[1].re * 1e-3, -correction_nm[1].im * 1e-3);
+        targets.set_harmonic(slot, ORDERS[1], um_to_pm(amp_um), deg_to_turns(phase_deg));
     }
     targets
+}
+
+/// `re sin + im cos` as `amp sin(theta + phase)`: `(amp, phase_deg)`.
+fn amp_phase_deg(re: f32, im: f32) -> (f32, f32) {
+    (libm::sqrtf(re * re + im * im), libm::atan2f(im, re) * (180.0 / core::f32::consts::PI))
 }
 
 /// Subtracts the analogue path's phase at the command frequency from the fundamental's

@@ -29,8 +29,9 @@
 use super::{AxisError, AxisModel, AxisParams, AxisState};
 use crate::synth::sin_q31;
 
-/// Harmonic orders of the correction, of the command frequency.
+/// Harmonic orders of the correction, of the command frequency (the fundamental first).
 pub const ORDERS: [u32; 2] = [1, 3];
+const _: () = assert!(ORDERS[0] == 1, "the command's fundamental is tracked with the first order's phase");
 
 /// Fraction of the simulated error's harmonics removed per command period (swept on three
 /// emulated machines in BENCHMARKS.md: faster follows a cut's changing amplitude better, 1.0
@@ -149,24 +150,17 @@ impl Compensator {
         })
     }
 
-    /// The correction at command phase `cmd_phase_turns`, nm.
-    pub fn correction_at(&self, cmd_phase_turns: u32) -> f32 {
-        let mut u_nm = 0.0;
-        for (&order, c) in ORDERS.iter().zip(&self.correction_nm) {
-            let (s, co) = sin_cos(cmd_phase_turns.wrapping_mul(order));
-            u_nm += c.re * s + c.im * co;
-        }
-        u_nm
-    }
-
     /// One tick of the simulated axis under its correction: the command position of the
     /// tick and the command phase the correction is for. Returns the simulated error (TCP
     /// minus command), picometres.
     pub fn tick(&mut self, cmd_pos_nm: i32, cmd_phase_turns: u32) -> i32 {
-        let added_nm = to_nm(self.correction_at(cmd_phase_turns));
-        let error_pm = self.model.step_added(&mut self.state, cmd_pos_nm, added_nm);
+        // `sin` and `cos` of each order's phase, for the correction, the command's
+        // fundamental (order 1 comes first) and the error's harmonics alike.
+        let trig = ORDERS.map(|order| sin_cos(cmd_phase_turns.wrapping_mul(order)));
+        let u_nm: f32 = trig.iter().zip(&self.correction_nm).map(|(&(s, co), c)| c.re * s + c.im * co).sum();
+        let error_pm = self.model.step_added(&mut self.state, cmd_pos_nm, to_nm(u_nm));
         // The command's fundamental, by a least-mean-squares fit of sine, cosine and mean.
-        let (s1, c1) = sin_cos(cmd_phase_turns);
+        let (s1, c1) = trig[0];
         let residual_nm = cmd_pos_nm as f32 - (self.command_nm.re * s1 + self.command_nm.im * c1 + self.command_mean_nm);
         let mu_command = COMMAND_TRACKING_PER_PERIOD * (self.step_turns as f32 * (1.0 / 4_294_967_296.0));
         self.command_nm.re += 2.0 * mu_command * residual_nm * s1;
@@ -177,8 +171,7 @@ impl Compensator {
             return error_pm;
         }
         let error_nm = error_pm as f32 * 1e-3;
-        for (&order, sum) in ORDERS.iter().zip(&mut self.sums) {
-            let (s, c) = sin_cos(cmd_phase_turns.wrapping_mul(order));
+        for (&(s, c), sum) in trig.iter().zip(&mut self.sums) {
             sum.re += error_nm * s;
             sum.im += error_nm * c;
         }

@@ -23,9 +23,10 @@
 //!
 //! **The test for `none`.** The best candidate is the verdict only if (1) it explains at least
 //! [`MIN_EXPLAINED`] of the held-out residual, (2) its per-group reductions of the held-out
-//! residual (sum of squares) add up to more than chance allows: a one-sided sign-flip test
-//! over groups (`sum / sqrt(sum of squares)`, normal approximation) at `p < ALPHA / 8`
-//! (Bonferroni over the eight candidates), and (3) what it explains is more than the model's
+//! residual add up to more than chance allows: a one-sided sign-flip test over groups
+//! (`sum / sqrt(sum of squares)`, normal approximation) of two statistics, the reductions of
+//! each group's sum of squares and the same relative to it, at `p < ALPHA / 16` (Bonferroni
+//! over the eight candidates and the two statistics), and (3) what it explains is more than the model's
 //! own cross-validated error (its RMS exceeds the model's held-out waveform RMS), so that the
 //! ordinary imprecision of a well-fitted model is not mistaken for a missing effect.
 
@@ -47,8 +48,10 @@ pub use candidates::{laguerre as laguerre_bank, EFFECTS};
 
 /// Smallest held-out explained fraction of a verdict.
 pub const MIN_EXPLAINED: f64 = 0.25;
-/// Family-wise significance level of the sign test.
-pub const ALPHA: f64 = 0.01;
+/// Family-wise significance level of the sign tests (eight candidates, two statistics).
+pub const ALPHA: f64 = 0.02;
+/// Statistics the sign test is run with per candidate.
+const STATISTICS: usize = 2;
 /// Cross-validation folds.
 pub const FOLDS: usize = 5;
 
@@ -59,7 +62,8 @@ pub struct Ranked {
     pub effect: String,
     /// Explained fraction of the residual on held-out groups (can be negative).
     pub explained_fraction: f64,
-    /// One-sided sign-flip test p-value of the held-out groups' improvements.
+    /// One-sided sign-flip test p-value of the held-out groups' improvements: the smaller of
+    /// the two statistics' (absolute and relative to each group's residual).
     pub p_value: f64,
     /// Held-out groups where the candidate lowered the residual.
     pub groups_improved: usize,
@@ -184,6 +188,22 @@ pub fn sign_flip_p(d: &[f64]) -> f64 {
     0.5 * libm_erfc(sum / sq.sqrt() / std::f64::consts::SQRT_2)
 }
 
+/// The p-value a candidate must be below: Bonferroni over the candidates and statistics.
+pub fn significance_threshold() -> f64 {
+    ALPHA / (candidates::ALL.len() * STATISTICS) as f64
+}
+
+/// A group's held-out reduction `d` of its residual's sum of squares, relative to that sum
+/// (the group's explained fraction; 0 for a group without residual).
+fn relative_improvement(d: f64, residual: &[f64]) -> f64 {
+    let ss: f64 = residual.iter().map(|r| r * r).sum();
+    if ss > 0.0 {
+        d / ss
+    } else {
+        0.0
+    }
+}
+
 /// Complementary error function (Numerical Recipes' erfcc, relative error < 1.2e-7).
 fn libm_erfc(x: f64) -> f64 {
     let z = x.abs();
@@ -253,12 +273,17 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         .map(|cand| {
             let evaluated = cand.evaluate(ctx, folds);
             let improved = evaluated.improvements.iter().filter(|d| **d > 0.0).count();
-            let p_value = sign_flip_p(&evaluated.improvements);
+            // Absolute reductions weigh the groups with the most residual, which finds an
+            // effect confined to the slow, small groups (friction); relative ones weigh every
+            // group alike, which finds one spread over all the fast groups of a small grid
+            // (a delay, on 35 groups) where a few large ones would outvote the rest.
+            let relative: Vec<f64> = evaluated.improvements.iter().zip(ctx).map(|(d, c)| relative_improvement(*d, &c.residual)).collect();
+            let p_value = sign_flip_p(&evaluated.improvements).min(sign_flip_p(&relative));
             let explained_fraction = if total_ss > 0.0 { evaluated.improvements.iter().sum::<f64>() / total_ss } else { 0.0 };
             let explained_rms = (explained_fraction.max(0.0) * total_ss / total_n.max(1) as f64).sqrt();
             let significant = evaluated.testable
                 && explained_fraction >= MIN_EXPLAINED
-                && p_value < ALPHA / candidates::ALL.len() as f64
+                && p_value < significance_threshold()
                 && explained_rms > model_cv_rms_um;
             Ranked {
                 effect: cand.name().to_string(),
@@ -297,9 +322,9 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         None => "no groups".to_string(),
     };
     let test = format!(
-        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold. A candidate is significant when it explains at least {:.0}% of the held-out residual, its per-group reductions of the held-out residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, p < {ALPHA}/8 = {:.2e}, Bonferroni over the 8 candidates), and the residual RMS it explains exceeds the model's own cross-validated waveform RMS ({:.1} nm). The verdict is the best candidate if significant, else none.",
+        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold. A candidate is significant when it explains at least {:.0}% of the held-out residual, its per-group reductions of the held-out residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, of the reductions and of the reductions relative to each group's residual, p < {ALPHA}/16 = {:.2e}, Bonferroni over the 8 candidates and the 2 statistics), and the residual RMS it explains exceeds the model's own cross-validated waveform RMS ({:.1} nm). The verdict is the best candidate if significant, else none.",
         MIN_EXPLAINED * 100.0,
-        ALPHA / 8.0,
+        significance_threshold(),
         model_cv_rms_um * 1e3
     );
     let repeatability = Repeatability::from_groups(ctx.par_iter().map(|c| group_non_repeating_um(c.data, c.sample, c.sample_rate_hz)).collect());
@@ -316,6 +341,18 @@ mod tests {
         assert!((sign_test_p(0, 10) - 1.0).abs() < 1e-12);
         assert!((sign_test_p(10, 10) - 1.0 / 1024.0).abs() < 1e-12);
         assert!((sign_test_p(9, 10) - 11.0 / 1024.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_relative_statistic_finds_an_effect_the_largest_groups_outvote() {
+        // Ten fast groups, 80% of each explained; two large groups where the candidate gains
+        // and loses about as much as the ten have in all.
+        let residual_ss: Vec<f64> = [[1.0; 10].as_slice(), &[100.0, 100.0]].concat();
+        let d = [[0.8; 10].as_slice(), &[-30.0, 35.0]].concat();
+        let relative: Vec<f64> = d.iter().zip(&residual_ss).map(|(d, ss)| relative_improvement(*d, &[ss.sqrt()])).collect();
+        assert!(sign_flip_p(&d) > 0.3, "absolute: {}", sign_flip_p(&d));
+        assert!(sign_flip_p(&relative) < significance_threshold(), "relative: {}", sign_flip_p(&relative));
+        assert_eq!(relative_improvement(1.0, &[0.0, 0.0]), 0.0);
     }
 
     #[test]

@@ -1,0 +1,220 @@
+//! A machine that is not our emulator: a two-mass Z slide under a cascaded servo (P position
+//! loop, PI velocity loop on a filtered encoder difference, partial velocity feedforward),
+//! with LuGre friction, written here from textbook equations and nothing of `sts-emulator`
+//! or of the twin's own axis model (which is a PID with its friction a static map). Its
+//! measurements are written as a lab would export them: CSV files by hand, columns in another
+//! order, CRLF line ends, other decimals, no ADC scale in the manifest.
+
+use std::f64::consts::PI;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// Servo rate, Hz (the firmware's, so that the twin can run on the board).
+pub const RATE_HZ: f64 = 8000.0;
+const SUBSTEPS: usize = 16;
+
+/// LuGre friction on the slide (Canudas de Wit et al. 1995): bristles of stiffness `sigma0`
+/// and damping `sigma1`, a Stribeck curve `g(v)` and viscous `sigma2`.
+#[derive(Clone, Copy, Debug)]
+pub struct Lugre {
+    pub coulomb_n: f64,
+    pub static_n: f64,
+    pub stribeck_mps: f64,
+    pub sigma0_n_per_m: f64,
+    pub sigma1_ns_per_m: f64,
+}
+
+/// The foreign machine's parameters.
+#[derive(Clone, Copy, Debug)]
+pub struct Foreign {
+    /// Slide (motor, encoder) and tool-carrier masses, kg, their coupling, N/m and N s/m.
+    pub slide_kg: f64,
+    pub carrier_kg: f64,
+    pub coupling_n_per_m: f64,
+    pub coupling_ns_per_m: f64,
+    /// Bearing drag on the slide, N s/m.
+    pub drag_ns_per_m: f64,
+    /// Position loop gain, 1/s; velocity loop P (N s/m) and I (N/m); feedforward fraction.
+    pub kpp_per_s: f64,
+    pub kvp_ns_per_m: f64,
+    pub kvi_n_per_m: f64,
+    pub vff: f64,
+    /// Velocity estimate's low-pass corner, Hz; current loop time constant, s.
+    pub vel_filter_hz: f64,
+    pub current_tau_s: f64,
+    /// Ticks between reading the encoder and the force command taking effect.
+    pub delay_ticks: usize,
+    /// Encoder resolution, um; probe and accelerometer noise (RMS), um and m/s^2.
+    pub encoder_um: f64,
+    pub probe_noise_um: f64,
+    pub acc_noise_mps2: f64,
+    /// The probe's scale (1: calibrated).
+    pub probe_gain: f64,
+    pub friction: Option<Lugre>,
+}
+
+impl Default for Foreign {
+    fn default() -> Self {
+        let slide_kg = 14.0;
+        let carrier_kg = 2.5;
+        let total = slide_kg + carrier_kg;
+        let kvp = total * 2.0 * PI * 120.0;
+        Self {
+            slide_kg,
+            carrier_kg,
+            coupling_n_per_m: 5.0e6,
+            coupling_ns_per_m: 260.0,
+            drag_ns_per_m: 30.0,
+            kpp_per_s: 2.0 * PI * 30.0,
+            kvp_ns_per_m: kvp,
+            kvi_n_per_m: kvp * 2.0 * PI * 15.0,
+            vff: 0.6,
+            vel_filter_hz: 1500.0,
+            current_tau_s: 80e-6,
+            delay_ticks: 1,
+            encoder_um: 0.002,
+            probe_noise_um: 0.004,
+            acc_noise_mps2: 0.003,
+            probe_gain: 1.0,
+            friction: None,
+        }
+    }
+}
+
+/// Continuous state: slide and carrier position (m) and velocity, motor force (N), bristle
+/// deflection (m).
+#[derive(Clone, Copy, Default)]
+struct State {
+    x1: f64,
+    v1: f64,
+    x2: f64,
+    v2: f64,
+    force: f64,
+    z: f64,
+}
+
+impl Foreign {
+    fn friction_n(&self, s: &State) -> (f64, f64) {
+        match self.friction {
+            None => (0.0, 0.0),
+            Some(f) => {
+                let g = f.coulomb_n + (f.static_n - f.coulomb_n) * (-(s.v1 / f.stribeck_mps).powi(2)).exp();
+                let dz = s.v1 - f.sigma0_n_per_m * s.v1.abs() * s.z / g;
+                (f.sigma0_n_per_m * s.z + f.sigma1_ns_per_m * dz, dz)
+            }
+        }
+    }
+
+    fn derivative(&self, s: &State, force_cmd: f64) -> State {
+        let (friction, dz) = self.friction_n(s);
+        let spring = self.coupling_n_per_m * (s.x2 - s.x1) + self.coupling_ns_per_m * (s.v2 - s.v1);
+        State {
+            x1: s.v1,
+            v1: (s.force - friction - self.drag_ns_per_m * s.v1 + spring) / self.slide_kg,
+            x2: s.v2,
+            v2: -spring / self.carrier_kg,
+            force: (force_cmd - s.force) / self.current_tau_s,
+            z: dz,
+        }
+    }
+
+    fn rk4(&self, s: &State, force_cmd: f64, dt: f64) -> State {
+        let add = |a: &State, b: &State, h: f64| State { x1: a.x1 + h * b.x1, v1: a.v1 + h * b.v1, x2: a.x2 + h * b.x2, v2: a.v2 + h * b.v2, force: a.force + h * b.force, z: a.z + h * b.z };
+        let k1 = self.derivative(s, force_cmd);
+        let k2 = self.derivative(&add(s, &k1, dt / 2.0), force_cmd);
+        let k3 = self.derivative(&add(s, &k2, dt / 2.0), force_cmd);
+        let k4 = self.derivative(&add(s, &k3, dt), force_cmd);
+        let mut out = *s;
+        for (o, (a, (b, (c, d)))) in [
+            (&mut out.x1, (k1.x1, (k2.x1, (k3.x1, k4.x1)))),
+            (&mut out.v1, (k1.v1, (k2.v1, (k3.v1, k4.v1)))),
+            (&mut out.x2, (k1.x2, (k2.x2, (k3.x2, k4.x2)))),
+            (&mut out.v2, (k1.v2, (k2.v2, (k3.v2, k4.v2)))),
+            (&mut out.force, (k1.force, (k2.force, (k3.force, k4.force)))),
+            (&mut out.z, (k1.z, (k2.z, (k3.z, k4.z)))),
+        ] {
+            *o += dt / 6.0 * (a + 2.0 * b + 2.0 * c + d);
+        }
+        out
+    }
+
+    /// One group: the command `amp_um sin(2 pi freq_hz t)` for `duration_s` from rest.
+    /// Columns: command, encoder, probe, accelerometer.
+    pub fn run(&self, freq_hz: f64, amp_um: f64, duration_s: f64, seed: u64) -> [Vec<f64>; 4] {
+        let n = (duration_s * RATE_HZ).round() as usize;
+        let ts = 1.0 / RATE_HZ;
+        let mut noise = Noise::new(seed);
+        let mut s = State::default();
+        let mut out: [Vec<f64>; 4] = Default::default();
+        let (mut enc_prev, mut vel_est, mut integral, mut cmd_prev) = (0.0, 0.0, 0.0, 0.0);
+        let mut pending = vec![0.0; self.delay_ticks.max(1)];
+        let alpha = 1.0 - (-2.0 * PI * self.vel_filter_hz * ts).exp();
+        for k in 0..n {
+            let t = k as f64 * ts;
+            let cmd = amp_um * 1e-6 * (2.0 * PI * freq_hz * t).sin();
+            let enc = (s.x1 / (self.encoder_um * 1e-6)).round() * self.encoder_um * 1e-6;
+            let acc = self.derivative(&s, pending[0]).v2;
+            out[0].push(cmd * 1e6);
+            out[1].push(enc * 1e6);
+            out[2].push(self.probe_gain * s.x2 * 1e6 + self.probe_noise_um * noise.gaussian());
+            out[3].push(acc + self.acc_noise_mps2 * noise.gaussian());
+            // The controller: velocity from the encoder's difference, filtered.
+            vel_est += alpha * ((enc - enc_prev) / ts - vel_est);
+            enc_prev = enc;
+            let vel_cmd = self.kpp_per_s * (cmd - enc) + self.vff * (cmd - cmd_prev) / ts;
+            cmd_prev = cmd;
+            integral += (vel_cmd - vel_est) * ts;
+            let force_cmd = self.kvp_ns_per_m * (vel_cmd - vel_est) + self.kvi_n_per_m * integral;
+            pending.rotate_left(1);
+            *pending.last_mut().unwrap() = force_cmd;
+            let dt = ts / SUBSTEPS as f64;
+            for _ in 0..SUBSTEPS {
+                s = self.rk4(&s, pending[0], dt);
+            }
+        }
+        out
+    }
+
+    /// Measures the grid into `dir` as a lab would export it (see the module docs).
+    pub fn measure(&self, dir: &Path, freqs_hz: &[f64], amps_um: &[f64], duration_s: f64, seed: u64) {
+        std::fs::create_dir_all(dir).unwrap();
+        let mut groups = Vec::new();
+        for (i, (&f, &a)) in freqs_hz.iter().flat_map(|f| amps_um.iter().map(move |a| (f, a))).enumerate() {
+            let [cmd, enc, tcp, acc] = self.run(f, a, duration_s, seed * 1000 + i as u64);
+            let mut csv = String::from("t_s,acc_mps2,z_cmd_um,z_tcp_um,z_enc_um\r\n");
+            for k in 0..cmd.len() {
+                writeln!(csv, "{:.8},{:.6},{:.6},{:.6},{:.4}\r", k as f64 / RATE_HZ, acc[k], cmd[k], tcp[k], enc[k]).unwrap();
+            }
+            let file = format!("run-{f}hz-{a}um.csv");
+            std::fs::write(dir.join(&file), csv).unwrap();
+            // Groups 1.5 s apart on machine time (the operator's pauses).
+            groups.push(serde_json::json!({"file": file, "freq_hz": f, "amp_um": a, "start_s": i as f64 * (duration_s + 1.5)}));
+        }
+        let manifest = serde_json::json!({
+            "format": "sts-twin-dataset/1",
+            "sample_rate_hz": RATE_HZ,
+            "description": "foreign two-mass slide, cascaded servo (test)",
+            "groups": groups,
+        });
+        std::fs::write(dir.join("manifest.json"), serde_json::to_string_pretty(&manifest).unwrap()).unwrap();
+    }
+}
+
+/// Gaussian noise (xorshift64* and Box-Muller): the foreign machine owes nothing to the
+/// emulator's random streams.
+struct Noise(u64);
+
+impl Noise {
+    fn new(seed: u64) -> Self {
+        Self(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+    fn uniform(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        ((self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+    fn gaussian(&mut self) -> f64 {
+        (-2.0 * self.uniform().ln()).sqrt() * (2.0 * PI * self.uniform()).cos()
+    }
+}

@@ -166,22 +166,19 @@ impl AxisModel {
     /// line: inlined, its register use made the servo tick's other kernel terms dearer.
     #[inline(never)]
     pub fn step(&self, st: &mut AxisState, cmd_pos_nm: i32) -> i32 {
-        match self.effects {
-            0 => self.step_with::<false, false, false>(st, cmd_pos_nm, 0),
-            FRICTION => self.step_with::<true, false, false>(st, cmd_pos_nm, 0),
-            HYSTERESIS => self.step_with::<false, true, false>(st, cmd_pos_nm, 0),
-            RIPPLE => self.step_with::<false, false, true>(st, cmd_pos_nm, 0),
-            3 => self.step_with::<true, true, false>(st, cmd_pos_nm, 0),
-            5 => self.step_with::<true, false, true>(st, cmd_pos_nm, 0),
-            6 => self.step_with::<false, true, true>(st, cmd_pos_nm, 0),
-            _ => self.step_with::<true, true, true>(st, cmd_pos_nm, 0),
-        }
+        self.dispatch(st, cmd_pos_nm, 0)
     }
 
     /// [`AxisModel::step`] with `added_nm` added to the delayed command, as the motion
     /// controller adds its analogue input's motion pulses: the axis under a correction.
     #[inline(never)]
     pub fn step_added(&self, st: &mut AxisState, cmd_pos_nm: i32, added_nm: i32) -> i32 {
+        self.dispatch(st, cmd_pos_nm, added_nm)
+    }
+
+    /// The step specialised for the effects present (no per-tick tests of absent ones).
+    #[inline(always)]
+    fn dispatch(&self, st: &mut AxisState, cmd_pos_nm: i32, added_nm: i32) -> i32 {
         match self.effects {
             0 => self.step_with::<false, false, false>(st, cmd_pos_nm, added_nm),
             FRICTION => self.step_with::<true, false, false>(st, cmd_pos_nm, added_nm),

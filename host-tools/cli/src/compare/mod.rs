@@ -139,10 +139,15 @@ pub fn cmd_phase_turns(sample: &GroupSample, t_s: f64) -> u32 {
 
 /// The synthesiser inputs of sample `k` of a group, as the firmware would receive them.
 pub fn tick_input(sample: &GroupSample, group: &GroupData, k: usize) -> TickInput {
+    tick_input_with_phase(group, k, cmd_phase_turns(sample, group.t_s[k]))
+}
+
+/// [`tick_input`] with the command phase given (the per-tick terms do not use it).
+pub fn tick_input_with_phase(group: &GroupData, k: usize, cmd_phase_turns: u32) -> TickInput {
     let x_acc = group.x_acc_mps2.as_ref().map_or(0.0, |v| v[k]);
     let spindle = group.spindle_deg.as_ref().map_or(0.0, |v| v[k]);
     TickInput {
-        cmd_phase_turns: cmd_phase_turns(sample, group.t_s[k]),
+        cmd_phase_turns,
         cmd_pos_nm: (group.z_cmd_um[k] * 1000.0).round() as i32,
         x_acc_um_per_s2: (x_acc * 1e6).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32,
         spindle_turns: crate::rig::turns_u32(spindle / 360.0),

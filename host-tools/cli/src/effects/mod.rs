@@ -295,24 +295,12 @@ pub fn terms_output(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64
 
 /// [`terms_output`] and the resets of a diverging axis twin over the group.
 fn terms_output_counted(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64) -> (Vec<f64>, u32) {
-    use sts_twin_core::synth::{Synth, TickInput};
+    use sts_twin_core::synth::Synth;
     let mut synth = Synth::new(0);
     synth.set_time_ticks((start_s.max(0.0) * fs).round() as u64);
     synth.update(&sts_twin_core::program::ModelOutput::default(), terms);
     synth.restart_kernels();
-    let out = (0..group.len())
-        .map(|k| {
-            let x_acc = group.x_acc_mps2.as_ref().map_or(0.0, |v| v[k]);
-            let spindle_deg = group.spindle_deg.as_ref().map_or(0.0, |v| v[k]);
-            let input = TickInput {
-                cmd_phase_turns: 0,
-                cmd_pos_nm: (group.z_cmd_um[k] * 1000.0).round() as i32,
-                x_acc_um_per_s2: (x_acc * 1e6).round() as i32,
-                spindle_turns: crate::rig::turns_u32(spindle_deg / 360.0),
-            };
-            f64::from(synth.next_input(&input)) * 1e-6
-        })
-        .collect();
+    let out = (0..group.len()).map(|k| f64::from(synth.next_input(&crate::compare::tick_input_with_phase(group, k, 0))) * 1e-6).collect();
     (out, synth.axis_resets())
 }
 

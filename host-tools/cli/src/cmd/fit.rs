@@ -99,9 +99,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         ..FitConfig::default()
     };
     let dataset = sts_dataset::read(&args.data)?;
+    let read_s = started.elapsed().as_secs_f64();
     let prepared = if args.effect.is_empty() { None } else { Some(crate::effects::prepare(&dataset, &args.effect)?) };
     let dataset = prepared.as_ref().map_or(&dataset, |p| &p.dataset);
-    let read_s = started.elapsed().as_secs_f64();
+    let effects_s = started.elapsed().as_secs_f64();
     let feature_config = analysis::feature_config_for(dataset, args.acc_scale);
     let samples = analysis::group_samples_skipping(dataset, &feature_config, args.skip_s)?;
     if let Some(path) = &args.table {
@@ -136,10 +137,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         p.write_record(out)?;
     }
     print_report(&model, out);
+    let identified = if prepared.is_some() { format!(", the effects identified in {:.1} s", effects_s - read_s) } else { String::new() };
     println!(
-        "read {} groups in {read_s:.1} s, features and targets in {:.1} s, searches and validation in {:.1} s",
+        "read {} groups in {read_s:.1} s{identified}, features and targets in {:.1} s, searches and validation in {:.1} s",
         samples.len(),
-        features_s - read_s,
+        features_s - effects_s,
         started.elapsed().as_secs_f64() - features_s
     );
 

@@ -11,6 +11,11 @@ mod foreign;
 use foreign::{Foreign, Lugre};
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use sts_twin::model::ModelFile;
+use sts_twin::rig::{expect_ack, turns_u32, Coprocessor, SimCoprocessor};
+use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
+use sts_twin_core::program::TickTerm;
+use sts_twin_core::wire::Request;
 
 const FREQS_HZ: [f64; 7] = [2.0, 6.0, 12.0, 20.0, 28.0, 34.0, 40.0];
 const AMPS_UM: [f64; 5] = [1.5, 3.0, 5.0, 7.5, 10.0];
@@ -36,6 +41,65 @@ fn path(p: &Path) -> &str {
 fn held_out_rms_um(model: &Path) -> f64 {
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(model).unwrap()).unwrap();
     v["validation"]["waveform_rms_um"].as_f64().unwrap()
+}
+
+/// What the board did with a twin on a machine's steady motion.
+struct OnTheBoard {
+    /// RMS of the measured dynamic error (probe gain divided out as `compare` does) minus the
+    /// board's output over the last second, um.
+    residual_rms_um: f64,
+    /// The output's largest magnitude over the last second, um.
+    peak_um: f64,
+    /// RMS of the output's change from the second before to the last, um.
+    drift_rms_um: f64,
+    fault_count: u32,
+}
+
+/// Uploads `model`'s program to the co-processor (the firmware's core, simulated) and feeds
+/// it the steady state of the group of `data` at `freq_hz`, `amp_um` tick by tick as the
+/// machine would (the accelerometer as ADC codes of the model's scale, the command's phase and
+/// position): the group's last second (whole periods) over and over for 8 s, so that the
+/// board's feature window (the model's, 5 s) holds steady motion only.
+fn on_the_board(model: &Path, data: &Path, freq_hz: f64, amp_um: f64) -> OnTheBoard {
+    let model = ModelFile::read(model).unwrap();
+    let dataset = sts_dataset::read(data).unwrap();
+    let index = dataset.manifest.groups.iter().position(|g| g.freq_hz == freq_hz && g.amp_um == amp_um).unwrap();
+    let group = &dataset.groups[index];
+    let mut board = SimCoprocessor::boot(&[]);
+    expect_ack("features", board.request(Request::SetFeatureConfig(model.feature_config)).unwrap()).unwrap();
+    expect_ack("program", board.request(Request::UploadProgram { program: model.firmware_program().unwrap(), activate: true }).unwrap()).unwrap();
+    let scale = f64::from(model.feature_config.acc_mps2_per_lsb);
+    let probe_gain = model.probe_gain.unwrap_or(1.0);
+    let second = dataset.manifest.sample_rate_hz as usize;
+    let first = group.len() - second;
+    let ticks = 8 * second;
+    let mut outputs_um = Vec::with_capacity(ticks);
+    let mut fault_count = 0;
+    for k in 0..ticks {
+        let row = first + k % second;
+        let out = board
+            .tick(&InputSlot {
+                tick: k as u32,
+                acc_code: sts_twin::analysis::features::acc_code(group.acc_mps2[row], scale),
+                flags: IN_FLAG_PHASE_VALID,
+                cmd_phase_turns: turns_u32(freq_hz * group.t_s[row]),
+                cmd_pos_nm: (group.z_cmd_um[row] * 1e3).round() as i32,
+                x_acc_um_per_s2: 0,
+                spindle_turns: 0,
+            })
+            .unwrap();
+        outputs_um.push(f64::from(out.de_pred_pm) * 1e-6);
+        fault_count = out.fault_count;
+    }
+    let rms = |v: &mut dyn Iterator<Item = f64>| (v.map(|x| x * x).sum::<f64>() / second as f64).sqrt();
+    let last = &outputs_um[ticks - second..];
+    let before = &outputs_um[ticks - 2 * second..ticks - second];
+    OnTheBoard {
+        residual_rms_um: rms(&mut (0..second).map(|i| group.z_tcp_um[first + i] / probe_gain - group.z_cmd_um[first + i] - last[i])),
+        peak_um: last.iter().fold(0.0, |m, x| m.max(x.abs())),
+        drift_rms_um: rms(&mut last.iter().zip(before).map(|(a, b)| a - b)),
+        fault_count,
+    }
 }
 
 struct Case {
@@ -109,6 +173,39 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
             fall * 100.0,
             after_um / clean_rms_um
         );
+        // Upload: the board takes the refitted twin and runs it on the machine's steady motion
+        // at 40 Hz, 10 um without a fault. A twin of formulas predicts the error there as
+        // `compare` does; an axis twin's output is its learned correction instead (it
+        // compensates, docs/diagnose.md), which must settle, bounded, not run away.
+        if verdict != "none" {
+            let old = on_the_board(&m0, &data, 40.0, 10.0);
+            let new = on_the_board(&refit, &data, 40.0, 10.0);
+            let axis = ModelFile::read(&refit).unwrap().firmware_program().unwrap().terms.iter().any(|t| matches!(t, TickTerm::Axis(_)));
+            if axis {
+                println!(
+                    "{:<15} on the board (40 Hz, 10 um): the axis twin's correction settles at {:.2} um peak (changing {:.1} nm RMS from one second to the next), {} faults",
+                    "", new.peak_um, new.drift_rms_um * 1e3, new.fault_count
+                );
+            } else {
+                println!(
+                    "{:<15} on the board (40 Hz, 10 um): measured minus predicted {:.1} nm with the clean twin, {:.1} nm refitted, {} faults",
+                    "", old.residual_rms_um * 1e3, new.residual_rms_um * 1e3, new.fault_count
+                );
+            }
+            let ok = new.fault_count == 0
+                && if axis { new.peak_um < 10.0 && new.drift_rms_um < 0.01 } else { new.residual_rms_um < 0.5 * old.residual_rms_um };
+            if !ok {
+                failures.push(format!(
+                    "{}: on the board: residual {:.1} -> {:.1} nm, peak {:.2} um, drift {:.1} nm, {} faults",
+                    case.name,
+                    old.residual_rms_um * 1e3,
+                    new.residual_rms_um * 1e3,
+                    new.peak_um,
+                    new.drift_rms_um * 1e3,
+                    new.fault_count
+                ));
+            }
+        }
         if !case.verdicts.contains(&verdict.as_str()) {
             failures.push(format!("{}: verdict {verdict}, expected one of {:?}: {}", case.name, case.verdicts, d["summary"]));
         } else if fall.is_nan() || fall < 0.5 {

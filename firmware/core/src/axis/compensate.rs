@@ -116,6 +116,8 @@ pub struct Compensator {
     sums: [Phasor; ORDERS.len()],
     /// Ticks until the simulation has settled from its start at rest.
     settling_ticks: u32,
+    /// Ticks in `sums`.
+    summed_ticks: u32,
     /// The command's fundamental (tracked every tick) and mean, nm.
     command_nm: Phasor,
     command_mean_nm: f32,
@@ -125,6 +127,10 @@ pub struct Compensator {
     relative: [Phasor; ORDERS.len()],
 }
 
+/// Largest correction per order relative to the command's amplitude: an axis's dynamic
+/// error is at most about its command (the default machine's 0.87 at 40 Hz), and the path
+/// amplifies the correction (1.94 at 40 Hz), so four times the command is a runaway.
+const MAX_RELATIVE_CORRECTION: f32 = 4.0;
 /// Command amplitude below which the correction is not learned (relative to it), nm.
 const MIN_COMMAND_NM: f32 = 20.0;
 /// Fraction per period by which the command's fundamental is tracked.
@@ -144,6 +150,7 @@ impl Compensator {
             correction_nm: [Phasor::ZERO; ORDERS.len()],
             sums: [Phasor::ZERO; ORDERS.len()],
             settling_ticks: SETTLE_TICKS,
+            summed_ticks: 0,
             command_nm: Phasor::ZERO,
             command_mean_nm: 0.0,
             relative: [Phasor::ZERO; ORDERS.len()],
@@ -171,6 +178,7 @@ impl Compensator {
             return error_pm;
         }
         let error_nm = error_pm as f32 * 1e-3;
+        self.summed_ticks = self.summed_ticks.saturating_add(1);
         for (&(s, c), sum) in trig.iter().zip(&mut self.sums) {
             sum.re += error_nm * s;
             sum.im += error_nm * c;
@@ -184,6 +192,7 @@ impl Compensator {
     /// moved by more than 1/64.
     pub fn learn(&mut self, step_turns: i32) {
         let sums = core::mem::replace(&mut self.sums, [Phasor::ZERO; ORDERS.len()]);
+        let summed_ticks = core::mem::replace(&mut self.summed_ticks, 0);
         if step_turns <= 0 {
             return;
         }
@@ -195,7 +204,14 @@ impl Compensator {
             }
         }
         // mu per tick: the fraction per period over the ticks of a period.
-        let mu = LEARNING_PER_PERIOD * (step as f32 * (1.0 / 4_294_967_296.0));
+        let mut mu = LEARNING_PER_PERIOD * (step as f32 * (1.0 / 4_294_967_296.0));
+        // A batch of more than a period (a long feature window spaces the model updates up
+        // to 800 ticks, 4 periods at 40 Hz) removes that fraction once: at the per-tick rate
+        // it would remove 2.4 times the error per batch and diverge.
+        let periods_summed = summed_ticks as f32 * (step as f32 * (1.0 / 4_294_967_296.0));
+        if periods_summed > 1.0 {
+            mu /= periods_summed;
+        }
         if !(self.command_nm.re.is_finite() && self.command_nm.im.is_finite() && self.command_mean_nm.is_finite()) {
             (self.command_nm, self.command_mean_nm) = (Phasor::ZERO, 0.0);
         }
@@ -209,6 +225,12 @@ impl Compensator {
         }
         if !(self.relative.iter().all(|c| c.re.is_finite() && c.im.is_finite())) {
             self.relative = [Phasor::ZERO; ORDERS.len()];
+        }
+        // A correction beyond any axis's error (a twin whose simulation and response disagree
+        // so that learning runs away) is dropped and counted, never output.
+        if self.relative.iter().any(|c| c.amplitude() > MAX_RELATIVE_CORRECTION) {
+            self.relative = [Phasor::ZERO; ORDERS.len()];
+            self.state.resets = self.state.resets.wrapping_add(1);
         }
         for (c, r) in self.correction_nm.iter_mut().zip(self.relative) {
             *c = Phasor { re: r.re * amplitude_nm, im: r.im * amplitude_nm };
@@ -260,7 +282,8 @@ impl Compensator {
         self.correction_nm
     }
 
-    /// Times the simulated axis diverged and was reset.
+    /// Times the simulated axis diverged and was reset, or its correction ran away and was
+    /// dropped.
     pub fn resets(&self) -> u32 {
         self.state.resets
     }
@@ -317,6 +340,32 @@ mod tests {
         assert!(after < 0.05 * before, "before {before} nm, after {after} nm");
         let amp = comp.correction_nm()[0].amplitude();
         assert!((1000.0..20_000.0).contains(&amp), "fundamental correction {amp} nm");
+    }
+
+    #[test]
+    fn a_batch_of_several_periods_is_learned_once_not_several_times() {
+        // A 5 s feature window spaces the model updates 800 ticks apart: four periods at
+        // 40 Hz. Learned at the per-tick rate, each batch removed 2.4 times the error and the
+        // correction ran away (to millimetres within 3 s).
+        let mut comp = Compensator::new(&friction_axis()).unwrap();
+        let before = run(&mut comp, 0, 8000, 0);
+        run(&mut comp, 8000, 16_000, 800);
+        let after = run(&mut comp, 24_000, 8000, 800);
+        assert_eq!(comp.resets(), 0);
+        assert!(after < 0.05 * before, "before {before} nm, after {after} nm");
+        let amp = comp.correction_nm()[0].amplitude();
+        assert!((1000.0..20_000.0).contains(&amp), "fundamental correction {amp} nm");
+    }
+
+    #[test]
+    fn a_runaway_correction_is_dropped_and_counted() {
+        let mut comp = Compensator::new(&friction_axis()).unwrap();
+        run(&mut comp, 0, 8000, 64);
+        assert_eq!(comp.resets(), 0);
+        comp.relative[1] = Phasor { re: 3.0, im: 3.0 };
+        run(&mut comp, 8000, 64, 64);
+        assert_eq!(comp.resets(), 1);
+        assert_eq!(comp.correction_nm(), [Phasor::ZERO; ORDERS.len()]);
     }
 
     #[test]

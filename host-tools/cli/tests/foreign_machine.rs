@@ -122,7 +122,8 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
         Case { name: "delay", machine: Foreign { delay_ticks: 5, ..clean }, seed: 4, verdicts: &["loop-delay"] },
         Case { name: "probe-gain", machine: Foreign { probe_gain: 0.95, ..clean }, seed: 5, verdicts: &["sensor-gain"] },
     ];
-    let mut runs: Vec<(&str, Foreign, u64)> = vec![("clean", clean, 1), ("clean-again", clean, 2)];
+    // The same machine recorded at 10 kHz, not the servo's 8 kHz: the tools resample it.
+    let mut runs: Vec<(&str, Foreign, u64)> = vec![("clean", clean, 1), ("clean-again", clean, 2), ("clean-10khz", Foreign { record_hz: 10_000.0, ..clean }, 6)];
     runs.extend(cases.iter().map(|c| (c.name, c.machine, c.seed)));
     std::thread::scope(|s| {
         for (name, machine, seed) in &runs {
@@ -147,6 +148,12 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
     assert!(clean_rms_um < 0.05, "the clean twin's held-out RMS {clean_rms_um} um");
     assert!(again["amplitude_r2"].as_f64().unwrap() > 0.99);
     assert_eq!(verdict["verdict"], "none", "clean data: {}", verdict["summary"]);
+    let at_10khz = sts_twin(&["compare", path(&dir.join("clean-10khz")), "--model", path(&m0), "--json"]);
+    let verdict_10khz = sts_twin(&["diagnose", path(&dir.join("clean-10khz")), "--model", path(&m0), "--json"]);
+    let rms_10khz_um = at_10khz["waveform_rms_um"].as_f64().unwrap();
+    println!("recorded at 10 kHz: {:.1} nm (amplitude R^2 {:.5}), verdict {}", rms_10khz_um * 1e3, at_10khz["amplitude_r2"].as_f64().unwrap(), verdict_10khz["verdict"]);
+    assert!(rms_10khz_um < 1.5 * clean_rms_um, "at 10 kHz: {rms_10khz_um} um");
+    assert_eq!(verdict_10khz["verdict"], "none", "clean data at 10 kHz: {}", verdict_10khz["summary"]);
 
     let mut failures = Vec::new();
     for case in &cases {

@@ -3,6 +3,7 @@
 
 pub mod features;
 pub mod repeat;
+pub mod resample;
 pub mod sine;
 pub mod targets;
 
@@ -33,6 +34,18 @@ pub struct GroupSample {
     pub feature_start: usize,
     /// The measured dynamic error over the group's last second.
     pub targets: GroupTargets,
+}
+
+/// Reads the dataset at `dir` for the twin: resampled to the servo rate when recorded at
+/// another (said on standard error).
+pub fn read_dataset(dir: &std::path::Path) -> anyhow::Result<Dataset> {
+    let dataset = sts_dataset::read(dir)?;
+    let rate_hz = dataset.manifest.sample_rate_hz;
+    if rate_hz == resample::SERVO_RATE_HZ {
+        return Ok(dataset);
+    }
+    eprintln!("note: {} is sampled at {rate_hz} Hz; resampled to the co-processor's servo rate, {} Hz", dir.display(), resample::SERVO_RATE_HZ);
+    Ok(resample::resample(&dataset, resample::SERVO_RATE_HZ))
 }
 
 /// The feature configuration for a dataset: the firmware's defaults with the dataset's
@@ -66,6 +79,14 @@ pub fn group_samples(dataset: &Dataset, config: &FeatureConfig) -> anyhow::Resul
 /// parallel; the result does not depend on the thread count. Errors name the group's file.
 pub fn group_samples_skipping(dataset: &Dataset, config: &FeatureConfig, skip_s: f64) -> anyhow::Result<Vec<GroupSample>> {
     let fs = dataset.manifest.sample_rate_hz;
+    if fs != resample::SERVO_RATE_HZ {
+        // Features per sample and terms per tick at another rate would not be what the board
+        // computes: the frequencies it reads would be off by the ratio.
+        anyhow::bail!(
+            "the dataset is sampled at {fs} Hz and the co-processor's servo runs at {} Hz: resample it first (`analysis::resample::to_servo_rate`; the sts-twin commands do it themselves)",
+            resample::SERVO_RATE_HZ
+        );
+    }
     dataset
         .manifest
         .groups

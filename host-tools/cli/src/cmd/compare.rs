@@ -58,7 +58,7 @@ fn print_text(label: &str, c: &Comparison) {
 
 /// Runs `sts-twin compare`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let dataset = sts_dataset::read(&args.data)?;
+    let dataset = crate::analysis::read_dataset(&args.data)?;
     let model = ModelFile::read(&args.model)?;
     let (c, waves) = compare(&dataset, &model).with_context(|| format!("comparing {}", args.model.display()))?;
     let baseline = match &args.baseline {

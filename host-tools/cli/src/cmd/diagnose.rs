@@ -20,7 +20,7 @@ pub struct Args {
 
 /// Runs `sts-twin diagnose`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let dataset = sts_dataset::read(&args.data)?;
+    let dataset = crate::analysis::read_dataset(&args.data)?;
     let model = ModelFile::read(&args.model)?;
     let d = diagnose(&dataset, &model)?;
     if args.json {

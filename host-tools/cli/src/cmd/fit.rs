@@ -98,7 +98,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         phase_goal_nmse: args.phase_goal,
         ..FitConfig::default()
     };
-    let dataset = sts_dataset::read(&args.data)?;
+    let dataset = crate::analysis::read_dataset(&args.data)?;
     let read_s = started.elapsed().as_secs_f64();
     let prepared = if args.effect.is_empty() { None } else { Some(crate::effects::prepare(&dataset, &args.effect)?) };
     let dataset = prepared.as_ref().map_or(&dataset, |p| &p.dataset);

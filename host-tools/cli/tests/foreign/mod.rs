@@ -11,7 +11,9 @@ use std::path::Path;
 
 /// Servo rate, Hz (the firmware's, so that the twin can run on the board).
 pub const RATE_HZ: f64 = 8000.0;
-const SUBSTEPS: usize = 16;
+/// Integration steps per servo tick (a 160 kHz grid, on which 8, 10, 16 and 20 kHz recorders
+/// sample).
+const SUBSTEPS: usize = 20;
 
 /// LuGre friction on the slide (Canudas de Wit et al. 1995): bristles of stiffness `sigma0`
 /// and damping `sigma1`, a Stribeck curve `g(v)` and viscous `sigma2`.
@@ -44,12 +46,15 @@ pub struct Foreign {
     pub current_tau_s: f64,
     /// Ticks between reading the encoder and the force command taking effect.
     pub delay_ticks: usize,
-    /// Encoder resolution, um; probe and accelerometer noise (RMS), um and m/s^2.
+    /// Encoder resolution, um; probe and accelerometer noise (RMS per sample at 8 kHz), um
+    /// and m/s^2.
     pub encoder_um: f64,
     pub probe_noise_um: f64,
     pub acc_noise_mps2: f64,
     /// The probe's scale (1: calibrated).
     pub probe_gain: f64,
+    /// The recorder's rate, Hz (the servo's or another).
+    pub record_hz: f64,
     pub friction: Option<Lugre>,
 }
 
@@ -76,6 +81,7 @@ impl Default for Foreign {
             probe_noise_um: 0.004,
             acc_noise_mps2: 0.003,
             probe_gain: 1.0,
+            record_hz: RATE_HZ,
             friction: None,
         }
     }
@@ -138,39 +144,47 @@ impl Foreign {
         out
     }
 
-    /// One group: the command `amp_um sin(2 pi freq_hz t)` for `duration_s` from rest.
-    /// Columns: command, encoder, probe, accelerometer.
+    /// One group: the command `amp_um sin(2 pi freq_hz t)` for `duration_s` from rest,
+    /// recorded at `record_hz`. Columns: command, encoder, probe, accelerometer.
     pub fn run(&self, freq_hz: f64, amp_um: f64, duration_s: f64, seed: u64) -> [Vec<f64>; 4] {
-        let n = (duration_s * RATE_HZ).round() as usize;
+        let grid_hz = RATE_HZ * SUBSTEPS as f64;
+        let record_every = (grid_hz / self.record_hz).round() as usize;
+        assert!((grid_hz / record_every as f64 - self.record_hz).abs() < 1e-9, "record_hz must divide {grid_hz} Hz");
         let ts = 1.0 / RATE_HZ;
+        let dt = ts / SUBSTEPS as f64;
         let mut noise = Noise::new(seed);
         let mut s = State::default();
         let mut out: [Vec<f64>; 4] = Default::default();
         let (mut enc_prev, mut vel_est, mut integral, mut cmd_prev) = (0.0, 0.0, 0.0, 0.0);
         let mut pending = vec![0.0; self.delay_ticks.max(1)];
         let alpha = 1.0 - (-2.0 * PI * self.vel_filter_hz * ts).exp();
-        for k in 0..n {
-            let t = k as f64 * ts;
-            let cmd = amp_um * 1e-6 * (2.0 * PI * freq_hz * t).sin();
-            let enc = (s.x1 / (self.encoder_um * 1e-6)).round() * self.encoder_um * 1e-6;
-            let acc = self.derivative(&s, pending[0]).v2;
-            out[0].push(cmd * 1e6);
-            out[1].push(enc * 1e6);
-            out[2].push(self.probe_gain * s.x2 * 1e6 + self.probe_noise_um * noise.gaussian());
-            out[3].push(acc + self.acc_noise_mps2 * noise.gaussian());
-            // The controller: velocity from the encoder's difference, filtered.
-            vel_est += alpha * ((enc - enc_prev) / ts - vel_est);
-            enc_prev = enc;
-            let vel_cmd = self.kpp_per_s * (cmd - enc) + self.vff * (cmd - cmd_prev) / ts;
-            cmd_prev = cmd;
-            integral += (vel_cmd - vel_est) * ts;
-            let force_cmd = self.kvp_ns_per_m * (vel_cmd - vel_est) + self.kvi_n_per_m * integral;
-            pending.rotate_left(1);
-            *pending.last_mut().unwrap() = force_cmd;
-            let dt = ts / SUBSTEPS as f64;
-            for _ in 0..SUBSTEPS {
-                s = self.rk4(&s, pending[0], dt);
+        let command = |t: f64| amp_um * 1e-6 * (2.0 * PI * freq_hz * t).sin();
+        let encoder = |x: f64| (x / (self.encoder_um * 1e-6)).round() * self.encoder_um * 1e-6;
+        let records = (duration_s * self.record_hz).round() as usize;
+        // The sensors' noise has a density: per sample it grows with the recorder's bandwidth
+        // (the noise figures are per sample at the servo's 8 kHz).
+        let noise_scale = (self.record_hz / RATE_HZ).sqrt();
+        for i in 0..records * record_every {
+            let t = i as f64 * dt;
+            if i % record_every == 0 {
+                out[0].push(command(t) * 1e6);
+                out[1].push(encoder(s.x1) * 1e6);
+                out[2].push(self.probe_gain * s.x2 * 1e6 + noise_scale * self.probe_noise_um * noise.gaussian());
+                out[3].push(self.derivative(&s, pending[0]).v2 + noise_scale * self.acc_noise_mps2 * noise.gaussian());
             }
+            if i % SUBSTEPS == 0 {
+                // The controller: velocity from the encoder's difference, filtered.
+                let (cmd, enc) = (command(t), encoder(s.x1));
+                vel_est += alpha * ((enc - enc_prev) / ts - vel_est);
+                enc_prev = enc;
+                let vel_cmd = self.kpp_per_s * (cmd - enc) + self.vff * (cmd - cmd_prev) / ts;
+                cmd_prev = cmd;
+                integral += (vel_cmd - vel_est) * ts;
+                let force_cmd = self.kvp_ns_per_m * (vel_cmd - vel_est) + self.kvi_n_per_m * integral;
+                pending.rotate_left(1);
+                *pending.last_mut().unwrap() = force_cmd;
+            }
+            s = self.rk4(&s, pending[0], dt);
         }
         out
     }
@@ -183,7 +197,7 @@ impl Foreign {
             let [cmd, enc, tcp, acc] = self.run(f, a, duration_s, seed * 1000 + i as u64);
             let mut csv = String::from("t_s,acc_mps2,z_cmd_um,z_tcp_um,z_enc_um\r\n");
             for k in 0..cmd.len() {
-                writeln!(csv, "{:.8},{:.6},{:.6},{:.6},{:.4}\r", k as f64 / RATE_HZ, acc[k], cmd[k], tcp[k], enc[k]).unwrap();
+                writeln!(csv, "{:.8},{:.6},{:.6},{:.6},{:.4}\r", k as f64 / self.record_hz, acc[k], cmd[k], tcp[k], enc[k]).unwrap();
             }
             let file = format!("run-{f}hz-{a}um.csv");
             std::fs::write(dir.join(&file), csv).unwrap();
@@ -192,7 +206,7 @@ impl Foreign {
         }
         let manifest = serde_json::json!({
             "format": "sts-twin-dataset/1",
-            "sample_rate_hz": RATE_HZ,
+            "sample_rate_hz": self.record_hz,
             "description": "foreign two-mass slide, cascaded servo (test)",
             "groups": groups,
         });

@@ -147,6 +147,12 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
     );
     assert!(clean_rms_um < 0.05, "the clean twin's held-out RMS {clean_rms_um} um");
     assert!(again["amplitude_r2"].as_f64().unwrap() > 0.99);
+    // Where the accelerometer cannot see the motion, compare says so: at 2 Hz its signal
+    // (1.6 mm/s^2 at 10 um) is below its noise (3 mm/s^2), at 40 Hz far above.
+    for g in again["groups"].as_array().unwrap() {
+        let (freq_hz, snr) = (g["freq_hz"].as_f64().unwrap(), g["acc_snr"].as_f64().unwrap());
+        assert!(if freq_hz == 2.0 { snr < 1.0 } else if freq_hz == 40.0 { snr > 10.0 } else { true }, "{freq_hz} Hz: accelerometer SNR {snr}");
+    }
     assert_eq!(verdict["verdict"], "none", "clean data: {}", verdict["summary"]);
     let at_10khz = sts_twin(&["compare", path(&dir.join("clean-10khz")), "--model", path(&m0), "--json"]);
     let verdict_10khz = sts_twin(&["diagnose", path(&dir.join("clean-10khz")), "--model", path(&m0), "--json"]);

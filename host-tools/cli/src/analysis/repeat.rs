@@ -123,22 +123,7 @@ impl Repeatability {
         if self.not_repeating.is_empty() {
             return None;
         }
-        // Flagged groups by command frequency: "1 Hz at 7-11 um".
-        let mut by_freq: Vec<(f64, f64, f64)> = Vec::new();
-        for &i in &self.not_repeating {
-            let (freq_hz, amp_um) = label(i);
-            match by_freq.iter_mut().find(|(f, _, _)| *f == freq_hz) {
-                Some(entry) => {
-                    entry.1 = entry.1.min(amp_um);
-                    entry.2 = entry.2.max(amp_um);
-                }
-                None => by_freq.push((freq_hz, amp_um, amp_um)),
-            }
-        }
-        let places: Vec<String> = by_freq
-            .iter()
-            .map(|&(f, lo, hi)| if lo == hi { format!("{f} Hz at {lo} um") } else { format!("{f} Hz at {lo}-{hi} um") })
-            .collect();
+        let places = group_places(&self.not_repeating, label);
         let values: Vec<f64> = self.not_repeating.iter().filter_map(|&i| self.group_rms_um[i]).collect();
         let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -148,12 +133,30 @@ impl Repeatability {
              No twin driven by the command can predict that part; those groups' waveform error cannot fall below it.",
             self.not_repeating.len(),
             if self.not_repeating.len() == 1 { "" } else { "s" },
-            places.join(", "),
+            places,
             lo * 1e3,
             hi * 1e3,
             self.floor_um * 1e3
         ))
     }
+}
+
+/// Groups named by command frequency for a person: "1 Hz at 7-11 um, 5 Hz at 3 um"
+/// (`label(i)` gives group `i`'s `(freq_hz, amp_um)`).
+pub fn group_places(groups: &[usize], label: impl Fn(usize) -> (f64, f64)) -> String {
+    let mut by_freq: Vec<(f64, f64, f64)> = Vec::new();
+    for &i in groups {
+        let (freq_hz, amp_um) = label(i);
+        match by_freq.iter_mut().find(|(f, _, _)| *f == freq_hz) {
+            Some(entry) => {
+                entry.1 = entry.1.min(amp_um);
+                entry.2 = entry.2.max(amp_um);
+            }
+            None => by_freq.push((freq_hz, amp_um, amp_um)),
+        }
+    }
+    let places: Vec<String> = by_freq.iter().map(|&(f, lo, hi)| if lo == hi { format!("{f} Hz at {lo} um") } else { format!("{f} Hz at {lo}-{hi} um") }).collect();
+    places.join(", ")
 }
 
 #[cfg(test)]

@@ -46,6 +46,9 @@ fn print_text(label: &str, c: &Comparison) {
     if let Some(text) = c.repeatability.describe(|i| (c.groups[i].freq_hz, c.groups[i].amp_um)) {
         println!("  not repeating: {text}");
     }
+    if let Some(text) = c.describe_acc_blind() {
+        println!("  accelerometer: {text}");
+    }
     println!("  worst groups:");
     for i in c.worst(5) {
         let g = &c.groups[i];

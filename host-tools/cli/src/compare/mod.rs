@@ -58,7 +58,13 @@ pub struct GroupComparison {
     pub residual_harmonics_um: Vec<f64>,
     /// Whether the program evaluated (a failed evaluation predicts zero, as the firmware holds).
     pub program_ok: bool,
+    /// The accelerometer's line at the command frequency over the RMS of the rest of its
+    /// signal, over the last second: below [`ACC_SNR_BLIND`] the features mostly see noise.
+    pub acc_snr: f64,
 }
+
+/// Accelerometer signal-to-noise ratio below which a group's features are mostly noise.
+pub const ACC_SNR_BLIND: f64 = 1.0;
 
 /// A spectral line of the residual that is not a harmonic of the command frequency.
 #[derive(Clone, Debug, Serialize)]
@@ -112,6 +118,36 @@ pub struct Comparison {
 }
 
 impl Comparison {
+    /// Groups whose accelerometer barely sees the motion (signal-to-noise below
+    /// [`ACC_SNR_BLIND`]).
+    pub fn acc_blind(&self) -> Vec<usize> {
+        self.groups.iter().filter(|g| g.acc_snr < ACC_SNR_BLIND).map(|g| g.index).collect()
+    }
+
+    /// One paragraph for a person when the accelerometer barely sees the motion in some groups.
+    pub fn describe_acc_blind(&self) -> Option<String> {
+        let blind = self.acc_blind();
+        if blind.is_empty() {
+            return None;
+        }
+        let positions: Vec<usize> = blind.iter().filter_map(|i| self.groups.iter().position(|g| g.index == *i)).collect();
+        let snr: Vec<f64> = positions.iter().map(|&p| self.groups[p].acc_snr).collect();
+        let (lo, hi) = (snr.iter().copied().fold(f64::INFINITY, f64::min), snr.iter().copied().fold(0.0, f64::max));
+        let ss = |g: &GroupComparison| g.waveform_rms_um * g.waveform_rms_um;
+        let share = positions.iter().map(|&p| ss(&self.groups[p])).sum::<f64>() / self.groups.iter().map(ss).sum::<f64>().max(1e-300);
+        Some(format!(
+            "in {} group{} ({}) its line at the command frequency is only {:.2}-{:.2} of the rest of its signal: \
+             it barely sees the motion there, the features are mostly noise and the formulas extrapolate. Those groups hold {:.0}% of the waveform error{}",
+            blind.len(),
+            if blind.len() == 1 { "" } else { "s" },
+            crate::analysis::repeat::group_places(&positions, |p| (self.groups[p].freq_hz, self.groups[p].amp_um)),
+            lo,
+            hi,
+            share * 100.0,
+            if share > blind.len() as f64 / self.groups.len() as f64 { "; a quieter sensor, or larger strokes at those frequencies, would help the twin there." } else { " (no more than their share of the groups)." }
+        ))
+    }
+
     /// Indices of the `n` worst groups by waveform RMS.
     pub fn worst(&self, n: usize) -> Vec<usize> {
         let mut order: Vec<usize> = (0..self.groups.len()).collect();
@@ -219,6 +255,8 @@ pub fn compare(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<(Comparis
             let measured_rms = (measured.iter().map(|m| m * m).sum::<f64>() / n).sqrt();
             let harmonics = (1..=MAX_ORDER).map(|k| line_amp(t, &residual, k as f64 * s.info.freq_hz)).collect();
             let spectrum = signals::amplitude_spectrum(&residual);
+            let acc_snr = crate::analysis::sine::fit_sine(t, &group.acc_mps2[start..], s.info.freq_hz)
+                .map_or(f64::NAN, |fit| if fit.residual_rms > 0.0 { fit.amp / fit.residual_rms } else { f64::INFINITY });
             let g = GroupComparison {
                 index: s.index,
                 file: s.info.file.clone(),
@@ -235,6 +273,7 @@ pub fn compare(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<(Comparis
                 residual_mean_um: mean,
                 residual_harmonics_um: harmonics,
                 program_ok: ok,
+                acc_snr,
             };
             (g, GroupWaves { t_s: t.to_vec(), measured_um: measured, predicted_um: predicted }, spectrum)
         })

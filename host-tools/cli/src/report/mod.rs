@@ -80,6 +80,9 @@ pub fn render(input: &ReportInput) -> String {
         let fall = 1.0 - c.waveform_rms_um / b.waveform_rms_um.max(1e-300);
         let _ = write!(h, "<p id=\"fall\">Waveform RMS error {} by {:.0}% against {}.</p>", if fall >= 0.0 { "falls" } else { "rises" }, fall.abs() * 100.0, esc(label));
     }
+    if let Some(text) = c.describe_acc_blind() {
+        let _ = write!(h, "<p id=\"acc-blind\"><b>Accelerometer:</b> {}</p>", esc(&text));
+    }
 
     // Diagnosis.
     if let Some(d) = input.diagnosis {

@@ -26,8 +26,8 @@
 //! Everything here is `f32` with `+ - * /` and the table sine, so host and target compute it
 //! bit for bit alike; it runs at low priority (see [`crate::servo::Models`]).
 
+use super::math::sin_turns;
 use super::{AxisError, AxisModel, AxisParams, AxisState};
-use crate::synth::sin_q31;
 
 /// Harmonic orders of the correction, of the command frequency (the fundamental first).
 pub const ORDERS: [u32; 2] = [1, 3];
@@ -54,8 +54,6 @@ const RESPONSE_AMP_NM: f32 = 10_000.0;
 const REMEASURE_FRACTION: i64 = 64;
 /// A quarter turn, u32 turns (a cosine from the sine table).
 const QUARTER_TURN: u32 = 1 << 30;
-/// 2^-31: a Q31 sine to a fraction.
-const Q31: f32 = 1.0 / 2_147_483_648.0;
 
 /// A complex amplitude `re + i im` of `re sin(h theta) + im cos(h theta)`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -91,7 +89,12 @@ impl Phasor {
 
 /// `sin` and `cos` of a phase in u32 turns, as fractions.
 fn sin_cos(turns: u32) -> (f32, f32) {
-    (sin_q31(turns) as f32 * Q31, sin_q31(turns.wrapping_add(QUARTER_TURN)) as f32 * Q31)
+    (sin_turns(turns), sin_turns(turns.wrapping_add(QUARTER_TURN)))
+}
+
+/// Command periods per tick for a phase step of `step_turns` per tick.
+fn periods_per_tick(step_turns: u32) -> f32 {
+    step_turns as f32 * (1.0 / 4_294_967_296.0)
 }
 
 /// Rounds to the nearest integer nanometre, saturating.
@@ -169,7 +172,7 @@ impl Compensator {
         // The command's fundamental, by a least-mean-squares fit of sine, cosine and mean.
         let (s1, c1) = trig[0];
         let residual_nm = cmd_pos_nm as f32 - (self.command_nm.re * s1 + self.command_nm.im * c1 + self.command_mean_nm);
-        let mu_command = COMMAND_TRACKING_PER_PERIOD * (self.step_turns as f32 * (1.0 / 4_294_967_296.0));
+        let mu_command = COMMAND_TRACKING_PER_PERIOD * periods_per_tick(self.step_turns);
         self.command_nm.re += 2.0 * mu_command * residual_nm * s1;
         self.command_nm.im += 2.0 * mu_command * residual_nm * c1;
         self.command_mean_nm += mu_command * residual_nm;
@@ -204,11 +207,11 @@ impl Compensator {
             }
         }
         // mu per tick: the fraction per period over the ticks of a period.
-        let mut mu = LEARNING_PER_PERIOD * (step as f32 * (1.0 / 4_294_967_296.0));
+        let mut mu = LEARNING_PER_PERIOD * periods_per_tick(step);
         // A batch of more than a period (a long feature window spaces the model updates up
         // to 800 ticks, 4 periods at 40 Hz) removes that fraction once: at the per-tick rate
         // it would remove 2.4 times the error per batch and diverge.
-        let periods_summed = summed_ticks as f32 * (step as f32 * (1.0 / 4_294_967_296.0));
+        let periods_summed = summed_ticks as f32 * periods_per_tick(step);
         if periods_summed > 1.0 {
             mu /= periods_summed;
         }

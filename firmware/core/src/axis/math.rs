@@ -2,7 +2,16 @@
 //! in IEEE arithmetic), so that the host and every target compute
 //! them bit for bit alike (`libm`'s exponential is not guaranteed to agree to the last bit
 //! with another implementation, and `micromath`'s approximations are too coarse near zero
-//! for a friction law).
+//! for a friction law), and the synthesiser's table sine as a fraction.
+
+/// 2^-31: a Q31 sine to a fraction.
+const Q31: f32 = 1.0 / 2_147_483_648.0;
+
+/// `sin` of a phase in u32 turns, as a fraction (the synthesiser's table sine).
+#[inline(always)]
+pub fn sin_turns(turns: u32) -> f32 {
+    crate::synth::sin_q31(turns) as f32 * Q31
+}
 
 /// Entries of the `exp(-x)` table per unit of `x`, and its extent.
 const EXP_STEPS_PER_UNIT: f32 = 32.0;

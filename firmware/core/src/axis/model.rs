@@ -1,9 +1,8 @@
 //! The coefficients of an activated axis twin and its per-tick state.
 
 use super::discretise::{zoh, Continuous};
-use super::math::{exp_neg, smooth_sign};
+use super::math::{exp_neg, sin_turns, smooth_sign};
 use super::{AxisError, AxisParams, MAX_CMD_DELAY_TICKS};
-use crate::synth::sin_q31;
 
 /// Servo tick, s.
 const TICK_S: f64 = 1.0 / 8000.0;
@@ -15,8 +14,6 @@ const DIVERGED_M: f32 = 1e-3;
 /// feedforward takes, so the ring index is a mask).
 const HISTORY: usize = 16;
 const _: () = assert!(HISTORY >= MAX_CMD_DELAY_TICKS as usize + 3 && HISTORY.is_power_of_two());
-/// 2^-31: a Q31 sine to a fraction.
-const Q31: f32 = 1.0 / 2_147_483_648.0;
 
 /// Single-precision coefficients of an axis twin, computed once when a program is
 /// activated (the discretisation runs in f64; on the firmware in software, at low priority).
@@ -214,7 +211,7 @@ impl AxisModel {
             let (a1, a2, turns_per_nm, phase) = self.ripple;
             let x_nm = r_nm.wrapping_sub((st.w * 1e9) as i32);
             let theta = (x_nm as u32).wrapping_mul(turns_per_nm).wrapping_add(phase);
-            e -= a1 * (sin_q31(theta) as f32 * Q31) + a2 * (sin_q31(theta.wrapping_mul(2)) as f32 * Q31);
+            e -= a1 * sin_turns(theta) + a2 * sin_turns(theta.wrapping_mul(2));
         }
         st.integral += self.ki_t * e;
         let u = self.kp * e + st.integral + self.kd_t * (e - st.e_prev) + self.vff_t * dr_m + self.aff_t2 * ddr_m;

@@ -40,12 +40,11 @@ pub struct GroupSample {
 /// another (said on standard error).
 pub fn read_dataset(dir: &std::path::Path) -> anyhow::Result<Dataset> {
     let dataset = sts_dataset::read(dir)?;
-    let rate_hz = dataset.manifest.sample_rate_hz;
-    if rate_hz == resample::SERVO_RATE_HZ {
-        return Ok(dataset);
+    if let std::borrow::Cow::Owned(resampled) = resample::to_servo_rate(&dataset) {
+        eprintln!("note: {} is sampled at {} Hz; resampled to the co-processor's servo rate, {} Hz", dir.display(), dataset.manifest.sample_rate_hz, resample::SERVO_RATE_HZ);
+        return Ok(resampled);
     }
-    eprintln!("note: {} is sampled at {rate_hz} Hz; resampled to the co-processor's servo rate, {} Hz", dir.display(), resample::SERVO_RATE_HZ);
-    Ok(resample::resample(&dataset, resample::SERVO_RATE_HZ))
+    Ok(dataset)
 }
 
 /// The feature configuration for a dataset: the firmware's defaults with the dataset's

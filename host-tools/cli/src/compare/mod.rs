@@ -118,19 +118,18 @@ pub struct Comparison {
 }
 
 impl Comparison {
-    /// Groups whose accelerometer barely sees the motion (signal-to-noise below
-    /// [`ACC_SNR_BLIND`]).
+    /// Positions in `groups` of the groups whose accelerometer barely sees the motion
+    /// (signal-to-noise below [`ACC_SNR_BLIND`]), as [`Comparison::worst`] gives them.
     pub fn acc_blind(&self) -> Vec<usize> {
-        self.groups.iter().filter(|g| g.acc_snr < ACC_SNR_BLIND).map(|g| g.index).collect()
+        (0..self.groups.len()).filter(|&i| self.groups[i].acc_snr < ACC_SNR_BLIND).collect()
     }
 
     /// One paragraph for a person when the accelerometer barely sees the motion in some groups.
     pub fn describe_acc_blind(&self) -> Option<String> {
-        let blind = self.acc_blind();
-        if blind.is_empty() {
+        let positions = self.acc_blind();
+        if positions.is_empty() {
             return None;
         }
-        let positions: Vec<usize> = blind.iter().filter_map(|i| self.groups.iter().position(|g| g.index == *i)).collect();
         let snr: Vec<f64> = positions.iter().map(|&p| self.groups[p].acc_snr).collect();
         let (lo, hi) = (snr.iter().copied().fold(f64::INFINITY, f64::min), snr.iter().copied().fold(0.0, f64::max));
         let ss = |g: &GroupComparison| g.waveform_rms_um * g.waveform_rms_um;
@@ -138,13 +137,13 @@ impl Comparison {
         Some(format!(
             "in {} group{} ({}) its line at the command frequency is only {:.2}-{:.2} of the rest of its signal: \
              it barely sees the motion there, the features are mostly noise and the formulas extrapolate. Those groups hold {:.0}% of the waveform error{}",
-            blind.len(),
-            if blind.len() == 1 { "" } else { "s" },
+            positions.len(),
+            if positions.len() == 1 { "" } else { "s" },
             crate::analysis::repeat::group_places(&positions, |p| (self.groups[p].freq_hz, self.groups[p].amp_um)),
             lo,
             hi,
             share * 100.0,
-            if share > blind.len() as f64 / self.groups.len() as f64 { "; a quieter sensor, or larger strokes at those frequencies, would help the twin there." } else { " (no more than their share of the groups)." }
+            if share > positions.len() as f64 / self.groups.len() as f64 { "; a quieter sensor, or larger strokes at those frequencies, would help the twin there." } else { " (no more than their share of the groups)." }
         ))
     }
 

@@ -10,9 +10,8 @@ use std::path::{Path, PathBuf};
 fn main() {
     let manifest = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
     let out = PathBuf::from(std::env::var("OUT_DIR").unwrap());
-    let link_x = find_cortex_m_rt_link_x(&out).expect(
-        "cortex-m-rt's generated link.x not found next to this build script's output directory",
-    );
+    let link_x = find_cortex_m_rt_link_x(&out)
+        .expect("cortex-m-rt's generated link.x not found next to this build script's output directory");
     let text = std::fs::read_to_string(&link_x).unwrap();
     assert!(text.contains("INCLUDE memory.x"), "{} has no `INCLUDE memory.x`", link_x.display());
     let text = text.replace("INCLUDE memory.x", "INCLUDE memory-stm32h743zi.x");

@@ -60,7 +60,11 @@ pub mod twin {
 
     /// Feedforward parameters with [`ENABLE_RAMP_TICKS`] and a 0.05 V per tick slew limit.
     pub fn params() -> FeedforwardParams {
-        FeedforwardParams { enable_ramp_ticks: ENABLE_RAMP_TICKS, slew_v_per_tick: 0.05, ..FeedforwardParams::default() }
+        FeedforwardParams {
+            enable_ramp_ticks: ENABLE_RAMP_TICKS,
+            slew_v_per_tick: 0.05,
+            ..FeedforwardParams::default()
+        }
     }
 
     /// amp = gain * RMS (um per m/s^2), phase = -0.2 * f1 degrees.

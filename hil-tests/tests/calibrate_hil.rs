@@ -5,7 +5,9 @@
 
 use std::path::{Path, PathBuf};
 
-use sts_twin::calibrate::{calibrate, enable_check, Board, BootState, CalibrationConfig, HilBoard, Machine, PlantParams, RestRig};
+use sts_twin::calibrate::{
+    calibrate, enable_check, Board, BootState, CalibrationConfig, HilBoard, Machine, PlantParams, RestRig,
+};
 use sts_twin::hil::board::qemu::{CONFIG_OFFSET, CONFIG_SLOT_BYTES};
 use sts_twin::hil::HilConfig;
 use sts_twin::rig::{expect_ack, Coprocessor, SimCoprocessor};
@@ -18,7 +20,8 @@ struct BusPath(PathBuf);
 
 impl BusPath {
     fn new(name: &str) -> Self {
-        let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
+        let nanos =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
         Self(std::env::temp_dir().join(format!("sts-twin-{name}-{}-{nanos}.bus", std::process::id())))
     }
 }
@@ -30,7 +33,8 @@ impl Drop for BusPath {
 }
 
 fn boot(bus: &Path) -> HilBoard {
-    HilBoard::start(HilConfig { bus_path: Some(bus.to_path_buf()), ..sts_hil_tests::twin_config() }).expect("the twin firmware boots in QEMU")
+    HilBoard::start(HilConfig { bus_path: Some(bus.to_path_buf()), ..sts_hil_tests::twin_config() })
+        .expect("the twin firmware boots in QEMU")
 }
 
 /// The board's A/B config store (see `sts_twin_board::config`): 32-byte header (magic,
@@ -103,7 +107,8 @@ fn calibration_in_qemu_is_stored_reloaded_and_enabling_moves_less_than_a_pulse()
     expect_ack("params", board.request(Request::SetParams(uncalibrated)).unwrap()).unwrap();
     let mut machine = Machine::new(&plant, &[], 3).unwrap();
     let mut rig = RestRig::new(&mut board, &mut machine, 10.0, 0);
-    let check = enable_check(&mut rig, plant.interface.pulse_nm, uncalibrated.enable_ramp_ticks, &config.enable).unwrap();
+    let check =
+        enable_check(&mut rig, plant.interface.pulse_nm, uncalibrated.enable_ramp_ticks, &config.enable).unwrap();
     assert_eq!(check.added_pulses_max, 24, "{check:?}");
     assert!(check.tcp_true_move_nm > 20.0 * plant.interface.pulse_nm, "{check:?}");
     assert!(!check.passed());
@@ -121,7 +126,12 @@ fn calibration_in_qemu_is_stored_reloaded_and_enabling_moves_less_than_a_pulse()
 fn a_corrupt_config_store_boots_on_safe_defaults_and_is_reported() {
     let _serial = sts_hil_tests::serial();
     let bus = BusPath::new("corrupt");
-    let calibrated = FeedforwardParams { offset_v: 0.0119, k_dv_um_per_v: 2.0, k_vc_pulses_per_v: 2000.0, ..FeedforwardParams::default() };
+    let calibrated = FeedforwardParams {
+        offset_v: 0.0119,
+        k_dv_um_per_v: 2.0,
+        k_vc_pulses_per_v: 2000.0,
+        ..FeedforwardParams::default()
+    };
     let mut board = boot(&bus.0);
     expect_ack("params", board.request(Request::SetParams(calibrated)).unwrap()).unwrap();
     expect_ack("save", board.request(Request::SaveConfig).unwrap()).unwrap();

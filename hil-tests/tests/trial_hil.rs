@@ -21,7 +21,10 @@ fn model() -> ModelFile {
 }
 
 fn same_cut(a: &TrialReport, b: &TrialReport) -> bool {
-    a.form_error_pv_um == b.form_error_pv_um && a.phase_error_deg == b.phase_error_deg && a.form_error_rms_um == b.form_error_rms_um && a.points == b.points
+    a.form_error_pv_um == b.form_error_pv_um
+        && a.phase_error_deg == b.phase_error_deg
+        && a.form_error_rms_um == b.form_error_rms_um
+        && a.points == b.points
 }
 
 /// The 40 Hz cut on the machine with `effects` (seed 1), the analogue path measured through
@@ -60,7 +63,13 @@ fn at_40_hz_the_twin_in_qemu_removes_over_90_percent_of_the_form_error() {
     let bare = bare_cut(&[]);
     let with_hil = cut_in_qemu_as_on_the_host(&[], &model());
     let reduction = 1.0 - with_hil.form_error_pv_um / bare.form_error_pv_um;
-    assert!(reduction >= 0.90, "form error {:.3} -> {:.3} um: only {:.1}% less", bare.form_error_pv_um, with_hil.form_error_pv_um, 100.0 * reduction);
+    assert!(
+        reduction >= 0.90,
+        "form error {:.3} -> {:.3} um: only {:.1}% less",
+        bare.form_error_pv_um,
+        with_hil.form_error_pv_um,
+        100.0 * reduction
+    );
     assert!(with_hil.phase_error_deg.abs() < 0.3, "phase error {:.3} deg", with_hil.phase_error_deg);
     assert!(bare.phase_error_deg > 5.0, "the bare machine lags {:.2} deg", bare.phase_error_deg);
     assert_eq!(with_hil.fault_count, 0);
@@ -78,7 +87,8 @@ fn the_axis_coupling_term_removes_the_spindle_error_in_the_cut() {
     let (without_term, _) = cut(&mut SimCoprocessor::boot(&[]), &effects, &model());
     let with_hil = cut_in_qemu_as_on_the_host(&effects, &fixture("twin-axis-coupling.json"));
     assert!(
-        with_hil.form_error_rms_um < 0.5 * without_term.form_error_rms_um && with_hil.form_error_pv_um < 0.7 * without_term.form_error_pv_um,
+        with_hil.form_error_rms_um < 0.5 * without_term.form_error_rms_um
+            && with_hil.form_error_pv_um < 0.7 * without_term.form_error_pv_um,
         "with the term {:.3} um PV / {:.3} um RMS, without {:.3} / {:.3}",
         with_hil.form_error_pv_um,
         with_hil.form_error_rms_um,

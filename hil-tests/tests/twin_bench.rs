@@ -26,7 +26,9 @@ use sts_twin::rig::request_on;
 use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
 use sts_twin_core::features::{FeatureConfig, BLOCK_SAMPLES};
 use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::program::{paper_program, Program, ProgramError, TermInput, TickTerm, LAGUERRE_STAGES, TICK_BUDGET_INSTRUCTIONS};
+use sts_twin_core::program::{
+    paper_program, Program, ProgramError, TermInput, TickTerm, LAGUERRE_STAGES, TICK_BUDGET_INSTRUCTIONS,
+};
 use sts_twin_core::servo::{ModelTiming, ServoConfig};
 use sts_twin_core::wire::{Request, Response};
 
@@ -69,9 +71,19 @@ fn axis_coupling() -> TickTerm {
 /// smoothing velocities above the ramp's, so both exponentials run their full series.
 fn axis(friction: bool, hysteresis: bool, ripple: bool) -> TickTerm {
     TickTerm::Axis(AxisParams {
-        friction: friction.then_some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 0.5, smooth_mps: 0.1 }),
+        friction: friction.then_some(Friction {
+            coulomb_mps2: 0.067,
+            static_mps2: 0.1,
+            stribeck_mps: 0.5,
+            smooth_mps: 0.1,
+        }),
         hysteresis: hysteresis.then_some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 }),
-        ripple: ripple.then_some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_383, phase_turns: 1 << 29 }),
+        ripple: ripple.then_some(Ripple {
+            amp_nm: 50.0,
+            harmonic2_nm: 8.0,
+            turns_per_nm: 810_383,
+            phase_turns: 1 << 29,
+        }),
         ..sts_twin_core::axis::default_machine()
     })
 }
@@ -206,7 +218,8 @@ fn report(name: &str, window_samples: u32, run: &Run) {
         run.busy_max
     );
     for kind in [Kind::Settled, Kind::Ramping, Kind::BlockStart, Kind::BlockEnd, Kind::Request, Kind::Apply] {
-        let mut of_kind: Vec<f64> = run.busy.iter().zip(&run.kinds).filter(|(_, k)| **k == kind).map(|(b, _)| *b).collect();
+        let mut of_kind: Vec<f64> =
+            run.busy.iter().zip(&run.kinds).filter(|(_, k)| **k == kind).map(|(b, _)| *b).collect();
         if of_kind.is_empty() {
             continue;
         }
@@ -216,7 +229,11 @@ fn report(name: &str, window_samples: u32, run: &Run) {
         println!("    {kind:?}: {} ticks, median {median:.0}, worst {worst:.0}", of_kind.len());
     }
     let (worst_tick, worst) = run.busy.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).expect("ticks");
-    println!("    worst tick {worst_tick} ({:?}, tick mod 16 = {}): {worst:.0}", run.kinds[worst_tick], worst_tick % 16);
+    println!(
+        "    worst tick {worst_tick} ({:?}, tick mod 16 = {}): {worst:.0}",
+        run.kinds[worst_tick],
+        worst_tick % 16
+    );
 }
 
 /// Measures `terms` on the paper program under both windows and checks the worst tick
@@ -298,11 +315,27 @@ fn bench_twin_tick_program_switch() {
     let mut three_and_bank = harmonics(3);
     three_and_bank.insert(0, position_sine(0));
     let cases = [
-        ("8 harmonic terms, then 2 Laguerre banks", program_with(&harmonics(8)), program_with(&[position_sine(0), position_sine(1 << 30)])),
-        ("1 Laguerre bank + 3 harmonic terms, then the bank + Drift", program_with(&three_and_bank), program_with(&[position_sine(0), drift()])),
-        ("1 Laguerre bank + 3 harmonic terms, then Dahl + Drift", program_with(&three_and_bank), program_with(&[dahl(), drift()])),
+        (
+            "8 harmonic terms, then 2 Laguerre banks",
+            program_with(&harmonics(8)),
+            program_with(&[position_sine(0), position_sine(1 << 30)]),
+        ),
+        (
+            "1 Laguerre bank + 3 harmonic terms, then the bank + Drift",
+            program_with(&three_and_bank),
+            program_with(&[position_sine(0), drift()]),
+        ),
+        (
+            "1 Laguerre bank + 3 harmonic terms, then Dahl + Drift",
+            program_with(&three_and_bank),
+            program_with(&[dahl(), drift()]),
+        ),
         ("Dahl + Drift, then 8 harmonic terms", program_with(&[dahl(), drift()]), program_with(&harmonics(8))),
-        ("8 harmonic terms, then the axis twin with friction", program_with(&harmonics(8)), program_with(&[axis(true, false, false)])),
+        (
+            "8 harmonic terms, then the axis twin with friction",
+            program_with(&harmonics(8)),
+            program_with(&[axis(true, false, false)]),
+        ),
     ];
     for (name, first, second) in cases {
         switch(name, &first, &second);

@@ -9,11 +9,16 @@
 
 use std::time::{Duration, Instant};
 
-use sts_twin::rig::{expect_ack, fault_report, Coprocessor, FrameInjector, HilCoprocessor, LinkFaults, LossyHilCoprocessor, RetryPolicy, SimCoprocessor};
+use sts_twin::rig::{
+    expect_ack, fault_report, Coprocessor, FrameInjector, HilCoprocessor, LinkFaults, LossyHilCoprocessor, RetryPolicy,
+    SimCoprocessor,
+};
 use sts_twin_core::bus::{InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_MODEL_ACTIVE};
 use sts_twin_core::feedforward::{Feedforward, FeedforwardParams, ParamError};
 use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
-use sts_twin_core::servo::{ModelTiming, ServoConfig, DEGRADED_MODEL, DEGRADED_NO_INPUT, DEGRADED_SATURATED, DEGRADED_STUCK};
+use sts_twin_core::servo::{
+    ModelTiming, ServoConfig, DEGRADED_MODEL, DEGRADED_NO_INPUT, DEGRADED_SATURATED, DEGRADED_STUCK,
+};
 use sts_twin_core::wire::{Rejection, Request, Response, Status};
 
 use sts_hil_tests::twin::{boot, configure, params, program, status, ENABLE_RAMP_TICKS as RAMP, WINDOW};
@@ -66,7 +71,12 @@ impl Stream {
     }
 
     /// `ticks` ticks of the clean input, with `fault(offset, input)` applied to each.
-    fn run(&mut self, hil: &mut HilCoprocessor, ticks: u32, mut fault: impl FnMut(u32, &mut InputSlot)) -> Vec<OutputSlot> {
+    fn run(
+        &mut self,
+        hil: &mut HilCoprocessor,
+        ticks: u32,
+        mut fault: impl FnMut(u32, &mut InputSlot),
+    ) -> Vec<OutputSlot> {
         let first = self.next;
         if let Some(oracle) = &mut self.oracle {
             self.clean = (first..first + ticks).map(|k| oracle.tick(&input(k)).unwrap()).collect();
@@ -89,7 +99,13 @@ impl Stream {
             assert_eq!(o.tick, self.next, "ticks out of order");
             if let Some(prev) = self.last_dac {
                 let step = (i32::from(o.dac_code) - i32::from(prev)).abs();
-                assert!(step <= self.limit, "DAC step {prev} -> {} at tick {} beyond the slew limit {}", o.dac_code, o.tick, self.limit);
+                assert!(
+                    step <= self.limit,
+                    "DAC step {prev} -> {} at tick {} beyond the slew limit {}",
+                    o.dac_code,
+                    o.tick,
+                    self.limit
+                );
             }
             self.last_dac = Some(o.dac_code);
             self.next += 1;
@@ -107,13 +123,21 @@ fn peak_dac(outputs: &[OutputSlot]) -> i32 {
 
 /// Compensating: trusted inputs, a model in force and a DAC that moves.
 fn assert_compensating(outputs: &[OutputSlot], what: &str) {
-    assert!(outputs.iter().all(|o| !degraded(o) && o.flags & OUT_FLAG_MODEL_ACTIVE != 0), "{what}: not compensating: {:?}", outputs.iter().find(|o| degraded(o) || o.flags & OUT_FLAG_MODEL_ACTIVE == 0));
+    assert!(
+        outputs.iter().all(|o| !degraded(o) && o.flags & OUT_FLAG_MODEL_ACTIVE != 0),
+        "{what}: not compensating: {:?}",
+        outputs.iter().find(|o| degraded(o) || o.flags & OUT_FLAG_MODEL_ACTIVE == 0)
+    );
     assert!(peak_dac(outputs) > 500, "{what}: the DAC does not compensate (peak {})", peak_dac(outputs));
 }
 
 /// Ramped to zero compensation (offset 0 V: DAC code 0), flagged degraded.
 fn assert_ramped_out(outputs: &[OutputSlot], what: &str) {
-    assert!(outputs.iter().all(|o| degraded(o) && o.dac_code == 0), "{what}: not ramped out: {:?}", outputs.iter().find(|o| !degraded(o) || o.dac_code != 0));
+    assert!(
+        outputs.iter().all(|o| degraded(o) && o.dac_code == 0),
+        "{what}: not ramped out: {:?}",
+        outputs.iter().find(|o| !degraded(o) || o.dac_code != 0)
+    );
 }
 
 /// QEMU still runs, the firmware logged no error (panic, HardFault), and QEMU is ended.
@@ -215,12 +239,21 @@ fn accelerometer_faults_ramp_compensation_out_and_it_resumes() {
         // A healthy code that happens to equal the stuck one prolongs the fault.
         let still_bad = (stream.next - 3200..).take_while(|&k| input(k).acc_code == last_bad).count();
         let resumed = recovery.iter().position(|o| !degraded(o)).unwrap_or(recovery.len());
-        assert_eq!(resumed, still_bad + recovery_ticks() as usize - 1, "{what}: trusted again after {resumed} healthy ticks");
+        assert_eq!(
+            resumed,
+            still_bad + recovery_ticks() as usize - 1,
+            "{what}: trusted again after {resumed} healthy ticks"
+        );
         assert!(recovery[resumed..].iter().all(|o| !degraded(o)), "{what}: degraded again after resuming");
         // From then on the prediction is the fault-free one, bit for bit: nothing of the
         // faulty samples is left in it.
         for (k, (got, clean)) in recovery.iter().zip(&stream.clean).enumerate().skip(resumed) {
-            assert_eq!(got.de_pred_pm, clean.de_pred_pm, "{what}: {} ticks after resuming the prediction still differs from the fault-free one", k - resumed);
+            assert_eq!(
+                got.de_pred_pm,
+                clean.de_pred_pm,
+                "{what}: {} ticks after resuming the prediction still differs from the fault-free one",
+                k - resumed
+            );
         }
         assert_compensating(&recovery[recovery.len() - 400..], what);
         let after = status(&mut hil);
@@ -248,7 +281,8 @@ fn model_and_parameter_faults_are_rejected_or_ramped_out_and_counted() {
     assert_reported(&s, "no twin model is active");
 
     // A model arrives: compensation starts (ramping, checked by `run`).
-    expect_ack("upload", hil.request(Request::UploadProgram { program: program(71, 2.0), activate: true }).unwrap()).unwrap();
+    expect_ack("upload", hil.request(Request::UploadProgram { program: program(71, 2.0), activate: true }).unwrap())
+        .unwrap();
     let on = stream.run(&mut hil, 3000, |_, _| {});
     assert_compensating(&on[2200..], "with a model");
 
@@ -279,7 +313,11 @@ fn model_and_parameter_faults_are_rejected_or_ramped_out_and_counted() {
 
     // A model that validates but evaluates to infinity: every evaluation is a fault, the
     // prediction ramps out, flagged.
-    expect_ack("upload", hil.request(Request::UploadProgram { program: non_finite_program(77), activate: true }).unwrap()).unwrap();
+    expect_ack(
+        "upload",
+        hil.request(Request::UploadProgram { program: non_finite_program(77), activate: true }).unwrap(),
+    )
+    .unwrap();
     let bad_model = stream.run(&mut hil, 2400, |_, _| {});
     let flagged = bad_model.iter().position(degraded).expect("a failing model is flagged");
     assert!(flagged as u32 <= timing().interval_ticks + timing().latency_ticks, "flagged only after {flagged} ticks");
@@ -290,7 +328,8 @@ fn model_and_parameter_faults_are_rejected_or_ramped_out_and_counted() {
     assert_reported(&s, "model's last evaluation failed");
     assert_reported(&s, "failed model evaluations");
     // A good model again: compensation resumes.
-    expect_ack("upload", hil.request(Request::UploadProgram { program: program(78, 2.0), activate: true }).unwrap()).unwrap();
+    expect_ack("upload", hil.request(Request::UploadProgram { program: program(78, 2.0), activate: true }).unwrap())
+        .unwrap();
     let good = stream.run(&mut hil, 3000, |_, _| {});
     assert_compensating(&good[2200..], "after the failing model was replaced");
     let s = status(&mut hil);
@@ -301,7 +340,11 @@ fn model_and_parameter_faults_are_rejected_or_ramped_out_and_counted() {
     let before = status(&mut hil);
     for k_dv in [0.0, -0.0, f32::NAN, f32::INFINITY] {
         let bad = FeedforwardParams { k_dv_um_per_v: k_dv, ..params() };
-        assert_eq!(hil.request(Request::SetParams(bad)).unwrap(), Response::Rejected(Rejection::Params(ParamError::KDv)), "K_dv = {k_dv}");
+        assert_eq!(
+            hil.request(Request::SetParams(bad)).unwrap(),
+            Response::Rejected(Rejection::Params(ParamError::KDv)),
+            "K_dv = {k_dv}"
+        );
         let running = stream.run(&mut hil, 400, |_, _| {});
         assert_compensating(&running, &format!("after K_dv = {k_dv}"));
     }
@@ -314,7 +357,11 @@ fn model_and_parameter_faults_are_rejected_or_ramped_out_and_counted() {
     expect_ack("clear", hil.request(Request::ClearProgram).unwrap()).unwrap();
     let cleared = stream.run(&mut hil, 2000, |_, _| {});
     let tail = &cleared[1400..];
-    assert!(tail.iter().all(|o| o.dac_code == 0 && o.flags & OUT_FLAG_MODEL_ACTIVE == 0), "{:?}", tail.iter().find(|o| o.dac_code != 0));
+    assert!(
+        tail.iter().all(|o| o.dac_code == 0 && o.flags & OUT_FLAG_MODEL_ACTIVE == 0),
+        "{:?}",
+        tail.iter().find(|o| o.dac_code != 0)
+    );
     assert_reported(&status(&mut hil), "no twin model is active");
     finish(hil);
 }
@@ -382,9 +429,14 @@ fn a_lossy_control_link_loses_no_request() {
         for _ in 0..REQUESTS {
             probe.pass(&mut [1, 2, 3]);
         }
-        assert!(probe.counts().dropped >= 1 && probe.counts().corrupted >= 1, "seed {SEED} ({direction}): {:?}", probe.counts());
+        assert!(
+            probe.counts().dropped >= 1 && probe.counts().corrupted >= 1,
+            "seed {SEED} ({direction}): {:?}",
+            probe.counts()
+        );
     }
-    let mut lossy = LossyHilCoprocessor::new(boot(), LinkFaults::TYPICAL, LinkFaults::TYPICAL, SEED, RetryPolicy::default());
+    let mut lossy =
+        LossyHilCoprocessor::new(boot(), LinkFaults::TYPICAL, LinkFaults::TYPICAL, SEED, RetryPolicy::default());
     configure(&mut lossy, Some(program(91, 2.0)));
     let mut stream = Stream::new();
     let mut expected_offset_v = 0.0f32;
@@ -409,7 +461,10 @@ fn a_lossy_control_link_loses_no_request() {
     let stats = lossy.stats();
     let (inbound, outbound) = (lossy.inbound(), lossy.outbound());
     assert_eq!(stats.requests, u64::from(REQUESTS) + 4);
-    assert!(inbound.dropped >= 1 && inbound.corrupted >= 1 && outbound.dropped >= 1 && outbound.corrupted >= 1, "{inbound:?} {outbound:?}");
+    assert!(
+        inbound.dropped >= 1 && inbound.corrupted >= 1 && outbound.dropped >= 1 && outbound.corrupted >= 1,
+        "{inbound:?} {outbound:?}"
+    );
     // Each lost or damaged request costs at least one retry.
     assert!(stats.attempts - stats.requests >= inbound.dropped + inbound.corrupted, "{stats:?} {inbound:?}");
     // Read past the lossy link: the firmware counted every damaged frame it got.

@@ -26,7 +26,13 @@ fn input_with_axes(k: u32) -> InputSlot {
 /// The test program plus an axis-coupling term (0.5 um per m/s^2, 80 nm once per revolution).
 fn program_with_coupling(id: u32) -> sts_twin_core::program::Program {
     let mut p = program(id, 2.0);
-    p.terms.push(TickTerm::AxisCoupling { x_gain_pm_per_mps2: 500_000, spindle_amp_pm: 80_000, spindle_phase_turns: 1 << 30 }).unwrap();
+    p.terms
+        .push(TickTerm::AxisCoupling {
+            x_gain_pm_per_mps2: 500_000,
+            spindle_amp_pm: 80_000,
+            spindle_phase_turns: 1 << 30,
+        })
+        .unwrap();
     p
 }
 
@@ -42,7 +48,11 @@ fn dac_codes_are_bit_identical_to_the_host_core() {
     // The other axes' words matter: without them the same core predicts something else.
     let mut still = SimCoprocessor::boot(&[]);
     configure(&mut still, Some(program_with_coupling(11)));
-    let differing = (0..24_000).map(input).zip(&expected).filter(|(i, e)| still.tick(i).unwrap().de_pred_pm != e.de_pred_pm).count();
+    let differing = (0..24_000)
+        .map(input)
+        .zip(&expected)
+        .filter(|(i, e)| still.tick(i).unwrap().de_pred_pm != e.de_pred_pm)
+        .count();
     assert!(differing > 20_000, "the axis-coupling term changed only {differing} predictions");
 
     let mut hil = boot();
@@ -71,9 +81,15 @@ fn the_axis_twin_is_bit_identical_to_the_host_core() {
     let _serial = sts_hil_tests::serial();
     let axis = sts_twin_core::axis::default_machine();
     let variants = [
-        AxisParams { friction: Some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 }), ..axis },
+        AxisParams {
+            friction: Some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 }),
+            ..axis
+        },
         AxisParams { hysteresis: Some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 }), ..axis },
-        AxisParams { ripple: Some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_383, phase_turns: 1 << 29 }), ..axis },
+        AxisParams {
+            ripple: Some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_383, phase_turns: 1 << 29 }),
+            ..axis
+        },
     ];
     let inputs: Vec<InputSlot> = (0..8000).map(input).collect();
     for (i, params) in variants.into_iter().enumerate() {
@@ -95,7 +111,12 @@ fn the_axis_twin_is_bit_identical_to_the_host_core() {
         let mut plain = SimCoprocessor::boot(&[]);
         configure(&mut plain, Some(program(61 + i as u32, 2.0)));
         let without: Vec<OutputSlot> = inputs.iter().map(|i| plain.tick(i).unwrap()).collect();
-        let most = expected.iter().zip(&without).map(|(a, b)| (i64::from(a.de_pred_pm) - i64::from(b.de_pred_pm)).abs()).max().unwrap();
+        let most = expected
+            .iter()
+            .zip(&without)
+            .map(|(a, b)| (i64::from(a.de_pred_pm) - i64::from(b.de_pred_pm)).abs())
+            .max()
+            .unwrap();
         assert!(most > 500_000, "{params:?}: the correction adds at most {most} pm");
     }
 }
@@ -112,7 +133,8 @@ fn uploads_change_the_prediction_and_malformed_programs_are_rejected() {
     let before = status(&mut hil);
     assert_eq!(before.program_id, Some(21));
 
-    expect_ack("upload", hil.request(Request::UploadProgram { program: program(22, 3.0), activate: true }).unwrap()).unwrap();
+    expect_ack("upload", hil.request(Request::UploadProgram { program: program(22, 3.0), activate: true }).unwrap())
+        .unwrap();
     let inputs: Vec<InputSlot> = (6000..12_000).map(input).collect();
     hil.hil().run_open_loop(&inputs).unwrap();
     let after = status(&mut hil);
@@ -176,7 +198,12 @@ fn a_million_ticks_without_a_fault_or_a_missed_tick() {
         })
         .expect("stream of a million ticks");
     assert_eq!(served, 1_000_000);
-    assert_eq!(first_bad, None, "a tick was missed, out of order or faulty (expected tick {next}); {:?}", status(&mut hil).counters);
+    assert_eq!(
+        first_bad,
+        None,
+        "a tick was missed, out of order or faulty (expected tick {next}); {:?}",
+        status(&mut hil).counters
+    );
     let s = status(&mut hil);
     assert_eq!(s.counters.ticks, 1_000_000);
     assert_eq!(s.counters.bus_underruns, 0);
@@ -201,7 +228,12 @@ fn offset_changes_and_enable_never_step_the_dac() {
         k += ticks;
         for o in hil.hil().run_open_loop(&inputs).unwrap() {
             if let Some(prev) = last {
-                assert!((o.dac_code as i32 - prev as i32).abs() <= limit, "step {prev} -> {} at tick {}", o.dac_code, o.tick);
+                assert!(
+                    (o.dac_code as i32 - prev as i32).abs() <= limit,
+                    "step {prev} -> {} at tick {}",
+                    o.dac_code,
+                    o.tick
+                );
             }
             last = Some(o.dac_code);
         }

@@ -28,16 +28,16 @@ use defmt_semihosting as _;
 use embassy_executor::InterruptExecutor;
 #[cfg(feature = "bringup")]
 use sts_twin_board::bringup::{BringUpBackground, BringUpServo, BringUpShared};
-#[cfg(not(feature = "bringup"))]
-use sts_twin_board::twin::{TwinBackground, TwinServo, TwinShared};
 use sts_twin_board::bus::{BusAdc, BusDac, BusView};
 use sts_twin_board::config::{AbStore, MemoryMedium};
 use sts_twin_board::qemu::{self, DIAG_WORDS};
 use sts_twin_board::servo::{
-    background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickResult, TickState,
-    EVENT_CONTROL_RX, EVENT_MODEL_WORK, EVENT_UNDERRUN,
+    background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickResult, TickState, EVENT_CONTROL_RX,
+    EVENT_MODEL_WORK, EVENT_UNDERRUN,
 };
 use sts_twin_board::sync::{BootCell, Events, SharedCell};
+#[cfg(not(feature = "bringup"))]
+use sts_twin_board::twin::{TwinBackground, TwinServo, TwinShared};
 
 use hw::{Irq, Timer0, Uart0Link};
 use sts_twin_board::TickSource;
@@ -149,7 +149,9 @@ fn main() -> ! {
     let mut core = cortex_m::Peripherals::take().unwrap();
     defmt::info!("sts-twin firmware {=str} on mps2-an386", env!("CARGO_PKG_VERSION"));
     if !BUS.header_valid() {
-        defmt::error!("no analogue bus at PSRAM 0x2100_0000 (magic/version): start QEMU through the sts-twin HIL harness");
+        defmt::error!(
+            "no analogue bus at PSRAM 0x2100_0000 (magic/version): start QEMU through the sts-twin HIL harness"
+        );
         fail();
     }
     diag_write(qemu::DIAG_MAGIC, qemu::DIAG_MAGIC_VALUE);

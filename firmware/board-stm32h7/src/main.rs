@@ -40,7 +40,9 @@ use embassy_stm32::{bind_interrupts, peripherals, Peri};
 use panic_probe as _;
 use sts_twin_board::bringup::{BringUpBackground, BringUpServo, BringUpShared};
 use sts_twin_board::config::{AbStore, RecordMedium, HEADER_BYTES};
-use sts_twin_board::servo::{background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickState, EVENT_CONTROL_RX};
+use sts_twin_board::servo::{
+    background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickState, EVENT_CONTROL_RX,
+};
 use sts_twin_board::sync::{BootCell, Events, SharedCell};
 use sts_twin_board::{AdcSource, ConfigError, ControlLink, DacSink, InputSlot, OutputSlot, SampleError, TickSource};
 use sts_twin_core::bus::IN_FLAG_PHASE_VALID;
@@ -291,7 +293,13 @@ fn main() -> ! {
     // SAFETY: no interrupt that uses these cells is enabled yet.
     let (shared, (background, config, link)) = unsafe {
         let shared: &'static SharedCell<AppShared> = SHARED.init(SharedCell::new(shared));
-        SERVO.init(ServoContext { app, inputs, dac: H7Dac { dac }, tick: H7Tick { timer }, state: TickState::default() });
+        SERVO.init(ServoContext {
+            app,
+            inputs,
+            dac: H7Dac { dac },
+            tick: H7Tick { timer },
+            state: TickState::default(),
+        });
         let store = AbStore::new(H7FlashMedium { flash: Flash::new_blocking(p.FLASH) });
         let cell = BACKGROUND.init((background, store, H7Link { uart }));
         (shared, (&mut cell.0, &mut cell.1, &mut cell.2))

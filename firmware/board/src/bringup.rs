@@ -118,7 +118,13 @@ impl ServoApp for BringUpServo {
             flags |= OUT_FLAG_SATURATED;
         }
         TickOutcome {
-            output: OutputSlot { tick: k, dac_code, flags, de_pred_pm: model.wrapping_mul(1000), fault_count: self.late },
+            output: OutputSlot {
+                tick: k,
+                dac_code,
+                flags,
+                de_pred_pm: model.wrapping_mul(1000),
+                fault_count: self.late,
+            },
             request_model_work,
         }
     }

@@ -44,8 +44,7 @@ impl BusView {
 
     /// True when the host wrote the magic word and the layout version this firmware speaks.
     pub fn header_valid(&self) -> bool {
-        self.read(layout::WORD_MAGIC) == layout::MAGIC
-            && self.read(layout::WORD_VERSION) == layout::BUS_VERSION
+        self.read(layout::WORD_MAGIC) == layout::MAGIC && self.read(layout::WORD_VERSION) == layout::BUS_VERSION
     }
 
     /// Announces that the firmware serves the bus, starting from output sequence `fw_seq`.
@@ -170,7 +169,15 @@ mod tests {
         let bus = unsafe { BusView::new(base) };
         let mut adc = BusAdc::new(bus, 10);
         assert_eq!(adc.sample(0), Err(SampleError::Late));
-        let input = InputSlot { tick: 0, acc_code: -3, flags: 1, cmd_phase_turns: 7, cmd_pos_nm: -9, x_acc_um_per_s2: -11, spindle_turns: 13 };
+        let input = InputSlot {
+            tick: 0,
+            acc_code: -3,
+            flags: 1,
+            cmd_phase_turns: 7,
+            cmd_pos_nm: -9,
+            x_acc_um_per_s2: -11,
+            spindle_turns: 13,
+        };
         let slot = sts_twin_core::bus::input_slot_word(0);
         for (i, w) in input.to_words().iter().enumerate() {
             poke(slot + i, *w);

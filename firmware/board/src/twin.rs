@@ -142,7 +142,8 @@ impl BackgroundApp for TwinBackground {
     }
 
     fn model_work(&mut self, ctx: &mut BackgroundCtx<'_, TwinShared>) {
-        let Some((request, path)) = ctx.shared.with(|s| s.servo.take_request().map(|r| (r, *s.servo.analogue_path()))) else {
+        let Some((request, path)) = ctx.shared.with(|s| s.servo.take_request().map(|r| (r, *s.servo.analogue_path())))
+        else {
             return;
         };
         let result = self.models.compute(&RINGS, &COMMANDS, &request, &path);

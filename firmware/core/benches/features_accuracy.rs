@@ -50,7 +50,9 @@ fn frequency_survey() {
 }
 
 fn reference_survey(cases: u64) {
-    println!("\n## Fixed point vs f64 reference, {cases} random cases (windows 128..2048 samples, 0..3000 samples pushed)");
+    println!(
+        "\n## Fixed point vs f64 reference, {cases} random cases (windows 128..2048 samples, 0..3000 samples pushed)"
+    );
     let mut rng = Rng::new(1);
     let mut max_rel = [0f64; FEATURE_COUNT];
     let mut max_f1_bins = 0f64;
@@ -70,7 +72,11 @@ fn reference_survey(cases: u64) {
         let dc = if rng.uniform() < 0.5 { 0.0 } else { (rng.uniform() - 0.5) * 2.0 * total };
         let headroom = 10f64.powf(-0.3 + 3.6 * rng.uniform());
         let scale = if total > 0.0 { (total * headroom / 32767.0).clamp(1e-9, 1e3) } else { 1e-4 };
-        let cfg = FeatureConfig { window_samples: window_blocks * 16, acc_mps2_per_lsb: scale as f32, sample_rate_hz: 8000.0 };
+        let cfg = FeatureConfig {
+            window_samples: window_blocks * 16,
+            acc_mps2_per_lsb: scale as f32,
+            sample_rate_hz: 8000.0,
+        };
         let codes = Signal { tones, dc_mps2: dc, noise_rms_mps2: noise, seed: case }.codes(len, &cfg);
         let f = run::<128, 384, 64>(&codes, cfg).as_array();
         let r = features_f64_detail(&codes, &cfg).unwrap();

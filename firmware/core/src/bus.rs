@@ -183,7 +183,15 @@ mod tests {
 
     #[test]
     fn slots_round_trip_through_words() {
-        let input = InputSlot { tick: 7, acc_code: -32768, flags: 1, cmd_phase_turns: u32::MAX, cmd_pos_nm: -5, x_acc_um_per_s2: i32::MIN, spindle_turns: 0x8000_0001 };
+        let input = InputSlot {
+            tick: 7,
+            acc_code: -32768,
+            flags: 1,
+            cmd_phase_turns: u32::MAX,
+            cmd_pos_nm: -5,
+            x_acc_um_per_s2: i32::MIN,
+            spindle_turns: 0x8000_0001,
+        };
         assert_eq!(InputSlot::from_words(input.to_words()), input);
         let output = OutputSlot { tick: 9, dac_code: -1, flags: 0x1f, de_pred_pm: i32::MIN, fault_count: 3 };
         assert_eq!(OutputSlot::from_words(output.to_words()), output);

@@ -119,7 +119,8 @@ mod tests {
         }
         assert_eq!(PersistentConfig::decode(&buf[..len - 1]), Err(ConfigError::Length));
         // The largest record: a full analogue-path table.
-        let points: [(f32, f32); crate::analogue_path::PATH_POINTS] = core::array::from_fn(|i| (5.0 * (i + 1) as f32, -1.5 * i as f32));
+        let points: [(f32, f32); crate::analogue_path::PATH_POINTS] =
+            core::array::from_fn(|i| (5.0 * (i + 1) as f32, -1.5 * i as f32));
         let path = crate::analogue_path::AnaloguePath::from_points(&points).unwrap();
         let full = PersistentConfig { params: FeedforwardParams { analogue_path: path, ..Default::default() } };
         let full_len = full.encode(&mut buf).unwrap();

@@ -78,7 +78,9 @@ pub enum ParamError {
 impl core::fmt::Display for ParamError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(match self {
-            Self::KDv => "k_dv_um_per_v must be finite, within 1e-4..1e4 in magnitude, and give at least 2 pm per DAC code",
+            Self::KDv => {
+                "k_dv_um_per_v must be finite, within 1e-4..1e4 in magnitude, and give at least 2 pm per DAC code"
+            }
             Self::KVc => "k_vc_pulses_per_v must be finite and in (0, 1e9]",
             Self::Offset => "offset_v must be finite and within half the DAC full scale",
             Self::Slew => "slew_v_per_tick must be finite, positive and at most the DAC full scale",
@@ -290,7 +292,13 @@ mod tests {
 
     #[test]
     fn settled_output_is_equation_5() {
-        let params = FeedforwardParams { k_dv_um_per_v: 2.0, offset_v: 0.01, enable_ramp_ticks: 1, slew_v_per_tick: 10.0, ..Default::default() };
+        let params = FeedforwardParams {
+            k_dv_um_per_v: 2.0,
+            offset_v: 0.01,
+            enable_ramp_ticks: 1,
+            slew_v_per_tick: 10.0,
+            ..Default::default()
+        };
         let mut ff = stage(params);
         ff.set_enabled(true);
         let mut tick = ff.tick(0, true);
@@ -345,10 +353,21 @@ mod tests {
 
     /// The tick as first written, all in 64 bits: the narrower arithmetic must give the same
     /// codes and flags, bit for bit.
-    fn wide_tick(s: &Scaled, output_q16: &mut i64, gain_q16: &mut i64, enabled: bool, de_pred_pm: i32, trusted: bool) -> FeedforwardTick {
+    fn wide_tick(
+        s: &Scaled,
+        output_q16: &mut i64,
+        gain_q16: &mut i64,
+        enabled: bool,
+        de_pred_pm: i32,
+        trusted: bool,
+    ) -> FeedforwardTick {
         let gain_target = if enabled && trusted { ONE_Q16 } else { 0 };
         let step = s.gain_step_q16 as i64;
-        *gain_q16 = if *gain_q16 < gain_target { (*gain_q16 + step).min(gain_target) } else { (*gain_q16 - step).max(gain_target) };
+        *gain_q16 = if *gain_q16 < gain_target {
+            (*gain_q16 + step).min(gain_target)
+        } else {
+            (*gain_q16 - step).max(gain_target)
+        };
         const LIMIT_Q16: i64 = 1 << 40;
         let product_q48 = (de_pred_pm as i64).wrapping_neg().wrapping_mul(s.codes_per_pm_q32);
         let correction_q16 = (product_q48 >> 16).clamp(-LIMIT_Q16, LIMIT_Q16);
@@ -376,7 +395,8 @@ mod tests {
             let fs = [1e-3f32, 0.5, 10.0, 100.0][round % 4];
             let unit = |r: u64| (r % 1_000_001) as f32 * 1e-6;
             let params = FeedforwardParams {
-                k_dv_um_per_v: [1e-4f32, -1e-4, 0.0656, -0.0656, 1.0, -3.7, 1e4, -1e4][(rng() % 8) as usize] * (0.5 + unit(rng())),
+                k_dv_um_per_v: [1e-4f32, -1e-4, 0.0656, -0.0656, 1.0, -3.7, 1e4, -1e4][(rng() % 8) as usize]
+                    * (0.5 + unit(rng())),
                 dac_full_scale_v: fs,
                 offset_v: fs / 2.0 * (2.0 * unit(rng()) - 1.0),
                 slew_v_per_tick: fs * unit(rng()).max(1e-6),
@@ -414,7 +434,13 @@ mod tests {
         let mut accepted = 0;
         for k_dv in [1e-4f32, -1e-4, 0.0656, -0.0656, 1e4, -1e4] {
             for fs in [1e-3f32, 1.0, 100.0] {
-                let params = FeedforwardParams { k_dv_um_per_v: k_dv, dac_full_scale_v: fs, slew_v_per_tick: fs, offset_v: fs / 2.0, ..Default::default() };
+                let params = FeedforwardParams {
+                    k_dv_um_per_v: k_dv,
+                    dac_full_scale_v: fs,
+                    slew_v_per_tick: fs,
+                    offset_v: fs / 2.0,
+                    ..Default::default()
+                };
                 if params.validate().is_err() {
                     continue;
                 }

@@ -3,7 +3,10 @@
 //! moments, a plain complex radix-2 FFT of the full zero-padded length with exact twiddles,
 //! and natural logarithms. Tests compare the fixed-point features against these.
 
-use crate::features::{FeatureConfig, FeatureError, BLOCK_SAMPLES, DISTINCT_POWER_GAIN, FEATURE_COUNT, MAX_WINDOW_SAMPLES, NOISE_FLOOR_FACTOR};
+use crate::features::{
+    FeatureConfig, FeatureError, BLOCK_SAMPLES, DISTINCT_POWER_GAIN, FEATURE_COUNT, MAX_WINDOW_SAMPLES,
+    NOISE_FLOOR_FACTOR,
+};
 use std::f64::consts::PI;
 
 /// The reference features plus the intermediate spectrum, for diagnosing differences.

@@ -22,9 +22,14 @@ use serde::{Deserialize, Serialize};
 
 use crate::analogue_path::AnaloguePath;
 use crate::axis::compensate::{Compensator, ORDERS};
+use crate::bus::{
+    InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_ENABLED, OUT_FLAG_MODEL_ACTIVE, OUT_FLAG_SATURATED,
+    OUT_FLAG_SLEWING,
+};
 use crate::commands::DefaultCommandRing;
-use crate::bus::{InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_ENABLED, OUT_FLAG_MODEL_ACTIVE, OUT_FLAG_SATURATED, OUT_FLAG_SLEWING};
-use crate::features::{DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features};
+use crate::features::{
+    DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features,
+};
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
 use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_AMP_UM, REG_PHASE_DEG};
 use crate::synth::{deg_to_turns, um_to_pm, Synth, SynthTargets};
@@ -111,7 +116,13 @@ pub struct ModelRequest {
 
 impl ModelRequest {
     /// A request for no real window (what an empty request slot holds).
-    pub const EMPTY: Self = Self { snapshot: FeatureSnapshot::empty(FeatureConfig::DEFAULT), tick: 0, due_tick: 0, cmd_step_turns: 0, cmd_phase_turns: 0 };
+    pub const EMPTY: Self = Self {
+        snapshot: FeatureSnapshot::empty(FeatureConfig::DEFAULT),
+        tick: 0,
+        due_tick: 0,
+        cmd_step_turns: 0,
+        cmd_phase_turns: 0,
+    };
 }
 
 /// Where [`Servo::tick`] leaves a model request: written in place, field by field (block
@@ -189,12 +200,21 @@ impl Default for Models {
 impl Models {
     /// No program.
     pub const fn new() -> Self {
-        Self { active: None, staged: None, scratch: DefaultScratch::new(), compensator: None, next_command_tick: None, compensator_resets_seen: 0 }
+        Self {
+            active: None,
+            staged: None,
+            scratch: DefaultScratch::new(),
+            compensator: None,
+            next_command_tick: None,
+            compensator_resets_seen: 0,
+        }
     }
 
     /// The active program changed: a new compensator for its axis twin, if it has one.
     fn activated(&mut self) {
-        let axis = self.active.as_ref().and_then(|p| p.terms.iter().find_map(|t| if let TickTerm::Axis(params) = t { Some(*params) } else { None }));
+        let axis = self.active.as_ref().and_then(|p| {
+            p.terms.iter().find_map(|t| if let TickTerm::Axis(params) = t { Some(*params) } else { None })
+        });
         // Parameters the validator let through always give a model.
         self.compensator = axis.and_then(|params| Compensator::new(&params).ok());
         self.next_command_tick = None;
@@ -251,9 +271,20 @@ impl Models {
     /// ([`crate::axis::compensate`]); its fundamental is added to the program's (after the
     /// path correction: the compensator's simulation already contains the path) and its
     /// third harmonic takes the axis term's slot, so that the servo tick runs harmonics only.
-    pub fn compute(&mut self, rings: &DefaultSpectralRings, commands: &DefaultCommandRing, request: &ModelRequest, path: &AnaloguePath) -> ModelResult {
-        let mut result =
-            ModelResult { due_tick: request.due_tick, features: [0.0; 12], outcome: Err(ModelFault::NoProgram), targets: SynthTargets::SILENT, new_axis_resets: 0 };
+    pub fn compute(
+        &mut self,
+        rings: &DefaultSpectralRings,
+        commands: &DefaultCommandRing,
+        request: &ModelRequest,
+        path: &AnaloguePath,
+    ) -> ModelResult {
+        let mut result = ModelResult {
+            due_tick: request.due_tick,
+            features: [0.0; 12],
+            outcome: Err(ModelFault::NoProgram),
+            targets: SynthTargets::SILENT,
+            new_axis_resets: 0,
+        };
         self.compensate(commands, request);
         if let Some(compensator) = &self.compensator {
             result.new_axis_resets = compensator.resets().wrapping_sub(self.compensator_resets_seen);
@@ -271,9 +302,17 @@ impl Models {
         if let Some(program) = &self.active {
             result.outcome = match program.evaluate(&result.features) {
                 Ok(mut output) => {
-                    correct_for_path(&mut output, &program.terms, path, request.cmd_step_turns, capture.cfg.sample_rate_hz);
+                    correct_for_path(
+                        &mut output,
+                        &program.terms,
+                        path,
+                        request.cmd_step_turns,
+                        capture.cfg.sample_rate_hz,
+                    );
                     match &self.compensator {
-                        Some(compensator) => result.targets = compensated_targets(&mut output, &program.terms, compensator),
+                        Some(compensator) => {
+                            result.targets = compensated_targets(&mut output, &program.terms, compensator)
+                        }
                         None => result.targets = SynthTargets::new(&output, &program.terms),
                     }
                     Ok((output, program.terms.clone(), program.id))
@@ -308,7 +347,8 @@ impl Models {
                         compensator.restart();
                         continuous = true;
                     }
-                    compensator.tick(pos_nm, request.cmd_phase_turns.wrapping_sub(step.wrapping_mul((last - tick) as u32)));
+                    compensator
+                        .tick(pos_nm, request.cmd_phase_turns.wrapping_sub(step.wrapping_mul((last - tick) as u32)));
                 }
                 None => continuous = false,
             }
@@ -327,7 +367,10 @@ fn compensated_targets(output: &mut ModelOutput, terms: &[TickTerm], compensator
     let correction_nm = compensator.correction_nm();
     // amp sin(theta + phase) = (amp cos phase) sin theta + (amp sin phase) cos theta.
     let (amp_um, phase_rad) = (output.amp_um(), output.phase_deg() * (core::f32::consts::PI / 180.0));
-    let (amp_um, phase_deg) = amp_phase_deg(amp_um * libm::cosf(phase_rad) - correction_nm[0].re * 1e-3, amp_um * libm::sinf(phase_rad) - correction_nm[0].im * 1e-3);
+    let (amp_um, phase_deg) = amp_phase_deg(
+        amp_um * libm::cosf(phase_rad) - correction_nm[0].re * 1e-3,
+        amp_um * libm::sinf(phase_rad) - correction_nm[0].im * 1e-3,
+    );
     output.registers[REG_AMP_UM as usize] = amp_um;
     output.registers[REG_PHASE_DEG as usize] = phase_deg;
     let mut targets = SynthTargets::new(output, terms);
@@ -346,7 +389,13 @@ fn amp_phase_deg(re: f32, im: f32) -> (f32, f32) {
 /// Subtracts the analogue path's phase at the command frequency from the fundamental's
 /// phase, and at `n` times it from each order-`n` harmonic term's phase (a phase register
 /// shared by several terms is corrected once, for the first).
-fn correct_for_path(output: &mut ModelOutput, terms: &[TickTerm], path: &AnaloguePath, cmd_step_turns: i32, sample_rate_hz: f32) {
+fn correct_for_path(
+    output: &mut ModelOutput,
+    terms: &[TickTerm],
+    path: &AnaloguePath,
+    cmd_step_turns: i32,
+    sample_rate_hz: f32,
+) {
     if path.count == 0 {
         return;
     }
@@ -484,7 +533,11 @@ impl Servo {
     /// A servo pipeline with the given settings. Invalid feedforward parameters or feature
     /// settings are replaced by the defaults, and the error is returned alongside, so that
     /// the firmware always boots into a safe, working state.
-    pub fn new(feature_config: FeatureConfig, config: ServoConfig, params: FeedforwardParams) -> (Self, Result<(), InitError>) {
+    pub fn new(
+        feature_config: FeatureConfig,
+        config: ServoConfig,
+        params: FeedforwardParams,
+    ) -> (Self, Result<(), InitError>) {
         let (feedforward, params_check) = Feedforward::new(params);
         let (features, feature_config, features_check) = match DefaultFeatureState::new(feature_config) {
             Ok(state) => (state, feature_config, Ok(())),
@@ -554,7 +607,12 @@ impl Servo {
     /// One servo tick on `input`. Every model interval it leaves a [`ModelRequest`] for the
     /// low-priority side ([`Servo::take_request`]; one not yet taken is replaced) and returns
     /// true with the output.
-    pub fn tick(&mut self, rings: &DefaultSpectralRings, commands: &DefaultCommandRing, input: &InputSlot) -> (OutputSlot, bool) {
+    pub fn tick(
+        &mut self,
+        rings: &DefaultSpectralRings,
+        commands: &DefaultCommandRing,
+        input: &InputSlot,
+    ) -> (OutputSlot, bool) {
         let tick = self.counters.ticks;
         self.counters.ticks += 1;
         if self.push_commands {
@@ -613,7 +671,13 @@ impl Servo {
             | (ff.saturated as u16 * OUT_FLAG_SATURATED)
             | (ff.slewing as u16 * OUT_FLAG_SLEWING)
             | (self.model_active as u16 * OUT_FLAG_MODEL_ACTIVE);
-        let output = OutputSlot { tick: tick as u32, dac_code: ff.dac_code, flags, de_pred_pm: de_pm, fault_count: self.fault_count() };
+        let output = OutputSlot {
+            tick: tick as u32,
+            dac_code: ff.dac_code,
+            flags,
+            de_pred_pm: de_pm,
+            fault_count: self.fault_count(),
+        };
         (output, requested)
     }
 
@@ -628,7 +692,13 @@ impl Servo {
         if self.health.underrun_run >= self.config.underrun_limit_ticks {
             self.degrade(DEGRADED_NO_INPUT);
         }
-        OutputSlot { tick: self.counters.ticks as u32, dac_code: self.last_dac, flags: OUT_FLAG_DEGRADED, de_pred_pm: 0, fault_count: self.fault_count() }
+        OutputSlot {
+            tick: self.counters.ticks as u32,
+            dac_code: self.last_dac,
+            flags: OUT_FLAG_DEGRADED,
+            de_pred_pm: 0,
+            fault_count: self.fault_count(),
+        }
     }
 
     fn degrade(&mut self, reason: u16) {
@@ -910,7 +980,11 @@ mod tests {
         // A derivative gain far beyond what the tick can carry: valid parameters whose loop
         // diverges on any motion.
         let unstable = crate::axis::AxisParams { kd_per_s: 9e5, ..crate::axis::default_machine() };
-        let mut twin = Twin::boot(FeatureConfig { window_samples: 2000, ..FeatureConfig::DEFAULT }, ServoConfig { model_interval_ticks: 400, model_latency_ticks: 200, ..ServoConfig::default() }, &[]);
+        let mut twin = Twin::boot(
+            FeatureConfig { window_samples: 2000, ..FeatureConfig::DEFAULT },
+            ServoConfig { model_interval_ticks: 400, model_latency_ticks: 200, ..ServoConfig::default() },
+            &[],
+        );
         let mut b = ProgramBuilder::new();
         b.id(8).constant(0.5).store(REG_AMP_UM).constant(0.0).store(REG_PHASE_DEG);
         b.term(TickTerm::Axis(unstable));
@@ -921,7 +995,14 @@ mod tests {
         let input = |k: u32| {
             let turns = (40.0 * f64::from(k) / 8000.0).fract();
             let sine = libm::sin(2.0 * core::f64::consts::PI * turns);
-            InputSlot { tick: k, acc_code: (-5000.0 * sine) as i16, flags: IN_FLAG_PHASE_VALID, cmd_phase_turns: (turns * 4_294_967_296.0) as u64 as u32, cmd_pos_nm: (3000.0 * sine) as i32, ..Default::default() }
+            InputSlot {
+                tick: k,
+                acc_code: (-5000.0 * sine) as i16,
+                flags: IN_FLAG_PHASE_VALID,
+                cmd_phase_turns: (turns * 4_294_967_296.0) as u64 as u32,
+                cmd_pos_nm: (3000.0 * sine) as i32,
+                ..Default::default()
+            }
         };
         let mut outputs: heapless::Vec<OutputSlot, 8000> = heapless::Vec::new();
         for k in 0..8000 {
@@ -949,7 +1030,8 @@ mod tests {
         assert_eq!(ModelTiming::new(&config, 2_000), ModelTiming { interval_ticks: 112, latency_ticks: 48 });
         assert_eq!(ModelTiming::new(&config, 800), ModelTiming { interval_ticks: 48, latency_ticks: 16 });
         assert_eq!(ModelTiming::new(&config, 16), ModelTiming { interval_ticks: 48, latency_ticks: 16 });
-        let odd = ServoConfig { model_interval_ticks: 7, min_model_interval_ticks: 0, model_updates_per_window: 0, ..config };
+        let odd =
+            ServoConfig { model_interval_ticks: 7, min_model_interval_ticks: 0, model_updates_per_window: 0, ..config };
         let timing = ModelTiming::new(&odd, 40_000);
         assert!(timing.interval_ticks >= 1 && timing.latency_ticks >= 1);
     }
@@ -976,7 +1058,14 @@ mod tests {
         let mut applied_on = std::vec::Vec::new();
         let mut updates = 0;
         for k in 0..6000u32 {
-            let input = InputSlot { tick: k, acc_code: ((k * 7919) % 4001) as i16 - 2000, flags: IN_FLAG_PHASE_VALID, cmd_phase_turns: k.wrapping_mul(STEP_40HZ as u32), cmd_pos_nm: 0, ..Default::default() };
+            let input = InputSlot {
+                tick: k,
+                acc_code: ((k * 7919) % 4001) as i16 - 2000,
+                flags: IN_FLAG_PHASE_VALID,
+                cmd_phase_turns: k.wrapping_mul(STEP_40HZ as u32),
+                cmd_pos_nm: 0,
+                ..Default::default()
+            };
             let busy = servo.tick_is_busy(0);
             servo.tick(&rings, &commands, &input);
             if servo.counters().model_updates != updates {

@@ -180,7 +180,14 @@ struct Ramp {
 }
 
 impl Ramp {
-    const IDLE: Self = Self { amp_pm: 0, phase_turns: 0, amp_target_pm: 0, phase_target_turns: 0, amp_step_pm: 0, phase_step_turns: 0 };
+    const IDLE: Self = Self {
+        amp_pm: 0,
+        phase_turns: 0,
+        amp_target_pm: 0,
+        phase_target_turns: 0,
+        amp_step_pm: 0,
+        phase_step_turns: 0,
+    };
 
     /// Sets the target, reached after `ramp_ticks` steps (at once for 0).
     fn retarget(&mut self, amp_pm: i32, phase_turns: u32, ramp_ticks: u32) {
@@ -337,7 +344,9 @@ impl KernelState {
             }
             // The discretisation (f64, software on the target) runs here, once per program.
             // Parameters the validator let through always give a model.
-            TickTerm::Axis(ref params) => state.axis = AxisModel::new(params).ok().map(|model| (model, AxisState::INITIAL)),
+            TickTerm::Axis(ref params) => {
+                state.axis = AxisModel::new(params).ok().map(|model| (model, AxisState::INITIAL))
+            }
             _ => {}
         }
         state
@@ -431,7 +440,8 @@ fn dahl_step_q30(dx: i64, u: i32, inv_x0_q30: i32) -> i32 {
     }
     let magnitude = dx.unsigned_abs();
     // |dx / x0| in Q30, at most 2 (2^31).
-    let rate = if magnitude >> 31 != 0 { 1 << 31 } else { (magnitude * u64::from(inv_x0_q30 as u32)).min(1 << 31) as u32 };
+    let rate =
+        if magnitude >> 31 != 0 { 1 << 31 } else { (magnitude * u64::from(inv_x0_q30 as u32)).min(1 << 31) as u32 };
     let negative = dx < 0;
     // 1 - u sgn(dx), in [0, 2].
     let room = if negative { ONE.wrapping_add(u as u32) } else { ONE.wrapping_sub(u as u32) };
@@ -479,11 +489,19 @@ fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput, ticks: u6
 /// One tick of a [`TickTerm::Laguerre`] bank (the coefficients by reference: copied, they
 /// went through the stack every tick).
 #[inline(always)]
-fn laguerre_pm(kind: &TermInput, pole_q30: i32, gains_pm: &[i32; LAGUERRE_STAGES], st: &mut KernelState, input: &TickInput) -> i64 {
+fn laguerre_pm(
+    kind: &TermInput,
+    pole_q30: i32,
+    gains_pm: &[i32; LAGUERRE_STAGES],
+    st: &mut KernelState,
+    input: &TickInput,
+) -> i64 {
     let u_q30 = laguerre_input_q30(kind, st, input);
     let (g_q30, two_a_q30, minus_two_a_q30) = (st.g_q30, st.two_pole_q30, st.minus_two_pole_q30);
     match &mut st.stages {
-        Stages::Narrow(stages) => laguerre_step_narrow(stages, two_a_q30, minus_two_a_q30, g_q30 as i32, u_q30 as i32, gains_pm),
+        Stages::Narrow(stages) => {
+            laguerre_step_narrow(stages, two_a_q30, minus_two_a_q30, g_q30 as i32, u_q30 as i32, gains_pm)
+        }
         Stages::Wide(stages) => laguerre_step(stages, pole_q30 as i64, g_q30, u_q30, gains_pm),
     }
 }
@@ -527,7 +545,13 @@ fn laguerre_input_q30(kind: &TermInput, st: &mut KernelState, input: &TickInput)
 /// Advances a Laguerre bank by one tick on input `u` (Q30); returns the weighted output, pm.
 /// Stage 0: `y0 = a y0' + sqrt(1 - a^2) u`; stage i: `yi = a yi' + y(i-1)' - a y(i-1)`.
 #[inline(never)]
-fn laguerre_step(stages: &mut [i64; LAGUERRE_STAGES], a_q30: i64, g_q30: i64, u_q30: i64, gains_pm: &[i32; LAGUERRE_STAGES]) -> i64 {
+fn laguerre_step(
+    stages: &mut [i64; LAGUERRE_STAGES],
+    a_q30: i64,
+    g_q30: i64,
+    u_q30: i64,
+    gains_pm: &[i32; LAGUERRE_STAGES],
+) -> i64 {
     let mut prev_old = stages[0];
     let mut prev_new = (a_q30 * stages[0] + ((g_q30 * u_q30) >> 6)) >> 30;
     stages[0] = prev_new;
@@ -549,7 +573,14 @@ fn laguerre_step(stages: &mut [i64; LAGUERRE_STAGES], a_q30: i64, g_q30: i64, u_
 /// the new stage is that doubled plus `2 y(i-1)'`; the weighted sum of the doubled stages is
 /// twice the weighted sum, so shifting it by 25 gives the same as shifting the sum by 24.
 #[inline(always)]
-fn laguerre_step_narrow(stages2: &mut [i32; LAGUERRE_STAGES], two_a_q30: i32, minus_two_a_q30: i32, g_q30: i32, u_q30: i32, gains_pm: &[i32; LAGUERRE_STAGES]) -> i64 {
+fn laguerre_step_narrow(
+    stages2: &mut [i32; LAGUERRE_STAGES],
+    two_a_q30: i32,
+    minus_two_a_q30: i32,
+    g_q30: i32,
+    u_q30: i32,
+    gains_pm: &[i32; LAGUERRE_STAGES],
+) -> i64 {
     debug_assert_eq!(minus_two_a_q30, two_a_q30.wrapping_neg());
     let two_a = two_a_q30 as i64;
     let minus_two_a = minus_two_a_q30 as i64;
@@ -609,11 +640,19 @@ pub struct SynthTargets {
 
 impl SynthTargets {
     /// Silence: every amplitude zero (what [`ModelOutput::default`] gives).
-    pub const SILENT: Self = Self { amp_pm: 0, phase_turns: 0, term_amp_pm: [0; MAX_TERMS], term_phase_turns: [0; MAX_TERMS], term_orders: [0; MAX_TERMS], kernel_mask: 0 };
+    pub const SILENT: Self = Self {
+        amp_pm: 0,
+        phase_turns: 0,
+        term_amp_pm: [0; MAX_TERMS],
+        term_phase_turns: [0; MAX_TERMS],
+        term_orders: [0; MAX_TERMS],
+        kernel_mask: 0,
+    };
 
     /// The targets of `output` for the tick terms `terms` (kernel terms have none).
     pub fn new(output: &ModelOutput, terms: &[TickTerm]) -> Self {
-        let mut targets = Self { amp_pm: um_to_pm(output.amp_um()), phase_turns: deg_to_turns(output.phase_deg()), ..Self::SILENT };
+        let mut targets =
+            Self { amp_pm: um_to_pm(output.amp_um()), phase_turns: deg_to_turns(output.phase_deg()), ..Self::SILENT };
         for (i, term) in terms.iter().take(MAX_TERMS).enumerate() {
             if let TickTerm::Harmonic { order, amp_reg, phase_reg } = *term {
                 let register = |r: u8| output.registers.get(r as usize).copied().unwrap_or(0.0);
@@ -772,7 +811,15 @@ impl Harmonics {
     /// harmonics beside new kernel terms and stays within the budget of the programs on
     /// either side (see [`crate::program::tick_cost`]). New harmonics in free slots start at
     /// once, kernel terms that go stop at once (as before: they have no ramp).
-    fn retarget_terms(&mut self, targets: &SynthTargets, count: usize, running: u32, kept: u32, ramp_left: u32, ramp: u32) -> TermsUpdate {
+    fn retarget_terms(
+        &mut self,
+        targets: &SynthTargets,
+        count: usize,
+        running: u32,
+        kept: u32,
+        ramp_left: u32,
+        ramp: u32,
+    ) -> TermsUpdate {
         let count = count.min(MAX_TERMS);
         // Masked to MAX_TERMS = 8 slots: no index below can be out of bounds.
         let in_update = ((1u32 << count) - 1) & 0xff;
@@ -1142,7 +1189,8 @@ impl Synth {
         }
         next.kernels.set_kernels(update.kernels, &terms[..count]);
         self.banks[live ^ 1] = next;
-        self.prepared = Some(Prepared { generation: self.generation, ramp_ticks: ramp, at_ticks, ramp_left: update.ramp_left });
+        self.prepared =
+            Some(Prepared { generation: self.generation, ramp_ticks: ramp, at_ticks, ramp_left: update.ramp_left });
     }
 
     /// Applies a model update: the one [`Synth::prepare`]d, by switching banks and cells,
@@ -1163,7 +1211,9 @@ impl Synth {
     #[inline]
     pub fn switch_prepared(&mut self) -> bool {
         match self.prepared {
-            Some(p) if p.generation == self.generation && p.ramp_ticks == self.ramp_ticks && p.at_ticks == self.ticks => {
+            Some(p)
+                if p.generation == self.generation && p.ramp_ticks == self.ramp_ticks && p.at_ticks == self.ticks =>
+            {
                 self.live ^= 1;
                 self.ramp_left = p.ramp_left;
                 self.generation = self.generation.wrapping_add(1);
@@ -1204,7 +1254,8 @@ impl Synth {
         if ramping {
             h.fundamental.step();
         }
-        let mut total = ramp_harmonic_pm(h.fundamental.amp_pm, cmd_phase_turns.wrapping_add(h.fundamental.phase_turns)) as i64;
+        let mut total =
+            ramp_harmonic_pm(h.fundamental.amp_pm, cmd_phase_turns.wrapping_add(h.fundamental.phase_turns)) as i64;
         if kernel_mask == 0 {
             // Kernel-free: every visited slot is a harmonic (or an idle one), in one pass.
             if ramping {
@@ -1223,7 +1274,8 @@ impl Synth {
         } else {
             // Kernel slots' ramps are idle (amplitude and steps zero) and would add exactly
             // nothing: the harmonic pass skips them.
-            total = total.wrapping_add(h.harmonic_slots_pm(((1u32 << count) - 1) & !kernel_mask, ramping, cmd_phase_turns));
+            total =
+                total.wrapping_add(h.harmonic_slots_pm(((1u32 << count) - 1) & !kernel_mask, ramping, cmd_phase_turns));
             let ticks = self.ticks;
             total = total.wrapping_add(self.kernels_pm(input, ticks));
             self.ticks = ticks.wrapping_add(1);
@@ -1285,7 +1337,14 @@ impl Synth {
                     rest.resets = state.resets;
                     (model, rest)
                 });
-                slot.state = KernelState { stages: keep.stages.rested(), pos_hist: [0; 4], dahl_q30: 0, primed: false, axis, ..keep };
+                slot.state = KernelState {
+                    stages: keep.stages.rested(),
+                    pos_hist: [0; 4],
+                    dahl_q30: 0,
+                    primed: false,
+                    axis,
+                    ..keep
+                };
             }
         }
     }
@@ -1313,7 +1372,8 @@ mod tests {
         synth.update(&ModelOutput::default(), &[unstable]);
         let run = |synth: &mut Synth| {
             for k in 0..2000 {
-                let cmd_pos_nm = (3000.0 * libm::sin(2.0 * core::f64::consts::PI * 40.0 * f64::from(k) / 8000.0)) as i32;
+                let cmd_pos_nm =
+                    (3000.0 * libm::sin(2.0 * core::f64::consts::PI * 40.0 * f64::from(k) / 8000.0)) as i32;
                 synth.next_input(&TickInput { cmd_phase_turns: 0, cmd_pos_nm, x_acc_um_per_s2: 0, spindle_turns: 0 });
             }
             synth.axis_resets()
@@ -1394,7 +1454,21 @@ mod tests {
     fn degrees_convert_as_through_64_bits() {
         let wide = |value_deg: f32| if value_deg.is_finite() { deg_to_turns_wide(value_deg / 360.0) } else { 0 };
         let mut seed = 11u64;
-        let mut values = std::vec![0.0f32, -0.0, 1e-30, -1e-30, 359.99997, -359.99997, 180.0, -180.0, 7.7e11, -7.7e11, 3e12, f32::MAX, f32::MIN];
+        let mut values = std::vec![
+            0.0f32,
+            -0.0,
+            1e-30,
+            -1e-30,
+            359.99997,
+            -359.99997,
+            180.0,
+            -180.0,
+            7.7e11,
+            -7.7e11,
+            3e12,
+            f32::MAX,
+            f32::MIN
+        ];
         for k in 0..300_000 {
             let bits = rng(&mut seed) as u32;
             values.push(match k % 3 {
@@ -1462,9 +1536,21 @@ mod tests {
         let mut seed = 0x5eed_u64;
         let kernels = [
             TickTerm::Drift { offset_pm: 200_000, decay_pm: -300_000, tau_ticks: 5000 },
-            TickTerm::AxisCoupling { x_gain_pm_per_mps2: 700_000, spindle_amp_pm: 40_000, spindle_phase_turns: 3 << 28 },
-            TickTerm::Laguerre { input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 }, pole_q30: 998_579_896, gains_pm: [90_000, -40_000, 20_000, 0, 0, 0, 0, 0] },
-            TickTerm::Laguerre { input: TermInput::Dahl { inv_x0_q30: 1 << 20 }, pole_q30: 1_072_668_082, gains_pm: [50_000, 0, -20_000, 0, 0, 0, 0, 9_000] },
+            TickTerm::AxisCoupling {
+                x_gain_pm_per_mps2: 700_000,
+                spindle_amp_pm: 40_000,
+                spindle_phase_turns: 3 << 28,
+            },
+            TickTerm::Laguerre {
+                input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 },
+                pole_q30: 998_579_896,
+                gains_pm: [90_000, -40_000, 20_000, 0, 0, 0, 0, 0],
+            },
+            TickTerm::Laguerre {
+                input: TermInput::Dahl { inv_x0_q30: 1 << 20 },
+                pole_q30: 1_072_668_082,
+                gains_pm: [50_000, 0, -20_000, 0, 0, 0, 0, 9_000],
+            },
         ];
         for round in 0..60 {
             let ramp_ticks = [0, 1, 7, 80][round % 4];
@@ -1475,7 +1561,12 @@ mod tests {
             let mut tick = |plain: &mut Synth, prepared: &mut Synth, what: &str| {
                 theta = theta.wrapping_add(0x0147_ae14);
                 pos = pos.wrapping_add(((theta >> 20) % 301) as i32 - 150);
-                let input = TickInput { cmd_phase_turns: theta, cmd_pos_nm: pos, x_acc_um_per_s2: (theta >> 8) as i32, spindle_turns: theta.wrapping_mul(3) };
+                let input = TickInput {
+                    cmd_phase_turns: theta,
+                    cmd_pos_nm: pos,
+                    x_acc_um_per_s2: (theta >> 8) as i32,
+                    spindle_turns: theta.wrapping_mul(3),
+                };
                 assert_eq!(plain.next_input(&input), prepared.next_input(&input), "round {round}: {what}");
             };
             for update in 0..30 {
@@ -1490,7 +1581,11 @@ mod tests {
                     let kind = rng(&mut seed) % 8;
                     terms.push(match kind {
                         0..=3 => kernels[kind as usize],
-                        _ => TickTerm::Harmonic { order: 2 + (rng(&mut seed) % 3) as u8, amp_reg, phase_reg: amp_reg + 1 },
+                        _ => TickTerm::Harmonic {
+                            order: 2 + (rng(&mut seed) % 3) as u8,
+                            amp_reg,
+                            phase_reg: amp_reg + 1,
+                        },
                     });
                 }
                 let targets = if update % 7 == 6 { SynthTargets::SILENT } else { SynthTargets::new(&out, &terms) };
@@ -1509,7 +1604,10 @@ mod tests {
                     tick(&mut plain, &mut prepared, "after the update");
                 }
                 // (The kernels' cells differ: a prepared restart uses the spare one.)
-                let without_cells = |h: &Harmonics| Harmonics { kernels: KernelIndex { cell_of_slot: [0; MAX_TERMS], kernel_cells: [0; MAX_TERMS], ..h.kernels }, ..*h };
+                let without_cells = |h: &Harmonics| Harmonics {
+                    kernels: KernelIndex { cell_of_slot: [0; MAX_TERMS], kernel_cells: [0; MAX_TERMS], ..h.kernels },
+                    ..*h
+                };
                 assert_eq!(without_cells(plain.harmonics()), without_cells(prepared.harmonics()));
                 assert_eq!(plain.ramp_left, prepared.ramp_left);
                 for i in 0..MAX_TERMS {
@@ -1526,7 +1624,18 @@ mod tests {
     #[test]
     fn the_divisions_without_64_bit_division_are_exact() {
         let mut seed = 3u64;
-        let mut values = std::vec![0i64, 1, -1, 999_999, 1_000_000, -1_000_000, 1 << 62, -(1 << 62), (1 << 62) - 1, 4_611_686_018_427_387_903];
+        let mut values = std::vec![
+            0i64,
+            1,
+            -1,
+            999_999,
+            1_000_000,
+            -1_000_000,
+            1 << 62,
+            -(1 << 62),
+            (1 << 62) - 1,
+            4_611_686_018_427_387_903
+        ];
         for k in 0..200_000 {
             let r = rng(&mut seed);
             values.push(match k % 3 {
@@ -1647,7 +1756,14 @@ mod tests {
         // Gains of 2^32 in sum, the most the narrow stages take.
         let at_limit = [1 << 30, -(1 << 30), 1 << 29, -(1 << 29), 1 << 29, 0, -(1 << 28), 1 << 28];
         let typical = [180_000, -95_000, 61_000, -40_000, 22_000, -15_000, 9_000, -4_000];
-        for (pole_q30, gains) in [(NARROW_POLE_MAX_Q30, at_limit), (NARROW_POLE_MAX_Q30 - 1, typical), (998_579_896, at_limit), (536_870_912, typical), (1, at_limit), (998_579_896, full)] {
+        for (pole_q30, gains) in [
+            (NARROW_POLE_MAX_Q30, at_limit),
+            (NARROW_POLE_MAX_Q30 - 1, typical),
+            (998_579_896, at_limit),
+            (536_870_912, typical),
+            (1, at_limit),
+            (998_579_896, full),
+        ] {
             let narrow_ok = matches!(Stages::at_rest(pole_q30, &gains), Stages::Narrow(_));
             assert_eq!(narrow_ok, gains != full, "pole {pole_q30}");
             let one = 1i64 << 30;
@@ -1704,7 +1820,15 @@ mod tests {
 
     /// Harmonic terms of `orders`, their coefficients in the register pairs 2..8 in turn.
     fn harmonic_terms(orders: &[u8]) -> std::vec::Vec<TickTerm> {
-        orders.iter().enumerate().map(|(k, &order)| TickTerm::Harmonic { order, amp_reg: 2 + 2 * (k % 3) as u8, phase_reg: 3 + 2 * (k % 3) as u8 }).collect()
+        orders
+            .iter()
+            .enumerate()
+            .map(|(k, &order)| TickTerm::Harmonic {
+                order,
+                amp_reg: 2 + 2 * (k % 3) as u8,
+                phase_reg: 3 + 2 * (k % 3) as u8,
+            })
+            .collect()
     }
 
     /// A model output for [`harmonic_terms`]: amplitudes of 1.5 um, 50 pm (a ramp's step over
@@ -1737,12 +1861,21 @@ mod tests {
                 if k < 79 {
                     // Ramping out (the 50 pm ones too: they hold until the last tick).
                     assert_eq!(h.term_count, 8, "interval {interval} tick {k}");
-                    assert!(h.ramps[2..].iter().all(|r| r.amp_pm != 0 && r.amp_target_pm == 0), "interval {interval} tick {k}");
+                    assert!(
+                        h.ramps[2..].iter().all(|r| r.amp_pm != 0 && r.amp_target_pm == 0),
+                        "interval {interval} tick {k}"
+                    );
                 } else {
                     // From the fade's last tick (80 ticks from the switch) on: exactly zero and
                     // no longer visited, however often the updates came.
                     assert_eq!((h.term_count, h.idle_from, h.fading), (2, 2, 0), "interval {interval} tick {k}");
-                    assert!(h.ramps[2..].iter().all(|r| r.amp_pm == 0 && r.amp_step_pm == 0 && r.amp_target_pm == 0 && r.phase_step_turns == 0), "interval {interval} tick {k}");
+                    assert!(
+                        h.ramps[2..].iter().all(|r| r.amp_pm == 0
+                            && r.amp_step_pm == 0
+                            && r.amp_target_pm == 0
+                            && r.phase_step_turns == 0),
+                        "interval {interval} tick {k}"
+                    );
                 }
             }
         }
@@ -1781,7 +1914,10 @@ mod tests {
                     fade_end.get_or_insert(k);
                 }
                 if h.kernels.kernel_count == 0 {
-                    assert!((i64::from(now) - i64::from(last)).abs() <= bound, "interval {interval} tick {k}: {last} -> {now}");
+                    assert!(
+                        (i64::from(now) - i64::from(last)).abs() <= bound,
+                        "interval {interval} tick {k}: {last} -> {now}"
+                    );
                 } else {
                     // Only once the old harmonics are gone (silent, not visited).
                     assert_eq!((h.fading, h.term_count), (0, 2), "interval {interval} tick {k}");
@@ -1800,7 +1936,11 @@ mod tests {
 
     #[test]
     fn a_kept_kernel_term_runs_on_through_a_switch_and_a_new_order_waits_for_the_old_one() {
-        let bank = TickTerm::Laguerre { input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 }, pole_q30: 998_579_896, gains_pm: [90_000, -40_000, 20_000, 0, 0, 0, 0, 0] };
+        let bank = TickTerm::Laguerre {
+            input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 },
+            pole_q30: 998_579_896,
+            gains_pm: [90_000, -40_000, 20_000, 0, 0, 0, 0, 0],
+        };
         let drift = TickTerm::Drift { offset_pm: 200_000, decay_pm: -300_000, tau_ticks: 5000 };
         let harmonic = |order, amp_reg| TickTerm::Harmonic { order, amp_reg, phase_reg: amp_reg + 1 };
         let out = harmonic_output();
@@ -1813,7 +1953,8 @@ mod tests {
         let mut pos = 0i32;
         let mut tick = |synth: &mut Synth, alone: &mut Synth, k: u32| {
             pos = pos.wrapping_add(((k * 37) % 301) as i32 - 150);
-            let input = TickInput { cmd_phase_turns: k.wrapping_mul(0x0147_ae14), cmd_pos_nm: pos, ..TickInput::default() };
+            let input =
+                TickInput { cmd_phase_turns: k.wrapping_mul(0x0147_ae14), cmd_pos_nm: pos, ..TickInput::default() };
             synth.next_input(&input);
             alone.next_input(&input);
         };
@@ -1841,7 +1982,11 @@ mod tests {
                 assert_eq!((h.orders[1], h.kernels.kernel_mask), (5, 0b101), "tick {k}");
                 if k < 96 + 79 {
                     let target = slot_1.amp_target_pm;
-                    assert!(slot_1.amp_pm.abs() <= target.abs() && slot_1.amp_pm != target, "tick {k}: {} of {target}", slot_1.amp_pm);
+                    assert!(
+                        slot_1.amp_pm.abs() <= target.abs() && slot_1.amp_pm != target,
+                        "tick {k}: {} of {target}",
+                        slot_1.amp_pm
+                    );
                 }
             }
         }
@@ -1866,10 +2011,12 @@ mod tests {
     #[test]
     fn axis_coupling_scales_the_x_acceleration_and_adds_the_spindle_sine() {
         let mut synth = Synth::new(0);
-        let term = TickTerm::AxisCoupling { x_gain_pm_per_mps2: 800_000, spindle_amp_pm: 50_000, spindle_phase_turns: 0 };
+        let term =
+            TickTerm::AxisCoupling { x_gain_pm_per_mps2: 800_000, spindle_amp_pm: 50_000, spindle_phase_turns: 0 };
         synth.update(&ModelOutput::default(), &[term]);
         // 0.25 m/s^2 -> 0.2 um; spindle at a quarter turn -> +50 nm.
-        let out = synth.next_input(&TickInput { x_acc_um_per_s2: 250_000, spindle_turns: 1 << 30, ..TickInput::default() });
+        let out =
+            synth.next_input(&TickInput { x_acc_um_per_s2: 250_000, spindle_turns: 1 << 30, ..TickInput::default() });
         assert!((out - 250_000).abs() < 20, "{out}");
     }
 
@@ -1880,7 +2027,11 @@ mod tests {
             let mut gains = [0i32; LAGUERRE_STAGES];
             gains[0] = gain;
             gains[3] = -gain / 2;
-            let term = TickTerm::Laguerre { input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 8 }, pole_q30: (0.93 * (1u64 << 30) as f64) as i32, gains_pm: gains };
+            let term = TickTerm::Laguerre {
+                input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 8 },
+                pole_q30: (0.93 * (1u64 << 30) as f64) as i32,
+                gains_pm: gains,
+            };
             synth.update(&ModelOutput::default(), &[term]);
             (0..4000)
                 .map(|k| {

@@ -47,7 +47,14 @@ impl Twin {
         let (servo, _) = Servo::new(feature_config, servo_config, params);
         let mut store = MemoryStore::default();
         let _ = store.record.extend_from_slice(stored);
-        Self { servo, models: Models::new(), rings: DefaultSpectralRings::new(), commands: DefaultCommandRing::new(), config_source, store }
+        Self {
+            servo,
+            models: Models::new(),
+            rings: DefaultSpectralRings::new(),
+            commands: DefaultCommandRing::new(),
+            config_source,
+            store,
+        }
     }
 
     /// One servo tick, with the model update done at once when one is requested; `None`

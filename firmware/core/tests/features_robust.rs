@@ -22,7 +22,11 @@ fn check_against_reference(codes: &[i16], cfg: FeatureConfig, f: &Features) {
         }
         assert!(close(a[i] as f64, r.values[i], 2e-6, 1e-9), "{}\n{}", FEATURE_NAMES[i], table(&a, &r.values));
     }
-    assert!(close(a[MEAN_FREQ_HZ] as f64, r.values[MEAN_FREQ_HZ], 5e-5, 1e-4 * r.bin_hz), "f11\n{}", table(&a, &r.values));
+    assert!(
+        close(a[MEAN_FREQ_HZ] as f64, r.values[MEAN_FREQ_HZ], 5e-5, 1e-4 * r.bin_hz),
+        "f11\n{}",
+        table(&a, &r.values)
+    );
 }
 
 fn extreme_sequences(len: usize) -> Vec<(&'static str, Vec<i16>)> {
@@ -85,7 +89,10 @@ fn scratch_too_small_is_an_error() {
         state.push(&rings, (i % 100) as i16);
     }
     let mut small = Scratch::<32>::new();
-    assert_eq!(rings.finish(&state.capture(&rings), &mut small), Err(FeatureError::ScratchTooSmall { needed_half_len: 64 }));
+    assert_eq!(
+        rings.finish(&state.capture(&rings), &mut small),
+        Err(FeatureError::ScratchTooSmall { needed_half_len: 64 })
+    );
     let mut enough = Scratch::<64>::new();
     assert!(rings.finish(&state.capture(&rings), &mut enough).is_ok());
 }
@@ -125,12 +132,11 @@ fn margin_is_honoured_and_torn_reads_are_detected() {
 static SHARED_RINGS: SpectralRings<384> = SpectralRings::new();
 
 /// The interrupt-owned state can be built in a `static` too (`FeatureState::new` is const).
-static SHARED_STATE: Mutex<FeatureState<128>> = Mutex::new(
-    match FeatureState::new(FeatureConfig { window_samples: 1024, ..FeatureConfig::DEFAULT }) {
+static SHARED_STATE: Mutex<FeatureState<128>> =
+    Mutex::new(match FeatureState::new(FeatureConfig { window_samples: 1024, ..FeatureConfig::DEFAULT }) {
         Ok(state) => state,
         Err(_) => panic!("invalid feature configuration"),
-    },
-);
+    });
 
 #[test]
 fn rings_live_in_a_static_and_are_sync() {

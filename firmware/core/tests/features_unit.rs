@@ -149,7 +149,10 @@ fn config_validation_names_the_problem() {
         err(FeatureConfig { window_samples: 112, ..base }),
         Some(FeatureError::WindowTooShort { window_samples: 112, min_samples: 128 })
     );
-    assert_eq!(err(FeatureConfig { window_samples: 1000, ..base }), Some(FeatureError::WindowNotWholeBlocks { window_samples: 1000 }));
+    assert_eq!(
+        err(FeatureConfig { window_samples: 1000, ..base }),
+        Some(FeatureError::WindowNotWholeBlocks { window_samples: 1000 })
+    );
     for bad in [0.0, -1e-3, f32::NAN, f32::INFINITY, 1e-10, 1e4] {
         assert_eq!(err(FeatureConfig { acc_mps2_per_lsb: bad, ..base }), Some(FeatureError::BadScale), "{bad}");
     }
@@ -165,7 +168,10 @@ fn config_validation_names_the_problem() {
 fn reconfigure_keeps_old_config_on_error_and_restarts_window() {
     let mut fx = Box::new(SmallExtractor::new(cfg()).unwrap());
     fx.push_slice(&vec![100; 500]);
-    assert_eq!(fx.reconfigure(FeatureConfig { window_samples: 7, ..cfg() }), Err(FeatureError::WindowTooShort { window_samples: 7, min_samples: 128 }));
+    assert_eq!(
+        fx.reconfigure(FeatureConfig { window_samples: 7, ..cfg() }),
+        Err(FeatureError::WindowTooShort { window_samples: 7, min_samples: 128 })
+    );
     assert_eq!(fx.config().window_samples, 1024);
     assert_eq!(fx.features().window_samples_used(), 500);
     fx.reconfigure(FeatureConfig { window_samples: 256, ..cfg() }).unwrap();

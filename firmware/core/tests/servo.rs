@@ -1,11 +1,11 @@
 //! The servo pipeline end to end on the host: model timing, bit-identity of the split
 //! (firmware-like) and the synchronous (host) schedules, faults and fallbacks.
 
-use sts_twin_core::commands::DefaultCommandRing;
+use sts_twin_core::axis::{AxisParams, Friction};
 use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID, OUT_FLAG_DEGRADED};
+use sts_twin_core::commands::DefaultCommandRing;
 use sts_twin_core::features::{DefaultSpectralRings, FeatureConfig};
 use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::axis::{AxisParams, Friction};
 use sts_twin_core::program::{paper_program, Program, ProgramBuilder, TickTerm, REG_AMP_UM, REG_PHASE_DEG};
 use sts_twin_core::servo::{Models, Servo, ServoConfig, DEGRADED_STUCK};
 use sts_twin_core::twin::Twin;
@@ -34,7 +34,14 @@ fn input(k: u32) -> InputSlot {
     let noise = ((k.wrapping_mul(2_654_435_761) >> 16) % 7) as f64 - 3.0;
     let acc_code = (-5000.0 * phase.sin() + noise).round() as i16;
     let cmd_phase_turns = ((40.0 * t).fract() * 4_294_967_296.0) as u64 as u32;
-    InputSlot { tick: k, acc_code, flags: IN_FLAG_PHASE_VALID, cmd_phase_turns, cmd_pos_nm: (3000.0 * phase.sin()) as i32, ..Default::default() }
+    InputSlot {
+        tick: k,
+        acc_code,
+        flags: IN_FLAG_PHASE_VALID,
+        cmd_phase_turns,
+        cmd_pos_nm: (3000.0 * phase.sin()) as i32,
+        ..Default::default()
+    }
 }
 
 /// A simple twin: amplitude = 2 * RMS (um per m/s^2), phase = -0.2 * f1 degrees.
@@ -157,7 +164,12 @@ fn an_axis_twin_program_compensates_through_its_learned_correction() {
     assert_eq!((axis.counters.axis_resets, axis.counters.model_faults, axis.counters.model_late), (0, 0, 0));
     assert!((plain.amp_um - 0.707).abs() < 0.01, "{}", plain.amp_um);
     assert!(axis.amp_um > 1.0 && axis.amp_um < 5.0, "fundamental with the correction {} um", axis.amp_um);
-    let most = plain_out[12_000..].iter().zip(&axis_out[12_000..]).map(|(a, b)| (i64::from(a.de_pred_pm) - i64::from(b.de_pred_pm)).abs()).max().unwrap();
+    let most = plain_out[12_000..]
+        .iter()
+        .zip(&axis_out[12_000..])
+        .map(|(a, b)| (i64::from(a.de_pred_pm) - i64::from(b.de_pred_pm)).abs())
+        .max()
+        .unwrap();
     assert!(most > 1_000_000, "the correction adds at most {most} pm");
 }
 
@@ -272,7 +284,10 @@ fn bad_feature_settings_are_rejected_and_counted() {
     let faults = twin.servo().fault_count();
     for window_samples in [0, u32::MAX] {
         let bad = FeatureConfig { window_samples, ..feature_config() };
-        assert!(matches!(twin.handle(Request::SetFeatureConfig(bad)), Response::Rejected(_)), "window {window_samples}");
+        assert!(
+            matches!(twin.handle(Request::SetFeatureConfig(bad)), Response::Rejected(_)),
+            "window {window_samples}"
+        );
     }
     assert_eq!(twin.servo().counters().rejected_feature_configs, 2);
     assert_eq!(twin.servo().fault_count(), faults + 2);

@@ -41,7 +41,11 @@ fn twin(config: ServoConfig) -> Box<Twin> {
 }
 
 /// Runs a faulted and a clean twin side by side; returns both output streams.
-fn side_by_side(config: ServoConfig, ticks: u32, fault: impl Fn(u32, &mut InputSlot)) -> (Vec<OutputSlot>, Vec<OutputSlot>) {
+fn side_by_side(
+    config: ServoConfig,
+    ticks: u32,
+    fault: impl Fn(u32, &mut InputSlot),
+) -> (Vec<OutputSlot>, Vec<OutputSlot>) {
     let (mut faulted, mut clean) = (twin(config), twin(config));
     (0..ticks)
         .map(|k| {
@@ -54,12 +58,18 @@ fn side_by_side(config: ServoConfig, ticks: u32, fault: impl Fn(u32, &mut InputS
 }
 
 fn check_resume(config: ServoConfig, what: &str, fault_end: u32, outputs: &[OutputSlot], reference: &[OutputSlot]) {
-    let resumed = (fault_end as usize..outputs.len()).find(|&k| outputs[k].flags & OUT_FLAG_DEGRADED == 0).expect("resumes");
+    let resumed =
+        (fault_end as usize..outputs.len()).find(|&k| outputs[k].flags & OUT_FLAG_DEGRADED == 0).expect("resumes");
     // Not before a whole window of healthy samples.
     assert!(resumed as u32 >= fault_end + 2000 - 1, "{what}: resumed at {resumed}");
     // From the first trusted tick on, the prediction is the clean run's, bit for bit.
     for k in resumed..outputs.len() {
-        assert_eq!(outputs[k].de_pred_pm, reference[k].de_pred_pm, "{what}: tick {k} ({} after resuming) predicts from faulty samples", k - resumed);
+        assert_eq!(
+            outputs[k].de_pred_pm,
+            reference[k].de_pred_pm,
+            "{what}: tick {k} ({} after resuming) predicts from faulty samples",
+            k - resumed
+        );
     }
     let timing = twin(config).servo().model_timing();
     let recovery = 2000 + timing.interval_ticks + timing.latency_ticks + config.synth_ramp_ticks;
@@ -69,7 +79,10 @@ fn check_resume(config: ServoConfig, what: &str, fault_end: u32, outputs: &[Outp
 #[test]
 fn compensation_resumes_only_with_a_prediction_from_healthy_samples() {
     // Short updates (the window's default share) and long ones (one per window).
-    for config in [ServoConfig::default(), ServoConfig { model_updates_per_window: 1, min_model_interval_ticks: 800, ..ServoConfig::default() }] {
+    for config in [
+        ServoConfig::default(),
+        ServoConfig { model_updates_per_window: 1, min_model_interval_ticks: 800, ..ServoConfig::default() },
+    ] {
         // Saturation: the clipped window's RMS is far above the real one.
         let (out, reference) = side_by_side(config, 14_000, |k, s| {
             if (6000..6300).contains(&k) {

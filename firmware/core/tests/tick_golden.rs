@@ -26,7 +26,9 @@
 use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
 use sts_twin_core::features::FeatureConfig;
 use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::program::{paper_program, Program, ProgramBuilder, TermInput, TickTerm, LAGUERRE_STAGES, REG_AMP_UM, REG_PHASE_DEG};
+use sts_twin_core::program::{
+    paper_program, Program, ProgramBuilder, TermInput, TickTerm, LAGUERRE_STAGES, REG_AMP_UM, REG_PHASE_DEG,
+};
 use sts_twin_core::servo::ServoConfig;
 use sts_twin_core::synth::{Synth, TickInput};
 use sts_twin_core::twin::Twin;
@@ -104,7 +106,8 @@ fn harmonic(order: u8, amp_reg: u8) -> TickTerm {
 /// The programs of the run, in order.
 fn programs() -> Vec<Program> {
     let drift = TickTerm::Drift { offset_pm: 300_000, decay_pm: -450_000, tau_ticks: 9000 };
-    let coupling = TickTerm::AxisCoupling { x_gain_pm_per_mps2: 800_000, spindle_amp_pm: 50_000, spindle_phase_turns: 1 << 29 };
+    let coupling =
+        TickTerm::AxisCoupling { x_gain_pm_per_mps2: 800_000, spindle_amp_pm: 50_000, spindle_phase_turns: 1 << 29 };
     let velocity = laguerre(TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 }, 0.93, 150_000);
     let dahl = laguerre(TermInput::Dahl { inv_x0_q30: (1 << 30) / 2000 }, 0.93, 120_000);
     let sine = laguerre(TermInput::PositionSine { turns_per_nm: 4_294_967, phase_turns: 7 << 28 }, 0.9, 90_000);
@@ -144,13 +147,16 @@ fn twin_hash(window_samples: u32, ticks: u32) -> u64 {
 /// Runs the twin for `ticks` ticks under `window_samples` with `program` uploaded at the
 /// start and never switched, and hashes every output.
 fn twin_hash_one_program(window_samples: u32, ticks: u32, program: &Program) -> u64 {
-    twin_run(window_samples, ticks, |k| (k == 0).then(|| Request::UploadProgram { program: program.clone(), activate: true }))
+    twin_run(window_samples, ticks, |k| {
+        (k == 0).then(|| Request::UploadProgram { program: program.clone(), activate: true })
+    })
 }
 
 /// Runs the twin for `ticks` ticks under `window_samples`, handling the request
 /// `request_at(k)` before tick `k`, and hashes every output.
 fn twin_run(window_samples: u32, ticks: u32, request_at: impl Fn(u32) -> Option<Request>) -> u64 {
-    let mut twin = Box::new(Twin::boot(FeatureConfig { window_samples, ..FeatureConfig::DEFAULT }, ServoConfig::default(), &[]));
+    let mut twin =
+        Box::new(Twin::boot(FeatureConfig { window_samples, ..FeatureConfig::DEFAULT }, ServoConfig::default(), &[]));
     let params = FeedforwardParams { enable_ramp_ticks: 400, slew_v_per_tick: 0.05, ..FeedforwardParams::default() };
     assert_eq!(twin.handle(Request::SetParams(params)), Response::Ack);
     assert_eq!(twin.handle(Request::SetEnabled(true)), Response::Ack);
@@ -204,8 +210,16 @@ fn the_twins_outputs_without_a_program_switch_are_those_pinned() {
 fn random_term(seed: &mut u64) -> TickTerm {
     let r = xorshift(seed);
     match r % 6 {
-        0 | 1 => TickTerm::Harmonic { order: 1 + (r >> 8) as u8 % 15, amp_reg: 2 + 2 * ((r >> 16) % 3) as u8, phase_reg: 3 + 2 * ((r >> 20) % 3) as u8 },
-        2 => TickTerm::Drift { offset_pm: (r >> 8) as i32 % 2_000_000, decay_pm: (r >> 24) as i32 % 3_000_000, tau_ticks: 256 + (r >> 40) as u32 % 100_000 },
+        0 | 1 => TickTerm::Harmonic {
+            order: 1 + (r >> 8) as u8 % 15,
+            amp_reg: 2 + 2 * ((r >> 16) % 3) as u8,
+            phase_reg: 3 + 2 * ((r >> 20) % 3) as u8,
+        },
+        2 => TickTerm::Drift {
+            offset_pm: (r >> 8) as i32 % 2_000_000,
+            decay_pm: (r >> 24) as i32 % 3_000_000,
+            tau_ticks: 256 + (r >> 40) as u32 % 100_000,
+        },
         3 => TickTerm::AxisCoupling {
             x_gain_pm_per_mps2: (r >> 8) as i32,
             spindle_amp_pm: (r >> 20) as i32 % 1_000_000,
@@ -283,7 +297,12 @@ fn synth_run(seed: u64, ticks: u32, fixed_terms: Option<&[TickTerm]>) -> u64 {
             2 => 0,
             _ => (r >> 32) as i32 % 10_000_000,
         };
-        let tick_input = TickInput { cmd_phase_turns: theta, cmd_pos_nm: pos as i32, x_acc_um_per_s2: x_acc, spindle_turns: (r >> 8) as u32 };
+        let tick_input = TickInput {
+            cmd_phase_turns: theta,
+            cmd_pos_nm: pos as i32,
+            x_acc_um_per_s2: x_acc,
+            spindle_turns: (r >> 8) as u32,
+        };
         hash.add(i64::from(synth.next_input(&tick_input)));
         let _ = k;
     }
@@ -298,6 +317,10 @@ fn the_synthesisers_outputs_are_those_pinned() {
 
 #[test]
 fn the_synthesisers_outputs_without_a_program_switch_are_those_pinned() {
-    let got = [(0x5eed_0003, 8), (0x5eed_0004, 8), (0x5eed_0005, 3), (0x5eed_0006, 5)].map(|(seed, count)| synth_hash_one_program(seed, 60_000, count));
-    assert_eq!(got, [7_066_689_386_559_545_409, 11_287_903_254_232_417_850, 8_612_502_348_263_093_187, 5_816_555_242_102_462_526]);
+    let got = [(0x5eed_0003, 8), (0x5eed_0004, 8), (0x5eed_0005, 3), (0x5eed_0006, 5)]
+        .map(|(seed, count)| synth_hash_one_program(seed, 60_000, count));
+    assert_eq!(
+        got,
+        [7_066_689_386_559_545_409, 11_287_903_254_232_417_850, 8_612_502_348_263_093_187, 5_816_555_242_102_462_526]
+    );
 }

@@ -16,11 +16,20 @@ fn main() -> anyhow::Result<()> {
     for with_twin in [false, true] {
         let mut machine = Machine::new(&plant, &[], 1)?;
         let mut cop = SimCoprocessor::boot(&[]);
-        let params = FeedforwardParams { k_dv_um_per_v: 2.0, k_vc_pulses_per_v: 2000.0, offset_v: 0.012, slew_v_per_tick: 1.0, ..Default::default() };
+        let params = FeedforwardParams {
+            k_dv_um_per_v: 2.0,
+            k_vc_pulses_per_v: 2000.0,
+            offset_v: 0.012,
+            slew_v_per_tick: 1.0,
+            ..Default::default()
+        };
         expect_ack("params", cop.request(Request::SetParams(params))?)?;
         expect_ack("features", cop.request(Request::SetFeatureConfig(model.feature_config))?)?;
         if with_twin {
-            expect_ack("program", cop.request(Request::UploadProgram { program: model.firmware_program()?, activate: true })?)?;
+            expect_ack(
+                "program",
+                cop.request(Request::UploadProgram { program: model.firmware_program()?, activate: true })?,
+            )?;
             expect_ack("enable", cop.request(Request::SetEnabled(true))?)?;
         }
         let traj = Sinusoid { freq_hz, amp_um, duration_s: 10.0, sample_rate_hz: 8000.0 };
@@ -35,7 +44,14 @@ fn main() -> anyhow::Result<()> {
         let fit = fit_sine(&t, &de, freq_hz).unwrap();
         let pf = fit_sine(&t, &pred, freq_hz).unwrap();
         let pv = de.iter().cloned().fold(f64::MIN, f64::max) - de.iter().cloned().fold(f64::MAX, f64::min);
-        println!("twin {with_twin}: DE amp {:.4} um phase {:.2} deg, PV {:.4} um | predicted amp {:.4} phase {:.2}", fit.amp, fit.phase_rad.to_degrees(), pv, pf.amp, pf.phase_rad.to_degrees());
+        println!(
+            "twin {with_twin}: DE amp {:.4} um phase {:.2} deg, PV {:.4} um | predicted amp {:.4} phase {:.2}",
+            fit.amp,
+            fit.phase_rad.to_degrees(),
+            pv,
+            pf.amp,
+            pf.phase_rad.to_degrees()
+        );
     }
     Ok(())
 }

@@ -39,7 +39,8 @@ use sts_twin_core::program::Program;
 
 use crate::analysis::{self, sine::wrap_deg, GroupSample};
 use crate::model::{
-    compile_program, hex_encode, FrontEntry, Formula, GroupValidation, ModelFile, ProgramListing, TrainingSettings, Validation, MODEL_FORMAT,
+    compile_program, hex_encode, Formula, FrontEntry, GroupValidation, ModelFile, ProgramListing, TrainingSettings,
+    Validation, MODEL_FORMAT,
 };
 
 /// Smallest measured dynamic-error amplitude whose phase trains and scores the phase model, um.
@@ -181,7 +182,12 @@ fn target_value(sample: &GroupSample, target: Target) -> f64 {
     }
 }
 
-fn run_search(samples: &[&GroupSample], target: Target, search: &SearchConfig, progress: &mut dyn FnMut(usize, &str)) -> anyhow::Result<SearchResult> {
+fn run_search(
+    samples: &[&GroupSample],
+    target: Target,
+    search: &SearchConfig,
+    progress: &mut dyn FnMut(usize, &str),
+) -> anyhow::Result<SearchResult> {
     let mut rows: Vec<&GroupSample> = samples.iter().copied().filter(|s| trains(s, target)).collect();
     if rows.len() < 4 && target == Target::Phase {
         // Per-tick terms (a servo-axis twin) can leave the formulas almost nothing: the
@@ -394,7 +400,12 @@ struct Job {
 
 /// Fits the twin on `dataset`. `progress` is called with the search reporting and its
 /// current best formula.
-pub fn fit(dataset: &Dataset, description: &str, config: &FitConfig, progress: &mut dyn FnMut(&FitProgress)) -> anyhow::Result<ModelFile> {
+pub fn fit(
+    dataset: &Dataset,
+    description: &str,
+    config: &FitConfig,
+    progress: &mut dyn FnMut(&FitProgress),
+) -> anyhow::Result<ModelFile> {
     let feature_config: FeatureConfig = analysis::feature_config_for(dataset, config.acc_scale_override);
     let samples = analysis::group_samples_skipping(dataset, &feature_config, config.skip_s)?;
     fit_samples(dataset, &samples, feature_config, description, config, progress)
@@ -440,10 +451,11 @@ pub fn fit_samples(
                         let mut report = |epoch: usize, best: &str| {
                             let _ = sender.send((k, Some((epoch, best.to_string()))));
                         };
-                        let result = run_search(&subset, job.target, &search, &mut report).map_err(|e| match job.fold {
-                            Some(fold) => e.context(format!("{:?} search of fold {fold}", job.target)),
-                            None => e.context(format!("final {:?} search", job.target)),
-                        });
+                        let result =
+                            run_search(&subset, job.target, &search, &mut report).map_err(|e| match job.fold {
+                                Some(fold) => e.context(format!("{:?} search of fold {fold}", job.target)),
+                                None => e.context(format!("final {:?} search", job.target)),
+                            });
                         let _ = sender.send((k, None));
                         result
                     })
@@ -459,7 +471,14 @@ pub fn fit_samples(
                     continue;
                 }
             };
-            progress(&FitProgress { searches_done: done, searches_total: total, target: jobs[k].target, fold: jobs[k].fold, epoch, best });
+            progress(&FitProgress {
+                searches_done: done,
+                searches_total: total,
+                target: jobs[k].target,
+                fold: jobs[k].fold,
+                epoch,
+                best,
+            });
         }
         worker.join().unwrap_or_else(|_| vec![Err(anyhow::anyhow!("a search panicked"))])
     });
@@ -468,8 +487,24 @@ pub fn fit_samples(
     let amp_folds: Vec<SearchResult> = results[2..].iter().step_by(2).cloned().collect();
     let phase_folds: Vec<SearchResult> = results[3..].iter().step_by(2).cloned().collect();
 
-    let amp_cv = cross_validate(Target::Amplitude, samples, folds, &amp_folds, amp_final, config.amplitude_goal_nmse, config.cv_ratio);
-    let phase_cv = cross_validate(Target::Phase, samples, folds, &phase_folds, phase_final, config.phase_goal_nmse, config.cv_ratio);
+    let amp_cv = cross_validate(
+        Target::Amplitude,
+        samples,
+        folds,
+        &amp_folds,
+        amp_final,
+        config.amplitude_goal_nmse,
+        config.cv_ratio,
+    );
+    let phase_cv = cross_validate(
+        Target::Phase,
+        samples,
+        folds,
+        &phase_folds,
+        phase_final,
+        config.phase_goal_nmse,
+        config.cv_ratio,
+    );
     let amp_complexity = amp_final.front[amp_cv.selected].complexity;
     let phase_complexity = phase_final.front[phase_cv.selected].complexity;
 
@@ -488,7 +523,8 @@ pub fn fit_samples(
 
     let validation = validate(dataset, samples, &held_out, folds);
     let mut postcard_buf = [0u8; 1024];
-    let bytes = postcard::to_slice(&program, &mut postcard_buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+    let bytes = postcard::to_slice(&program, &mut postcard_buf)
+        .map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
     Ok(ModelFile {
         format: MODEL_FORMAT.to_string(),
         description: description.to_string(),
@@ -510,7 +546,12 @@ pub fn fit_samples(
         }),
         amplitude: formula(amp_final, &amp_cv, validation.amplitude_r2),
         phase: formula(phase_final, &phase_cv, validation.phase_r2),
-        program: ProgramListing { id: program.id, code_hex: hex_encode(&program.code), consts: program.consts.to_vec(), terms: program.terms.len() },
+        program: ProgramListing {
+            id: program.id,
+            code_hex: hex_encode(&program.code),
+            consts: program.consts.to_vec(),
+            terms: program.terms.len(),
+        },
         program_postcard_hex: hex_encode(bytes),
         validation,
         probe_gain: None,
@@ -574,7 +615,13 @@ mod tests {
 
     #[test]
     fn member_up_to_takes_the_largest_complexity_not_above() {
-        let member = |c: usize| FrontMember { expr: Expr::Const(c as f64), loss: 1.0 / c as f64, complexity: c, r2: 0.0, score: 0.0 };
+        let member = |c: usize| FrontMember {
+            expr: Expr::Const(c as f64),
+            loss: 1.0 / c as f64,
+            complexity: c,
+            r2: 0.0,
+            score: 0.0,
+        };
         let front = [member(1), member(3), member(7)];
         assert_eq!(member_up_to(&front, 5).complexity, 3);
         assert_eq!(member_up_to(&front, 7).complexity, 7);

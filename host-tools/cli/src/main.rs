@@ -58,7 +58,11 @@ fn main() -> std::process::ExitCode {
 
 /// Whether a panic is `println!` failing on a closed pipe.
 fn is_closed_stdout(payload: &(dyn std::any::Any + Send)) -> bool {
-    let text = payload.downcast_ref::<String>().map(String::as_str).or_else(|| payload.downcast_ref::<&str>().copied()).unwrap_or("");
+    let text = payload
+        .downcast_ref::<String>()
+        .map(String::as_str)
+        .or_else(|| payload.downcast_ref::<&str>().copied())
+        .unwrap_or("");
     text.starts_with("failed printing to stdout") && text.contains("Broken pipe")
 }
 

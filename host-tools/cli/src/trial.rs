@@ -166,7 +166,8 @@ impl Trajectory for WithAirCut {
             p.spindle_deg = c_deg;
             p.z_cmd_um = Bicuspid::design_z_um(self.cut.r_start_mm, c_deg);
             p.phase_turns = crate::rig::turns_u32(2.0 * revs);
-            p.x_mm = self.cut.r_start_mm + approach_mm(self.air_s - t_s, self.cut.feed_mm_per_s(), (self.air_s / 2.0).min(X_APPROACH_S));
+            p.x_mm = self.cut.r_start_mm
+                + approach_mm(self.air_s - t_s, self.cut.feed_mm_per_s(), (self.air_s / 2.0).min(X_APPROACH_S));
             p
         } else {
             self.cut.at(t_s - self.air_s)
@@ -210,7 +211,9 @@ pub fn run_trial(
     let window_s = match model {
         Some(model) => {
             let mut features = model.feature_config;
-            features.window_samples = config.window_samples.unwrap_or_else(|| cut_window_samples(config.freq_hz, f64::from(features.sample_rate_hz)));
+            features.window_samples = config
+                .window_samples
+                .unwrap_or_else(|| cut_window_samples(config.freq_hz, f64::from(features.sample_rate_hz)));
             expect_ack("the feature settings", coprocessor.request(Request::SetFeatureConfig(features))?)?;
             let program = model.firmware_program()?;
             expect_ack("the twin program", coprocessor.request(Request::UploadProgram { program, activate: true })?)?;
@@ -219,7 +222,12 @@ pub fn run_trial(
         }
         None => 0.0,
     };
-    let cut = Bicuspid { freq_hz: config.freq_hz, r_start_mm: config.r_start_mm, feed_um_per_rev: config.feed_um_per_rev, sample_rate_hz: 8000.0 };
+    let cut = Bicuspid {
+        freq_hz: config.freq_hz,
+        r_start_mm: config.r_start_mm,
+        feed_um_per_rev: config.feed_um_per_rev,
+        sample_rate_hz: 8000.0,
+    };
     // The air cut: the feature window, the enable ramp and a settling second.
     let air_s = if model.is_some() { window_s + 1.5 } else { 1.0 };
     let trajectory = WithAirCut { cut, air_s };
@@ -227,7 +235,8 @@ pub fn run_trial(
     let mut deviations = Vec::new();
     let (mut s_tcp, mut c_tcp, mut s_des, mut c_des) = (0.0, 0.0, 0.0, 0.0);
     let mut last_fault = 0;
-    let radial_bins = ((config.r_eval_mm * 1e3 / (2.0 * config.feed_um_per_rev)).floor() as usize).clamp(1, MAP_RADIAL_BINS);
+    let radial_bins =
+        ((config.r_eval_mm * 1e3 / (2.0 * config.feed_um_per_rev)).floor() as usize).clamp(1, MAP_RADIAL_BINS);
     let angular_bins = MAP_ANGULAR_BINS;
     let mut bins = vec![Bin::default(); radial_bins * angular_bins];
     run_loop(&mut machine, coprocessor, &trajectory, 0, ticks, f64::from(params.dac_full_scale_v), true, |s| {
@@ -258,7 +267,9 @@ pub fn run_trial(
         anyhow::bail!("no point of the cut lies within r <= {} mm", config.r_eval_mm);
     }
     let mean = |f: fn(&Bin) -> f64| -> Vec<Vec<Option<f64>>> {
-        bins.chunks(angular_bins).map(|row| row.iter().map(|b| (b.points > 0).then(|| f(b) / f64::from(b.points))).collect()).collect()
+        bins.chunks(angular_bins)
+            .map(|row| row.iter().map(|b| (b.points > 0).then(|| f(b) / f64::from(b.points))).collect())
+            .collect()
     };
     let maps = CutMaps { r_max_mm: config.r_eval_mm, surface_um: mean(|b| b.tcp_um), deviation_um: mean(|b| b.dev_um) };
     let max = deviations.iter().cloned().fold(f64::MIN, f64::max);

@@ -40,7 +40,10 @@ fn axis_of(plant: &PlantParams, effect: Option<&EffectSpec>) -> AxisParams {
             })
         }
         "presliding-hysteresis" => {
-            params.hysteresis = Some(Hysteresis { force_mps2: per_kg(effect.get("force_n")), stiffness_per_s2: per_kg(effect.get("stiffness_n_per_um") * 1e6) })
+            params.hysteresis = Some(Hysteresis {
+                force_mps2: per_kg(effect.get("force_n")),
+                stiffness_per_s2: per_kg(effect.get("stiffness_n_per_um") * 1e6),
+            })
         }
         "force-ripple" => {
             params.ripple = Some(Ripple {
@@ -79,9 +82,16 @@ fn rms_nm(groups: usize, len: usize, fs: usize, f: impl Fn(usize, usize) -> f64)
 /// effect: its dynamic error, the twin's residual on it), RMS nm over each group's last second.
 fn effect_and_residuals(spec: &str) -> [f64; 4] {
     let effect: EffectSpec = spec.parse().expect("effect");
-    let config = MeasureConfig { freqs_hz: vec![5.0, 20.0, 40.0], amps_um: vec![2.0, 6.0, 10.0], duration_s: 3.0, seed: 7, ..MeasureConfig::default() };
+    let config = MeasureConfig {
+        freqs_hz: vec![5.0, 20.0, 40.0],
+        amps_um: vec![2.0, 6.0, 10.0],
+        duration_s: 3.0,
+        seed: 7,
+        ..MeasureConfig::default()
+    };
     let clean = sts_emulator::measure::run(&config, &|_| {}).expect("clean measurement");
-    let with = sts_emulator::measure::run(&MeasureConfig { effects: vec![effect.clone()], ..config.clone() }, &|_| {}).expect("measurement");
+    let with = sts_emulator::measure::run(&MeasureConfig { effects: vec![effect.clone()], ..config.clone() }, &|_| {})
+        .expect("measurement");
     let linear = AxisModel::new(&axis_of(&config.plant, None)).expect("valid axis parameters");
     let nonlinear = AxisModel::new(&axis_of(&config.plant, Some(&effect))).expect("valid axis parameters");
     let fs = with.manifest.sample_rate_hz as usize;
@@ -109,7 +119,10 @@ fn the_axis_twin_reproduces_the_machine_and_its_friction_hysteresis_and_encoder_
         ("force-ripple:amp_nm=50,period_um=5.3,harmonic2_nm=8,phase_deg=40", 0.01),
     ] {
         let [part_nm, residual_nm, clean_nm, clean_residual_nm] = effect_and_residuals(spec);
-        println!("{spec}: the effect's part {part_nm:.1} nm RMS, twin residual {residual_nm:.2} nm ({:.2}%)", 100.0 * residual_nm / part_nm);
+        println!(
+            "{spec}: the effect's part {part_nm:.1} nm RMS, twin residual {residual_nm:.2} nm ({:.2}%)",
+            100.0 * residual_nm / part_nm
+        );
         println!("    without it: dynamic error {clean_nm:.1} nm RMS, twin residual {clean_residual_nm:.2} nm (probe noise 5 nm)");
         assert!(part_nm > 30.0, "{spec}: the effect must matter ({part_nm:.1} nm)");
         assert!(residual_nm < worst_fraction * part_nm, "{spec}: residual {residual_nm:.2} nm of {part_nm:.1} nm");

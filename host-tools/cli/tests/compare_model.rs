@@ -9,14 +9,22 @@ use sts_twin::compare::{compare, predict_group, program_output};
 use sts_twin::fit::{fit, FitConfig};
 
 fn small(seed: u64, effects: Vec<sts_emulator::EffectSpec>) -> sts_dataset::Dataset {
-    let config = MeasureConfig { freqs_hz: vec![5.0, 20.0, 40.0], amps_um: vec![2.0, 6.0, 10.0], duration_s: 5.5, seed, effects, ..MeasureConfig::default() };
+    let config = MeasureConfig {
+        freqs_hz: vec![5.0, 20.0, 40.0],
+        amps_um: vec![2.0, 6.0, 10.0],
+        duration_s: 5.5,
+        seed,
+        effects,
+        ..MeasureConfig::default()
+    };
     sts_emulator::measure::run(&config, &|_| {}).unwrap()
 }
 
 #[test]
 fn compare_scores_the_firmware_prediction() {
     let data = small(3, Vec::new());
-    let model = fit(&data, "compare test", &FitConfig { max_epochs: 6, folds: 3, ..FitConfig::default() }, &mut |_| {}).unwrap();
+    let model = fit(&data, "compare test", &FitConfig { max_epochs: 6, folds: 3, ..FitConfig::default() }, &mut |_| {})
+        .unwrap();
     let (c, waves) = compare(&data, &model).unwrap();
     assert_eq!(c.groups.len(), 9);
     // The synthesised waveform is amp * sin(theta + phase) from the program's registers.
@@ -26,7 +34,9 @@ fn compare_scores_the_firmware_prediction() {
         f.sample_rate_hz = 8000.0;
         f
     };
-    let samples = sts_twin::analysis::group_samples_skipping(&data, &fc, model.training.as_ref().map_or(0.5, |t| t.skip_s)).unwrap();
+    let samples =
+        sts_twin::analysis::group_samples_skipping(&data, &fc, model.training.as_ref().map_or(0.5, |t| t.skip_s))
+            .unwrap();
     for s in &samples {
         let (out, ok) = program_output(&program, s);
         assert!(ok);
@@ -62,7 +72,14 @@ fn compare_scores_the_firmware_prediction() {
     sts_dataset::write(&dir.join("data"), &data).unwrap();
     model.write(&dir.join("model.json")).unwrap();
     let bin = env!("CARGO_BIN_EXE_sts-twin");
-    let out = Command::new(bin).args(["compare"]).arg(dir.join("data")).arg("--model").arg(dir.join("model.json")).arg("--json").output().unwrap();
+    let out = Command::new(bin)
+        .args(["compare"])
+        .arg(dir.join("data"))
+        .arg("--model")
+        .arg(dir.join("model.json"))
+        .arg("--json")
+        .output()
+        .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in ["waveform_rms_um", "amplitude_r2", "phase_r2"] {
@@ -88,7 +105,13 @@ fn compare_scores_the_firmware_prediction() {
     assert!(out.status.success() && !stderr.contains("panicked"), "closed stdout: {:?}, {stderr}", out.status);
 
     // Bad input: a clear error, no panic.
-    let out = Command::new(bin).args(["compare"]).arg(dir.join("data")).arg("--model").arg(dir.join("missing.json")).output().unwrap();
+    let out = Command::new(bin)
+        .args(["compare"])
+        .arg(dir.join("data"))
+        .arg("--model")
+        .arg(dir.join("missing.json"))
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.json"));
     let _ = std::fs::remove_dir_all(&dir);

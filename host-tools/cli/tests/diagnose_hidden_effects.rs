@@ -72,7 +72,13 @@ struct Outcome {
 /// the slide oscillates by itself, and the oscillation's phase depends on everything down to
 /// the integration step, so no twin driven by the command can predict it.
 fn step_dependence_nm(effects: &[EffectSpec], seed: u64) -> f64 {
-    let config = MeasureConfig { effects: effects.to_vec(), seed, freqs_hz: vec![1.0, 5.0], duration_s: 3.0, ..MeasureConfig::default() };
+    let config = MeasureConfig {
+        effects: effects.to_vec(),
+        seed,
+        freqs_hz: vec![1.0, 5.0],
+        duration_s: 3.0,
+        ..MeasureConfig::default()
+    };
     let mut fine = config.clone();
     fine.plant.servo.substeps = 16;
     let a = sts_emulator::measure::run(&config, &|_| {}).expect("measurement");
@@ -108,16 +114,29 @@ fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u6
     };
     if effect.is_some_and(|e| e != d.verdict) {
         for r in d.ranking.iter().take(3) {
-            println!("    missed: {} explains {:.1}% (p = {:.1e}, significant {})", r.effect, r.explained_fraction * 100.0, r.p_value, r.significant);
+            println!(
+                "    missed: {} explains {:.1}% (p = {:.1e}, significant {})",
+                r.effect,
+                r.explained_fraction * 100.0,
+                r.p_value,
+                r.significant
+            );
         }
     }
     let step_dependence_nm = if refit { step_dependence_nm(&effects, 100 + seed) } else { 0.0 };
-    Outcome { verdict: d.verdict, reference_rms_um: c.waveform_rms_um, refit_rms_um, step_dependence_nm, not_repeating: d.repeatability.not_repeating.len() }
+    Outcome {
+        verdict: d.verdict,
+        reference_rms_um: c.waveform_rms_um,
+        refit_rms_um,
+        step_dependence_nm,
+        not_repeating: d.repeatability.not_repeating.len(),
+    }
 }
 
 fn run_suite(suite: &Suite) {
     let reference_data = measure(suite, Vec::new(), 1);
-    let reference = fit(&reference_data, "reference (clean machine)", &fit_config(suite), &mut |_| {}).expect("reference fit");
+    let reference =
+        fit(&reference_data, "reference (clean machine)", &fit_config(suite), &mut |_| {}).expect("reference fit");
     let clean_rms = reference.validation.waveform_rms_um;
     println!("reference model: held-out waveform RMS on clean data {:.2} nm", clean_rms * 1e3);
 
@@ -137,9 +156,22 @@ fn run_suite(suite: &Suite) {
             let col = labels.iter().position(|l| *l == o.verdict).unwrap_or(labels.len() - 1);
             confusion[row][col] += 1;
             if let Some(after) = o.refit_rms_um {
-                falls.push((truth.to_string(), seed, o.reference_rms_um, after, clean_rms, o.step_dependence_nm, o.not_repeating));
+                falls.push((
+                    truth.to_string(),
+                    seed,
+                    o.reference_rms_um,
+                    after,
+                    clean_rms,
+                    o.step_dependence_nm,
+                    o.not_repeating,
+                ));
             }
-            println!("{truth:<22} seed {seed:>2}: verdict {:<22} reference RMS {:.1} nm{}", o.verdict, o.reference_rms_um * 1e3, o.refit_rms_um.map_or(String::new(), |r| format!(", refit held-out RMS {:.1} nm", r * 1e3)));
+            println!(
+                "{truth:<22} seed {seed:>2}: verdict {:<22} reference RMS {:.1} nm{}",
+                o.verdict,
+                o.reference_rms_um * 1e3,
+                o.refit_rms_um.map_or(String::new(), |r| format!(", refit held-out RMS {:.1} nm", r * 1e3))
+            );
         }
     }
 
@@ -201,7 +233,11 @@ fn run_suite(suite: &Suite) {
         // Few seeds: the overall rate must still reach 90% and every clean case must be `none`.
         assert!(total as f64 >= 0.9 * cases as f64, "only {total} of {cases} verdicts right");
         if run("none") {
-            assert_eq!(confusion[labels.len() - 1][labels.len() - 1], suite.seeds as usize, "clean data must give `none`");
+            assert_eq!(
+                confusion[labels.len() - 1][labels.len() - 1],
+                suite.seeds as usize,
+                "clean data must give `none`"
+            );
         }
     }
     assert!(fall_ok, "a refit did not halve the error, or ended above 1.5x clean on a determined measurement");
@@ -210,7 +246,14 @@ fn run_suite(suite: &Suite) {
 /// CI's share: the 99 groups shortened to 5.5 s, one seed per effect (and clean), each refitted.
 #[test]
 fn ci_suite() {
-    run_suite(&Suite { only: Vec::new(), first_seed: 0, seeds: env_u64("STS_SUITE_CI_SEEDS", 1), fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1), paper_grid: false, epochs: 10 });
+    run_suite(&Suite {
+        only: Vec::new(),
+        first_seed: 0,
+        seeds: env_u64("STS_SUITE_CI_SEEDS", 1),
+        fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1),
+        paper_grid: false,
+        epochs: 10,
+    });
 }
 
 /// The full run (see the module docs for the command).

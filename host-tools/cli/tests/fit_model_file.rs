@@ -12,7 +12,11 @@ use sts_twin::model::{ModelFile, ModelFileError, MODEL_FORMAT};
 fn model() -> &'static ModelFile {
     static MODEL: OnceLock<ModelFile> = OnceLock::new();
     MODEL.get_or_init(|| {
-        let config = MeasureConfig { freqs_hz: vec![10.0, 20.0, 30.0, 40.0], amps_um: vec![2.0, 6.0, 10.0], ..MeasureConfig::default() };
+        let config = MeasureConfig {
+            freqs_hz: vec![10.0, 20.0, 30.0, 40.0],
+            amps_um: vec![2.0, 6.0, 10.0],
+            ..MeasureConfig::default()
+        };
         let data = run(&config, &|_| {}).unwrap();
         let fit_config = FitConfig { seed: 3, max_epochs: 8, folds: 2, ..FitConfig::default() };
         fit(&data, "12 groups", &fit_config, &mut |_| {}).unwrap()
@@ -101,7 +105,10 @@ fn a_corrupt_program_is_named() {
         let message = read_error(name, &text().replace(hex.as_str(), &replacement));
         assert!(message.contains("field `program_postcard_hex` ") && message.contains(expect), "{name}: {message}");
         if name == "truncated.json" {
-            assert!(message.contains("not a postcard-encoded program") || message.contains("invalid program"), "{message}");
+            assert!(
+                message.contains("not a postcard-encoded program") || message.contains("invalid program"),
+                "{message}"
+            );
         }
     }
 }

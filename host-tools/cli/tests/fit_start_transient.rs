@@ -28,10 +28,21 @@ fn skipping_the_start_gives_the_features_of_steady_motion() {
         let skipped = group_features_from(&rest, &config, start).unwrap();
         let rel = |a: f32, b: f32| ((a - b) / b).abs();
         // The transient inflates the crest factor (f8) of the whole window...
-        assert!(rel(unskipped[7], reference[7]) > 0.3, "crest factor from rest {} vs steady {}", unskipped[7], reference[7]);
+        assert!(
+            rel(unskipped[7], reference[7]) > 0.3,
+            "crest factor from rest {} vs steady {}",
+            unskipped[7],
+            reference[7]
+        );
         // ... and the skipped window reads steady motion within noise.
         for i in STEADY {
-            assert!(rel(skipped[i], reference[i]) < 0.005, "{}: skipped {} vs steady {}", FEATURE_NAMES[i], skipped[i], reference[i]);
+            assert!(
+                rel(skipped[i], reference[i]) < 0.005,
+                "{}: skipped {} vs steady {}",
+                FEATURE_NAMES[i],
+                skipped[i],
+                reference[i]
+            );
         }
         assert!(rel(skipped[0], reference[0]) < 1e-3, "frequency {} vs {}", skipped[0], reference[0]);
     }

@@ -56,7 +56,11 @@ fn held_out_figures_meet_the_must_show() {
     // Readable: within the default complexity limit, arithmetic only.
     for f in [&m.amplitude, &m.phase] {
         assert!(f.complexity <= FitConfig::default().max_complexity, "{}", f.formula);
-        assert!(["abs", "sqrt", "exp", "log", "tanh", "sin", "**"].iter().all(|op| !f.formula.contains(op)), "{}", f.formula);
+        assert!(
+            ["abs", "sqrt", "exp", "log", "tanh", "sin", "**"].iter().all(|op| !f.formula.contains(op)),
+            "{}",
+            f.formula
+        );
         assert!(f.selection.contains("<- selected"), "{}", f.selection);
         assert!(f.front.iter().all(|e| e.r2_cv.is_some()));
     }
@@ -140,7 +144,13 @@ fn rust_export_compiles_and_computes_the_formulas() {
     let (rs, bin) = (scratch("twin.rs"), scratch("twin_rs"));
     std::fs::write(&rs, &src).unwrap();
     let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
-    let status = Command::new(rustc).arg("--edition=2021").arg(&rs).arg("-o").arg(&bin).status().expect("rustc is needed for this test");
+    let status = Command::new(rustc)
+        .arg("--edition=2021")
+        .arg(&rs)
+        .arg("-o")
+        .arg(&bin)
+        .status()
+        .expect("rustc is needed for this test");
     assert!(status.success(), "rustc failed on:\n{src}");
     check_printed(&Command::new(&bin).output().unwrap().stdout, m, &rows);
 }

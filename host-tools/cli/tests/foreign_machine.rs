@@ -67,7 +67,11 @@ fn on_the_board(model: &Path, data: &Path, freq_hz: f64, amp_um: f64) -> OnTheBo
     let group = &dataset.groups[index];
     let mut board = SimCoprocessor::boot(&[]);
     expect_ack("features", board.request(Request::SetFeatureConfig(model.feature_config)).unwrap()).unwrap();
-    expect_ack("program", board.request(Request::UploadProgram { program: model.firmware_program().unwrap(), activate: true }).unwrap()).unwrap();
+    expect_ack(
+        "program",
+        board.request(Request::UploadProgram { program: model.firmware_program().unwrap(), activate: true }).unwrap(),
+    )
+    .unwrap();
     let scale = f64::from(model.feature_config.acc_mps2_per_lsb);
     let probe_gain = model.probe_gain.unwrap_or(1.0);
     let second = dataset.manifest.sample_rate_hz as usize;
@@ -95,7 +99,9 @@ fn on_the_board(model: &Path, data: &Path, freq_hz: f64, amp_um: f64) -> OnTheBo
     let last = &outputs_um[ticks - second..];
     let before = &outputs_um[ticks - 2 * second..ticks - second];
     OnTheBoard {
-        residual_rms_um: rms(&mut (0..second).map(|i| group.z_tcp_um[first + i] / probe_gain - group.z_cmd_um[first + i] - last[i])),
+        residual_rms_um: rms(
+            &mut (0..second).map(|i| group.z_tcp_um[first + i] / probe_gain - group.z_cmd_um[first + i] - last[i])
+        ),
         peak_um: last.iter().fold(0.0, |m, x| m.max(x.abs())),
         drift_rms_um: rms(&mut last.iter().zip(before).map(|(a, b)| a - b)),
         fault_count,
@@ -115,15 +121,30 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
     let dir: PathBuf = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("foreign-machine-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let clean = Foreign::default();
-    let lugre = Lugre { coulomb_n: 3.0, static_n: 4.0, stribeck_mps: 3e-4, sigma0_n_per_m: 1.5e6, sigma1_ns_per_m: 300.0 };
+    let lugre =
+        Lugre { coulomb_n: 3.0, static_n: 4.0, stribeck_mps: 3e-4, sigma0_n_per_m: 1.5e6, sigma1_ns_per_m: 300.0 };
     let cases = [
-        Case { name: "lugre-friction", machine: Foreign { friction: Some(lugre), ..clean }, seed: 3, verdicts: &["presliding-hysteresis", "coulomb-friction"] },
+        Case {
+            name: "lugre-friction",
+            machine: Foreign { friction: Some(lugre), ..clean },
+            seed: 3,
+            verdicts: &["presliding-hysteresis", "coulomb-friction"],
+        },
         // Four ticks more between encoder and force (500 us).
         Case { name: "delay", machine: Foreign { delay_ticks: 5, ..clean }, seed: 4, verdicts: &["loop-delay"] },
-        Case { name: "probe-gain", machine: Foreign { probe_gain: 0.95, ..clean }, seed: 5, verdicts: &["sensor-gain"] },
+        Case {
+            name: "probe-gain",
+            machine: Foreign { probe_gain: 0.95, ..clean },
+            seed: 5,
+            verdicts: &["sensor-gain"],
+        },
     ];
     // The same machine recorded at 10 kHz, not the servo's 8 kHz: the tools resample it.
-    let mut runs: Vec<(&str, Foreign, u64)> = vec![("clean", clean, 1), ("clean-again", clean, 2), ("clean-10khz", Foreign { record_hz: 10_000.0, ..clean }, 6)];
+    let mut runs: Vec<(&str, Foreign, u64)> = vec![
+        ("clean", clean, 1),
+        ("clean-again", clean, 2),
+        ("clean-10khz", Foreign { record_hz: 10_000.0, ..clean }, 6),
+    ];
     runs.extend(cases.iter().map(|c| (c.name, c.machine, c.seed)));
     std::thread::scope(|s| {
         for (name, machine, seed) in &runs {
@@ -151,20 +172,35 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
     // (1.6 mm/s^2 at 10 um) is below its noise (3 mm/s^2), at 40 Hz far above.
     for g in again["groups"].as_array().unwrap() {
         let (freq_hz, snr) = (g["freq_hz"].as_f64().unwrap(), g["acc_snr"].as_f64().unwrap());
-        assert!(if freq_hz == 2.0 { snr < 1.0 } else if freq_hz == 40.0 { snr > 10.0 } else { true }, "{freq_hz} Hz: accelerometer SNR {snr}");
+        assert!(
+            if freq_hz == 2.0 {
+                snr < 1.0
+            } else if freq_hz == 40.0 {
+                snr > 10.0
+            } else {
+                true
+            },
+            "{freq_hz} Hz: accelerometer SNR {snr}"
+        );
     }
     assert_eq!(verdict["verdict"], "none", "clean data: {}", verdict["summary"]);
     let at_10khz = sts_twin(&["compare", path(&dir.join("clean-10khz")), "--model", path(&m0), "--json"]);
     let verdict_10khz = sts_twin(&["diagnose", path(&dir.join("clean-10khz")), "--model", path(&m0), "--json"]);
     let rms_10khz_um = at_10khz["waveform_rms_um"].as_f64().unwrap();
-    println!("recorded at 10 kHz: {:.1} nm (amplitude R^2 {:.5}), verdict {}", rms_10khz_um * 1e3, at_10khz["amplitude_r2"].as_f64().unwrap(), verdict_10khz["verdict"]);
+    println!(
+        "recorded at 10 kHz: {:.1} nm (amplitude R^2 {:.5}), verdict {}",
+        rms_10khz_um * 1e3,
+        at_10khz["amplitude_r2"].as_f64().unwrap(),
+        verdict_10khz["verdict"]
+    );
     assert!(rms_10khz_um < 1.5 * clean_rms_um, "at 10 kHz: {rms_10khz_um} um");
     assert_eq!(verdict_10khz["verdict"], "none", "clean data at 10 kHz: {}", verdict_10khz["summary"]);
 
     let mut failures = Vec::new();
     for case in &cases {
         let data = dir.join(case.name);
-        let before_um = sts_twin(&["compare", path(&data), "--model", path(&m0), "--json"])["waveform_rms_um"].as_f64().unwrap();
+        let before_um =
+            sts_twin(&["compare", path(&data), "--model", path(&m0), "--json"])["waveform_rms_um"].as_f64().unwrap();
         let d = sts_twin(&["diagnose", path(&data), "--model", path(&m0), "--json"]);
         let verdict = d["verdict"].as_str().unwrap().to_string();
         let refit = dir.join(format!("twin-{}.json", case.name));
@@ -193,7 +229,13 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
         if verdict != "none" {
             let old = on_the_board(&m0, &data, 40.0, 10.0);
             let new = on_the_board(&refit, &data, 40.0, 10.0);
-            let axis = ModelFile::read(&refit).unwrap().firmware_program().unwrap().terms.iter().any(|t| matches!(t, TickTerm::Axis(_)));
+            let axis = ModelFile::read(&refit)
+                .unwrap()
+                .firmware_program()
+                .unwrap()
+                .terms
+                .iter()
+                .any(|t| matches!(t, TickTerm::Axis(_)));
             if axis {
                 println!(
                     "{:<15} on the board (40 Hz, 10 um): the axis twin's correction settles at {:.2} um peak (changing {:.1} nm RMS from one second to the next), {} faults",
@@ -206,7 +248,11 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
                 );
             }
             let ok = new.fault_count == 0
-                && if axis { new.peak_um < 10.0 && new.drift_rms_um < 0.01 } else { new.residual_rms_um < 0.5 * old.residual_rms_um };
+                && if axis {
+                    new.peak_um < 10.0 && new.drift_rms_um < 0.01
+                } else {
+                    new.residual_rms_um < 0.5 * old.residual_rms_um
+                };
             if !ok {
                 failures.push(format!(
                     "{}: on the board: residual {:.1} -> {:.1} nm, peak {:.2} um, drift {:.1} nm, {} faults",
@@ -220,7 +266,10 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
             }
         }
         if !case.verdicts.contains(&verdict.as_str()) {
-            failures.push(format!("{}: verdict {verdict}, expected one of {:?}: {}", case.name, case.verdicts, d["summary"]));
+            failures.push(format!(
+                "{}: verdict {verdict}, expected one of {:?}: {}",
+                case.name, case.verdicts, d["summary"]
+            ));
         } else if fall.is_nan() || fall < 0.5 {
             failures.push(format!("{}: the refit's error fell {:.0}% only", case.name, fall * 100.0));
         }

@@ -10,7 +10,13 @@ use sts_twin::analysis::repeat::Repeatability;
 use sts_twin::analysis::{feature_config_for, group_samples};
 
 fn repeatability(effects: Vec<EffectSpec>) -> (Repeatability, Vec<f64>) {
-    let config = MeasureConfig { effects, seed: 100, freqs_hz: vec![1.0], amps_um: vec![1.0, 4.0, 9.0, 11.0], ..MeasureConfig::default() };
+    let config = MeasureConfig {
+        effects,
+        seed: 100,
+        freqs_hz: vec![1.0],
+        amps_um: vec![1.0, 4.0, 9.0, 11.0],
+        ..MeasureConfig::default()
+    };
     let data = sts_emulator::measure::run(&config, &|_| {}).expect("measurement");
     let samples = group_samples(&data, &feature_config_for(&data, None)).expect("samples");
     (Repeatability::of_samples(&data, &samples), config.amps_um)

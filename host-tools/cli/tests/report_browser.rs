@@ -26,7 +26,14 @@ fn chromium() -> Option<PathBuf> {
 }
 
 fn small_measurement(effects: Vec<EffectSpec>, seed: u64) -> sts_dataset::Dataset {
-    let config = MeasureConfig { freqs_hz: vec![5.0, 20.0, 40.0], amps_um: vec![2.0, 6.0, 10.0], duration_s: 5.5, effects, seed, ..MeasureConfig::default() };
+    let config = MeasureConfig {
+        freqs_hz: vec![5.0, 20.0, 40.0],
+        amps_um: vec![2.0, 6.0, 10.0],
+        duration_s: 5.5,
+        effects,
+        seed,
+        ..MeasureConfig::default()
+    };
     sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
 }
 
@@ -79,7 +86,11 @@ fn the_report_renders_in_headless_chromium() {
         diagnosis: Some(&d),
         chosen_groups: vec![0],
     });
-    assert!(!html.contains("http://") || html.matches("http://").count() == html.matches("http://www.w3.org/2000/svg").count(), "the report must not reach the network");
+    assert!(
+        !html.contains("http://")
+            || html.matches("http://").count() == html.matches("http://www.w3.org/2000/svg").count(),
+        "the report must not reach the network"
+    );
 
     let dir = std::env::temp_dir().join(format!("sts-twin-report-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -93,7 +104,15 @@ fn the_report_renders_in_headless_chromium() {
     let dom = String::from_utf8_lossy(&out.stdout);
     let svgs = dom.matches("<svg").count();
     assert!(svgs >= 8, "only {svgs} charts in the DOM");
-    for id in ["id=\"summary\"", "id=\"verdict\"", "id=\"ranking\"", "id=\"map-model\"", "id=\"harmonics\"", "id=\"time\"", "id=\"groups\""] {
+    for id in [
+        "id=\"summary\"",
+        "id=\"verdict\"",
+        "id=\"ranking\"",
+        "id=\"map-model\"",
+        "id=\"harmonics\"",
+        "id=\"time\"",
+        "id=\"groups\"",
+    ] {
         assert!(dom.contains(id), "DOM lacks {id}");
     }
     assert_eq!(dom.matches("class=\"cell\"").count(), 2 * 9, "heat maps have one cell per group");
@@ -101,7 +120,11 @@ fn the_report_renders_in_headless_chromium() {
 
     // Screenshot: a picture with content.
     let shot = dir.join("report.png");
-    let out = run_chromium(&browser, &dir.join("profile-shot"), &[format!("--screenshot={}", shot.display()), "--window-size=1360,2400".to_string(), url]);
+    let out = run_chromium(
+        &browser,
+        &dir.join("profile-shot"),
+        &[format!("--screenshot={}", shot.display()), "--window-size=1360,2400".to_string(), url],
+    );
     assert!(out.status.success(), "chromium --screenshot failed: {}", String::from_utf8_lossy(&out.stderr));
     let png = std::fs::read(&shot).expect("screenshot written");
     assert_eq!(png_size(&png), Some((1360, 2400)));

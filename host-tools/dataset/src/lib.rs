@@ -49,12 +49,10 @@ pub const FORMAT: &str = "sts-twin-dataset/1";
 pub const MANIFEST_FILE: &str = "manifest.json";
 
 /// The five columns every group file has.
-pub const REQUIRED_COLUMNS: [Column; 5] =
-    [Column::TS, Column::ZCmdUm, Column::ZEncUm, Column::ZTcpUm, Column::AccMps2];
+pub const REQUIRED_COLUMNS: [Column; 5] = [Column::TS, Column::ZCmdUm, Column::ZEncUm, Column::ZTcpUm, Column::AccMps2];
 
 /// The optional columns a group file may have (used by the tools when present).
-pub const OPTIONAL_COLUMNS: [Column; 4] =
-    [Column::XMm, Column::XAccMps2, Column::SpindleDeg, Column::TempC];
+pub const OPTIONAL_COLUMNS: [Column; 4] = [Column::XMm, Column::XAccMps2, Column::SpindleDeg, Column::TempC];
 
 /// The dataset manifest (`manifest.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -28,12 +28,7 @@ pub fn read(dir: &Path) -> Result<Dataset, DatasetError> {
     Ok(Dataset { manifest, groups })
 }
 
-fn read_group(
-    dir: &Path,
-    index: usize,
-    info: &GroupInfo,
-    sample_rate_hz: f64,
-) -> Result<GroupData, DatasetError> {
+fn read_group(dir: &Path, index: usize, info: &GroupInfo, sample_rate_hz: f64) -> Result<GroupData, DatasetError> {
     let path = dir.join(&info.file);
     let bytes = match std::fs::read(&path) {
         Ok(bytes) => bytes,
@@ -182,11 +177,8 @@ fn optional_positive<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::
 
 fn file_name<'de, D: Deserializer<'de>>(d: D) -> Result<String, D::Error> {
     let name = String::deserialize(d)?;
-    let plain = !name.is_empty()
-        && name != "."
-        && name != ".."
-        && !name.contains(['/', '\\', '\0'])
-        && name != MANIFEST_FILE;
+    let plain =
+        !name.is_empty() && name != "." && name != ".." && !name.contains(['/', '\\', '\0']) && name != MANIFEST_FILE;
     if !plain {
         return Err(D::Error::custom(format!(
             "group `file` {name:?} must be a plain file name inside the dataset directory"
@@ -331,10 +323,7 @@ fn parse_header(path: &Path, line_number: usize, header: &[u8]) -> Result<Vec<Co
     if let Some(missing) = crate::REQUIRED_COLUMNS.iter().find(|c| !columns.contains(c)) {
         return Err(bad(
             header.len(),
-            format!(
-                "required column `{}` missing (required: t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2)",
-                missing.name()
-            ),
+            format!("required column `{}` missing (required: t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2)", missing.name()),
         ));
     }
     Ok(columns)

@@ -49,8 +49,7 @@ pub fn write_manifest(dir: &Path, manifest: &Manifest) -> Result<(), DatasetErro
 /// Writes one group file `DIR/FILE`.
 pub fn write_group(dir: &Path, file: &str, group: &GroupData) -> Result<(), DatasetError> {
     let path = dir.join(file);
-    let bytes = format_group_csv(group)
-        .map_err(|message| DatasetError::InvalidData { path: path.clone(), message })?;
+    let bytes = format_group_csv(group).map_err(|message| DatasetError::InvalidData { path: path.clone(), message })?;
     std::fs::write(&path, bytes).map_err(|source| DatasetError::Io { path, source })
 }
 
@@ -58,8 +57,7 @@ pub fn write_group(dir: &Path, file: &str, group: &GroupData) -> Result<(), Data
 /// per sample. Errors (as text) on columns of unequal length or non-finite values.
 pub fn format_group_csv(group: &GroupData) -> Result<Vec<u8>, String> {
     let columns = group.present_columns();
-    let data: Vec<(Column, &[f64])> =
-        columns.iter().filter_map(|c| group.column(*c).map(|v| (*c, v))).collect();
+    let data: Vec<(Column, &[f64])> = columns.iter().filter_map(|c| group.column(*c).map(|v| (*c, v))).collect();
     let len = group.len();
     for (column, values) in &data {
         if values.len() != len {

@@ -22,7 +22,12 @@ fn sample_dataset(optional: bool) -> Dataset {
             data.temp_c = Some(vec![20.0; n]);
         }
         groups.push(data);
-        infos.push(GroupInfo { file: format!("g{g:03}.csv"), freq_hz: 5.0, amp_um: g as f64 + 1.0, start_s: 6.0 * g as f64 });
+        infos.push(GroupInfo {
+            file: format!("g{g:03}.csv"),
+            freq_hz: 5.0,
+            amp_um: g as f64 + 1.0,
+            start_s: 6.0 * g as f64,
+        });
     }
     let mut manifest = Manifest::new(8000.0, "test data", infos);
     manifest.acc_mps2_per_lsb = Some(0.00059814);
@@ -67,10 +72,7 @@ fn round_trip_within_rounding() {
     let again = tempfile::tempdir().unwrap();
     write(again.path(), &written).unwrap();
     for name in ["manifest.json", "g000.csv", "g002.csv"] {
-        assert_eq!(
-            std::fs::read(dir.path().join(name)).unwrap(),
-            std::fs::read(again.path().join(name)).unwrap()
-        );
+        assert_eq!(std::fs::read(dir.path().join(name)).unwrap(), std::fs::read(again.path().join(name)).unwrap());
     }
 }
 
@@ -146,9 +148,24 @@ fn missing_group_file() {
 #[test]
 fn bad_headers() {
     let cases = [
-        ("t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2,x_mm", "t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2,x_m", "unknown column \"x_m\"", 41),
-        ("t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2,x_mm", "t_s,z_cmd_um,z_enc_um,z_tcp_um,x_mm,x_mm", "appears twice", 37),
-        ("t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2,x_mm", "t_s,z_cmd_um,z_enc_um,z_tcp_um,x_mm", "required column `acc_mps2` missing", 43),
+        (
+            "t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2,x_mm",
+            "t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2,x_m",
+            "unknown column \"x_m\"",
+            41,
+        ),
+        (
+            "t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2,x_mm",
+            "t_s,z_cmd_um,z_enc_um,z_tcp_um,x_mm,x_mm",
+            "appears twice",
+            37,
+        ),
+        (
+            "t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2,x_mm",
+            "t_s,z_cmd_um,z_enc_um,z_tcp_um,x_mm",
+            "required column `acc_mps2` missing",
+            43,
+        ),
     ];
     for (from, to, expect, column) in cases {
         let dir = tempfile::tempdir().unwrap();
@@ -221,7 +238,13 @@ fn too_short_and_garbage_never_panic() {
     let text = with_rows(dir.path(), &["0,1,2,3,4"]);
     assert!(text.contains("g001.csv") && text.contains("too few samples"), "{text}");
     // Arbitrary bytes: an error, never a panic.
-    let junk: &[&[u8]] = &[b"\xff\xfe\x00,,,\n\n", b",,,,\n,,,,", b"t_s\n1", b"\n\n\n", b"t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2\n\xff,1,2,3,4\n"];
+    let junk: &[&[u8]] = &[
+        b"\xff\xfe\x00,,,\n\n",
+        b",,,,\n,,,,",
+        b"t_s\n1",
+        b"\n\n\n",
+        b"t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2\n\xff,1,2,3,4\n",
+    ];
     for bytes in junk {
         let result = sts_dataset::parse_group_csv(Path::new("junk.csv"), bytes, 8000.0);
         assert!(result.is_err());

@@ -31,7 +31,13 @@ fn single_core(effects: &[EffectSpec], label: &str) {
     let cpu0 = thread_cpu_s();
     let mut sink = 0.0;
     for k in 0..n {
-        let out = machine.step(&StepInput { z_cmd_um: 5.0 * (w * k as f64).sin(), x_mm: 5.0, spindle_deg: 0.0, analog_in_v: 0.0, analog_enabled: false });
+        let out = machine.step(&StepInput {
+            z_cmd_um: 5.0 * (w * k as f64).sin(),
+            x_mm: 5.0,
+            spindle_deg: 0.0,
+            analog_in_v: 0.0,
+            analog_enabled: false,
+        });
         sink += out.z_tcp_um;
     }
     let secs = start.elapsed().as_secs_f64();
@@ -58,7 +64,10 @@ fn main() {
     let cpu0 = thread_cpu_s();
     let group = simulate_group(&config, 50).expect("group");
     let cpu = thread_cpu_s() - cpu0;
-    println!("one core, one group with all dataset columns: {:.2} M samples per CPU second", group.len() as f64 / cpu / 1e6);
+    println!(
+        "one core, one group with all dataset columns: {:.2} M samples per CPU second",
+        group.len() as f64 / cpu / 1e6
+    );
 
     let threads = rayon::current_num_threads();
     let start = Instant::now();
@@ -79,11 +88,8 @@ fn main() {
     run_to_dir(&config, dir.path(), &|_| {}).expect("measure to dir");
     let secs = start.elapsed().as_secs_f64();
     let cpu = process_cpu_s() - cpu0;
-    let bytes: u64 = std::fs::read_dir(dir.path())
-        .expect("dir")
-        .filter_map(|e| e.ok()?.metadata().ok())
-        .map(|m| m.len())
-        .sum();
+    let bytes: u64 =
+        std::fs::read_dir(dir.path()).expect("dir").filter_map(|e| e.ok()?.metadata().ok()).map(|m| m.len()).sum();
     println!(
         "full measurement test written to disk ({threads} threads): {secs:.3} s wall, {cpu:.3} s CPU, {:.0} MB",
         bytes as f64 / 1e6

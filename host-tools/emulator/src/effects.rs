@@ -304,7 +304,11 @@ impl FromStr for EffectSpec {
             };
             let key = key.trim();
             if seen.contains(&key) {
-                return Err(EffectError::BadValue { effect: name.into(), key: key.into(), reason: "given twice".into() });
+                return Err(EffectError::BadValue {
+                    effect: name.into(),
+                    key: key.into(),
+                    reason: "given twice".into(),
+                });
             }
             seen.push(key);
             let value: f64 = value.trim().parse().map_err(|_| EffectError::BadValue {

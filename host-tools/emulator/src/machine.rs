@@ -220,8 +220,12 @@ impl Machine {
                 EffectKind::LoopDelay => extra_delay_us = e.get("delay_us"),
                 EffectKind::ThermalDrift => fx.thermal = Some((e.get("rise_k"), e.get("tau_s"), e.get("um_per_k"))),
                 EffectKind::ForceRipple => {
-                    fx.ripple =
-                        Some((e.get("amp_nm"), e.get("period_um"), e.get("harmonic2_nm"), e.get("phase_deg").to_radians()))
+                    fx.ripple = Some((
+                        e.get("amp_nm"),
+                        e.get("period_um"),
+                        e.get("harmonic2_nm"),
+                        e.get("phase_deg").to_radians(),
+                    ))
                 }
                 EffectKind::AxisCoupling => {
                     fx.coupling =
@@ -256,10 +260,7 @@ impl Machine {
         a[2][2] = -1.0 / tau;
         b[2][0] = 1.0 / tau;
         let s = &p.structure;
-        let modes = [
-            Some((s.mode_freq_hz, s.mode_damping, s.mode_tcp_gain, s.acc_mode_shape)),
-            extra_mode,
-        ];
+        let modes = [Some((s.mode_freq_hz, s.mode_damping, s.mode_tcp_gain, s.acc_mode_shape)), extra_mode];
         let mut mode_acc_row = [[0.0; NX]; 2];
         let mut mode_acc_dist = [0.0; 2];
         let mut mode_tcp = [0.0; 2];
@@ -288,10 +289,7 @@ impl Machine {
         let output_delay_substeps = (total_delay_s / h_s).round() as usize;
         let split_substep = output_delay_substeps % substeps;
         let first = if split_substep == 0 { substeps } else { split_substep };
-        let seg = [
-            discretize(&a, &b, first as f64 * h_s),
-            discretize(&a, &b, (substeps - split_substep) as f64 * h_s),
-        ];
+        let seg = [discretize(&a, &b, first as f64 * h_s), discretize(&a, &b, (substeps - split_substep) as f64 * h_s)];
         let nonlinear = fx.friction.is_some() || fx.hysteresis.is_some();
 
         // Accelerometer filters at the 8 kHz sample rate (bilinear, low-pass prewarped).
@@ -300,8 +298,7 @@ impl Machine {
         let norm = 1.0 / (1.0 + std::f64::consts::SQRT_2 * k + k * k);
         let b0 = k * k * norm;
         let lp = [b0, 2.0 * b0, b0, 2.0 * (k * k - 1.0) * norm, (1.0 - std::f64::consts::SQRT_2 * k + k * k) * norm];
-        let acc_noise_sigma =
-            p.accelerometer.noise_ug_per_rthz * 1e-6 * G_MPS2 * (SERVO_RATE_HZ / 2.0).sqrt();
+        let acc_noise_sigma = p.accelerometer.noise_ug_per_rthz * 1e-6 * G_MPS2 * (SERVO_RATE_HZ / 2.0).sqrt();
 
         let mut wander_rng = ChaCha8Rng::seed_from_u64(splitmix(options.seed));
         let mut wander_phase = [0.0; 3];
@@ -395,8 +392,8 @@ impl Machine {
     fn disturbance_n(&self, velocity_mps: f64) -> f64 {
         let mut f = 0.0;
         if let Some(fr) = &self.effects.friction {
-            let stribeck = fr.coulomb_n
-                + (fr.static_n - fr.coulomb_n) * (-(velocity_mps / fr.stribeck_mps).powi(2)).exp();
+            let stribeck =
+                fr.coulomb_n + (fr.static_n - fr.coulomb_n) * (-(velocity_mps / fr.stribeck_mps).powi(2)).exp();
             f -= stribeck * (velocity_mps / fr.smooth_mps).tanh();
         }
         if let Some(h) = &self.effects.hysteresis {
@@ -479,7 +476,8 @@ impl Machine {
             z_tcp_true_um += um_per_k * rise_k;
         }
         if let Some((um_per_mps2, spindle_um, spindle_phase)) = self.effects.coupling {
-            z_tcp_true_um += um_per_mps2 * x_acc_mps2 + spindle_um * (input.spindle_deg.to_radians() + spindle_phase).sin();
+            z_tcp_true_um +=
+                um_per_mps2 * x_acc_mps2 + spindle_um * (input.spindle_deg.to_radians() + spindle_phase).sin();
         }
         let probe_noise = noise_probe * p.probe.noise_rms_nm * 1e-3;
         let z_tcp_um = self.effects.probe_gain * z_tcp_true_um + probe_noise;
@@ -511,11 +509,8 @@ impl Machine {
         let slot = (self.tick as usize) % HISTORY;
         self.cmd_history[slot] = input.z_cmd_um;
         let delay = p.servo.command_delay_ticks as u64;
-        let delayed_cmd = if self.tick >= delay {
-            self.cmd_history[((self.tick - delay) as usize) % HISTORY]
-        } else {
-            0.0
-        };
+        let delayed_cmd =
+            if self.tick >= delay { self.cmd_history[((self.tick - delay) as usize) % HISTORY] } else { 0.0 };
         let added_pulses = if input.analog_enabled { ain_pulses } else { 0 };
         let r_um = delayed_cmd + added_pulses as f64 * itf.pulse_nm * 1e-3;
         let s = &p.servo;

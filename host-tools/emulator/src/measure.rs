@@ -158,11 +158,8 @@ impl MeasureConfig {
 /// Simulates group `index` of the configuration.
 pub fn simulate_group(config: &MeasureConfig, index: usize) -> Result<GroupData, MeasureError> {
     config.check()?;
-    let info = config
-        .groups()
-        .into_iter()
-        .nth(index)
-        .ok_or_else(|| MeasureError::Config(format!("no group {index}")))?;
+    let info =
+        config.groups().into_iter().nth(index).ok_or_else(|| MeasureError::Config(format!("no group {index}")))?;
     // Lead-in: whole command periods, so the command is zero when the motion starts.
     let lead_s = (config.lead_in_s * info.freq_hz).ceil() / info.freq_hz;
     let lead_ticks = (lead_s / TICK_S).round() as usize;
@@ -235,8 +232,7 @@ pub fn run_to_dir(
 ) -> Result<Manifest, MeasureError> {
     config.check()?;
     let manifest = config.manifest();
-    std::fs::create_dir_all(dir)
-        .map_err(|source| DatasetError::Io { path: dir.to_path_buf(), source })?;
+    std::fs::create_dir_all(dir).map_err(|source| DatasetError::Io { path: dir.to_path_buf(), source })?;
     let done = AtomicUsize::new(0);
     let results: Vec<Result<(), MeasureError>> = manifest
         .groups

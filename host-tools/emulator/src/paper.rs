@@ -99,8 +99,24 @@ pub fn paper_table(config: &MeasureConfig) -> Result<Vec<PaperRow>, MeasureError
         row("TCP (capacitance) amplitude", 30.0, 5.0, 7.29, at30.tcp_amp_um, "um", Tolerance::Relative(0.05)),
         row("encoder phase error", 30.0, 5.0, 1.06, at30.enc_lag_deg, "deg", Tolerance::Absolute(0.5)),
         row("TCP phase error", 30.0, 5.0, 4.13, at30.tcp_lag_deg, "deg", Tolerance::Absolute(1.0)),
-        row("total dynamic-error amplitude", 5.0, AMP_5HZ_UM, 0.12, at5.dynamic_error_um, "um", Tolerance::Relative(0.25)),
-        row("total dynamic-error amplitude", 40.0, AMP_40HZ_UM, 4.35, at40.dynamic_error_um, "um", Tolerance::Relative(0.25)),
+        row(
+            "total dynamic-error amplitude",
+            5.0,
+            AMP_5HZ_UM,
+            0.12,
+            at5.dynamic_error_um,
+            "um",
+            Tolerance::Relative(0.25),
+        ),
+        row(
+            "total dynamic-error amplitude",
+            40.0,
+            AMP_40HZ_UM,
+            4.35,
+            at40.dynamic_error_um,
+            "um",
+            Tolerance::Relative(0.25),
+        ),
         row("phase error", 5.0, AMP_5HZ_UM, 0.42, at5.tcp_lag_deg, "deg", Tolerance::Relative(0.25)),
         row("phase error", 40.0, AMP_40HZ_UM, 8.41, at40.tcp_lag_deg, "deg", Tolerance::Relative(0.25)),
         row("tracking-error amplitude", 30.0, 5.0, 1.06, at30.tracking_error_um, "um", Tolerance::None),
@@ -145,7 +161,14 @@ pub fn format_table(rows: &[PaperRow], markdown: bool) -> String {
             }
         }
         let fmt_line = |cells: &[String]| {
-            cells.iter().zip(widths).map(|(c, w)| format!("{c:<w$}")).collect::<Vec<_>>().join("  ").trim_end().to_string()
+            cells
+                .iter()
+                .zip(widths)
+                .map(|(c, w)| format!("{c:<w$}"))
+                .collect::<Vec<_>>()
+                .join("  ")
+                .trim_end()
+                .to_string()
         };
         out.push_str(&fmt_line(&header.map(String::from)));
         out.push('\n');

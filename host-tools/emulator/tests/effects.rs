@@ -196,7 +196,10 @@ fn names_parse_and_errors_are_clear() {
     let err = |s: &str| s.parse::<EffectSpec>().unwrap_err().to_string();
     assert!(err("friction").contains("unknown effect `friction`"));
     assert!(err("loop-delay:delay=3").contains("unknown parameter `delay`"));
-    assert!(err("loop-delay:delay_us=abc").contains("`delay_us`") && err("loop-delay:delay_us=abc").contains("not a number"));
+    assert!(
+        err("loop-delay:delay_us=abc").contains("`delay_us`")
+            && err("loop-delay:delay_us=abc").contains("not a number")
+    );
     assert!(err("loop-delay:delay_us=-5").contains("out of range"));
     assert!(err("structural-mode:damping=1.5").contains("`damping`"));
     assert!(err("loop-delay:delay_us").contains("key=value"));

@@ -5,9 +5,7 @@ use std::hint::black_box;
 use sts_symreg::{BinaryOp, Evaluator, Expr, Program, UnaryOp};
 
 fn data(n_rows: usize, n_cols: usize) -> Vec<Vec<f64>> {
-    (0..n_cols)
-        .map(|c| (0..n_rows).map(|r| 0.5 + ((r * 7 + c * 13) % 97) as f64 * 0.1).collect())
-        .collect()
+    (0..n_cols).map(|c| (0..n_rows).map(|r| 0.5 + ((r * 7 + c * 13) % 97) as f64 * 0.1).collect()).collect()
 }
 
 fn bench_eval(c: &mut Criterion) {
@@ -18,19 +16,11 @@ fn bench_eval(c: &mut Criterion) {
     // Six nodes need one unary operator (binary-only trees have an odd node count).
     let sqrt = Expr::unary(
         UnaryOp::Sqrt,
-        Expr::binary(
-            BinaryOp::Add,
-            Expr::binary(BinaryOp::Mul, Expr::Var(0), Expr::Var(1)),
-            Expr::Var(2),
-        ),
+        Expr::binary(BinaryOp::Add, Expr::binary(BinaryOp::Mul, Expr::Var(0), Expr::Var(1)), Expr::Var(2)),
     );
     let tanh = Expr::unary(
         UnaryOp::Tanh,
-        Expr::binary(
-            BinaryOp::Add,
-            Expr::binary(BinaryOp::Mul, Expr::Const(1.5), Expr::Var(0)),
-            Expr::Var(1),
-        ),
+        Expr::binary(BinaryOp::Add, Expr::binary(BinaryOp::Mul, Expr::Const(1.5), Expr::Var(0)), Expr::Var(1)),
     );
     let pow = Expr::binary(
         BinaryOp::Mul,

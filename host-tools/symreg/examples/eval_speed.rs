@@ -19,9 +19,8 @@ fn thread_cpu_s() -> f64 {
 }
 
 fn main() {
-    let cols: Vec<Vec<f64>> = (0..12)
-        .map(|c| (0..100).map(|r| 0.5 + ((r * 7 + c * 13) % 97) as f64 * 0.1).collect())
-        .collect();
+    let cols: Vec<Vec<f64>> =
+        (0..12).map(|c| (0..100).map(|r| 0.5 + ((r * 7 + c * 13) % 97) as f64 * 0.1).collect()).collect();
     let refs: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
     let sqrt = Expr::unary(
         UnaryOp::Sqrt,

@@ -90,11 +90,7 @@ impl Matrix {
     /// From row-major data of `n_rows * n_cols` values.
     pub fn from_row_major(n_rows: usize, n_cols: usize, data: Vec<f64>) -> Result<Self, SymregError> {
         if data.len() != n_rows * n_cols {
-            return Err(SymregError::Shape {
-                n_rows,
-                n_cols,
-                len: data.len(),
-            });
+            return Err(SymregError::Shape { n_rows, n_cols, len: data.len() });
         }
         Ok(Self { n_rows, n_cols, data })
     }
@@ -105,19 +101,11 @@ impl Matrix {
         let mut data = Vec::with_capacity(rows.len() * n_cols);
         for (row, r) in rows.iter().enumerate() {
             if r.len() != n_cols {
-                return Err(SymregError::RaggedRow {
-                    row,
-                    len: r.len(),
-                    expected: n_cols,
-                });
+                return Err(SymregError::RaggedRow { row, len: r.len(), expected: n_cols });
             }
             data.extend_from_slice(r);
         }
-        Ok(Self {
-            n_rows: rows.len(),
-            n_cols,
-            data,
-        })
+        Ok(Self { n_rows: rows.len(), n_cols, data })
     }
 
     /// From equally long columns.
@@ -125,11 +113,7 @@ impl Matrix {
         let n_rows = columns.first().map_or(0, Vec::len);
         for (col, c) in columns.iter().enumerate() {
             if c.len() != n_rows {
-                return Err(SymregError::RaggedRow {
-                    row: col,
-                    len: c.len(),
-                    expected: n_rows,
-                });
+                return Err(SymregError::RaggedRow { row: col, len: c.len(), expected: n_rows });
             }
         }
         let n_cols = columns.len();

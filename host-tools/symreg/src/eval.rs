@@ -64,16 +64,8 @@ impl Program {
             }
             max_stack = max_stack.max(depth);
         }
-        let n_constants = postfix
-            .iter()
-            .filter(|n| matches!(n, PostfixNode::Const(_)))
-            .count();
-        Program {
-            fused,
-            postfix,
-            n_constants,
-            max_stack,
-        }
+        let n_constants = postfix.iter().filter(|n| matches!(n, PostfixNode::Const(_))).count();
+        Program { fused, postfix, n_constants, max_stack }
     }
 
     /// Replaces the constants (postfix order, as [`Expr::constants`]) without recompiling:
@@ -512,7 +504,13 @@ impl Evaluator {
                     }
                     a.copy_from_slice(&self.tmp_value);
                     // The operands' ranges are adjacent (or one is empty).
-                    let (lo, hi) = if la == ha { (lb, hb) } else if lb == hb { (la, ha) } else { (la, hb) };
+                    let (lo, hi) = if la == ha {
+                        (lb, hb)
+                    } else if lb == hb {
+                        (la, ha)
+                    } else {
+                        (la, hb)
+                    };
                     (*alo, *ahi) = (lo, hi);
                     if !all_finite(a) || !all_finite(&arest[lo * n..hi * n]) {
                         return false;
@@ -622,12 +620,21 @@ mod tests {
         let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
         assert!(ev.eval(&p, &refs, &mut a));
         assert!(ev.eval_generic(&p, &refs, &mut b));
-        assert_eq!(a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), b.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+        assert_eq!(
+            a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            b.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
         let (mut ja, mut jb) = (vec![0.0; k * n], vec![0.0; k * n]);
         assert!(ev.eval_with_jacobian(&p, &refs, &mut a, &mut ja));
         assert!(ev.eval_with_jacobian_generic(&p, &refs, &mut b, &mut jb));
-        assert_eq!(a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), b.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
-        assert_eq!(ja.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), jb.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+        assert_eq!(
+            a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            b.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
+        assert_eq!(
+            ja.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            jb.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
     }
 
     /// The libm semantics the engine had before its own `exp`/`ln`/`tanh`/`pow`: the
@@ -655,8 +662,30 @@ mod tests {
     }
 
     const EDGES: [f64; 24] = [
-        0.0, -0.0, 1.0, -1.0, 2.0, -2.0, 0.78, -0.78, 5e-324, -5e-324, 1e-300, 2.5e-308, 30.0, -30.0, 709.0, 709.9,
-        -745.0, -746.0, 1e300, -1e300, f64::MAX, f64::INFINITY, f64::NEG_INFINITY, f64::NAN,
+        0.0,
+        -0.0,
+        1.0,
+        -1.0,
+        2.0,
+        -2.0,
+        0.78,
+        -0.78,
+        5e-324,
+        -5e-324,
+        1e-300,
+        2.5e-308,
+        30.0,
+        -30.0,
+        709.0,
+        709.9,
+        -745.0,
+        -746.0,
+        1e300,
+        -1e300,
+        f64::MAX,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NAN,
     ];
 
     fn check_one(e: &Expr, cols: &[&[f64]], want: f64) {
@@ -715,10 +744,7 @@ mod tests {
     #[test]
     fn non_finite_intermediate_is_invalid() {
         // tanh(1/(x0 - x0)) would be finite at the output (tanh(inf) = 1) but is invalid.
-        let e = Expr::unary(
-            Tanh,
-            Expr::binary(Div, Expr::Const(1.0), Expr::binary(Sub, Expr::Var(0), Expr::Var(0))),
-        );
+        let e = Expr::unary(Tanh, Expr::binary(Div, Expr::Const(1.0), Expr::binary(Sub, Expr::Var(0), Expr::Var(0))));
         assert_eq!(e.eval_columns(&[&[1.0, 2.0]]), None);
     }
 }

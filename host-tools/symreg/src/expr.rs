@@ -45,14 +45,8 @@ pub enum BinaryOp {
 
 impl UnaryOp {
     /// Every unary operator, in a fixed order.
-    pub const ALL: [UnaryOp; 6] = [
-        UnaryOp::Abs,
-        UnaryOp::Sqrt,
-        UnaryOp::Exp,
-        UnaryOp::Log,
-        UnaryOp::Tanh,
-        UnaryOp::Sin,
-    ];
+    pub const ALL: [UnaryOp; 6] =
+        [UnaryOp::Abs, UnaryOp::Sqrt, UnaryOp::Exp, UnaryOp::Log, UnaryOp::Tanh, UnaryOp::Sin];
 
     /// Applies the operator with the firmware's semantics. `exp`, `log` and `tanh` are the
     /// engine's own ([`crate::fastmath`], within 5.5e-16 of the exact value).
@@ -83,13 +77,7 @@ impl UnaryOp {
 
 impl BinaryOp {
     /// Every binary operator, in a fixed order.
-    pub const ALL: [BinaryOp; 5] = [
-        BinaryOp::Add,
-        BinaryOp::Sub,
-        BinaryOp::Mul,
-        BinaryOp::Div,
-        BinaryOp::Pow,
-    ];
+    pub const ALL: [BinaryOp; 5] = [BinaryOp::Add, BinaryOp::Sub, BinaryOp::Mul, BinaryOp::Div, BinaryOp::Pow];
 
     /// Applies the operator with the firmware's semantics. `pow` is the engine's own
     /// ([`crate::fastmath::pow_abs`]).
@@ -282,9 +270,7 @@ impl Expr {
         let program = crate::eval::Program::compile(self);
         let mut evaluator = crate::eval::Evaluator::new(n_rows);
         let mut out = vec![0.0; n_rows];
-        evaluator
-            .eval(&program, columns, &mut out)
-            .then_some(out)
+        evaluator.eval(&program, columns, &mut out).then_some(out)
     }
 
     /// Evaluates on every row of a row-major [`crate::Matrix`]; `None` if any intermediate
@@ -378,10 +364,9 @@ impl Expr {
             (Expr::Const(a), Expr::Const(b)) => a.total_cmp(b),
             (Expr::Var(a), Expr::Var(b)) => a.cmp(b),
             (Expr::Unary(o1, a1), Expr::Unary(o2, a2)) => o1.cmp(o2).then_with(|| a1.structural_cmp(a2)),
-            (Expr::Binary(o1, a1, b1), Expr::Binary(o2, a2, b2)) => o1
-                .cmp(o2)
-                .then_with(|| a1.structural_cmp(a2))
-                .then_with(|| b1.structural_cmp(b2)),
+            (Expr::Binary(o1, a1, b1), Expr::Binary(o2, a2, b2)) => {
+                o1.cmp(o2).then_with(|| a1.structural_cmp(a2)).then_with(|| b1.structural_cmp(b2))
+            }
             _ => rank(self).cmp(&rank(other)),
         }
     }
@@ -415,10 +400,7 @@ impl Expr {
 
     fn to_infix_with<S: AsRef<str>>(&self, var_names: &[S], digits: Option<usize>) -> String {
         let mut s = String::new();
-        let style = Style {
-            lang: Lang::Python,
-            digits,
-        };
+        let style = Style { lang: Lang::Python, digits };
         self.write_infix(&mut s, var_names, &style, 0);
         s
     }
@@ -437,10 +419,7 @@ impl Expr {
             FloatType::F32 => "f32",
             FloatType::F64 => "f64",
         };
-        let style = Style {
-            lang: Lang::Rust(float),
-            digits: None,
-        };
+        let style = Style { lang: Lang::Rust(float), digits: None };
         let mut body = String::new();
         let index_names: Vec<String> = (0..self.n_vars_used()).map(|i| format!("x[{i}]")).collect();
         self.write_infix(&mut body, &index_names, &style, 0);
@@ -464,10 +443,7 @@ impl Expr {
             FloatType::F32 => "float",
             FloatType::F64 => "double",
         };
-        let style = Style {
-            lang: Lang::C(float),
-            digits: None,
-        };
+        let style = Style { lang: Lang::C(float), digits: None };
         let mut body = String::new();
         let index_names: Vec<String> = (0..self.n_vars_used()).map(|i| format!("x[{i}]")).collect();
         self.write_infix(&mut body, &index_names, &style, 0);
@@ -562,11 +538,7 @@ impl Expr {
                         Lang::Python => {
                             // `**` binds tighter than everything but calls and atoms.
                             b.write_infix(&mut expo, names, style, 0);
-                            let expo = if b.precedence(style.lang) >= 9 {
-                                expo
-                            } else {
-                                format!("({expo})")
-                            };
+                            let expo = if b.precedence(style.lang) >= 9 { expo } else { format!("({expo})") };
                             let text = format!("abs({base})**{expo}");
                             if my < parent_prec {
                                 let _ = write!(s, "({text})");
@@ -649,10 +621,7 @@ fn rust_receiver(e: &Expr, text: String) -> String {
 }
 
 fn var_name<S: AsRef<str>>(names: &[S], i: usize) -> String {
-    names
-        .get(i)
-        .map(|n| n.as_ref().to_string())
-        .unwrap_or_else(|| format!("x{i}"))
+    names.get(i).map(|n| n.as_ref().to_string()).unwrap_or_else(|| format!("x{i}"))
 }
 
 /// Formats a constant: shortest round-trip decimal, always with a decimal point or exponent

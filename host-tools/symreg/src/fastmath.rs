@@ -204,24 +204,24 @@ pub fn pow_abs(a: f64, b: f64) -> f64 {
 #[inline(always)]
 pub fn exp_in_place(v: &mut [f64]) {
     for x in v.iter_mut() {
-    *x = exp(*x);
-}
+        *x = exp(*x);
+    }
 }
 
 /// `x <- ln|x|` on a column.
 #[inline(always)]
 pub fn ln_in_place(v: &mut [f64]) {
     for x in v.iter_mut() {
-    *x = ln(*x);
-}
+        *x = ln(*x);
+    }
 }
 
 /// `x <- tanh(x)` on a column.
 #[inline(always)]
 pub fn tanh_in_place(v: &mut [f64]) {
     for x in v.iter_mut() {
-    *x = tanh(*x);
-}
+        *x = tanh(*x);
+    }
 }
 
 /// `x <- |x|^b` on a column, for one exponent `b`.
@@ -229,12 +229,12 @@ pub fn tanh_in_place(v: &mut [f64]) {
 pub fn pow_abs_const_in_place(v: &mut [f64], b: f64) {
     if b == 2.0 {
         for x in v.iter_mut() {
-    *x *= *x;
-}
+            *x *= *x;
+        }
     } else {
         for x in v.iter_mut() {
-    *x = pow_abs(*x, b);
-}
+            *x = pow_abs(*x, b);
+        }
     }
 }
 
@@ -242,8 +242,8 @@ pub fn pow_abs_const_in_place(v: &mut [f64], b: f64) {
 #[inline(always)]
 pub fn pow_abs_in_place(a: &mut [f64], b: &[f64]) {
     for (x, y) in a.iter_mut().zip(b.iter()) {
-    *x = pow_abs(*x, *y);
-}
+        *x = pow_abs(*x, *y);
+    }
 }
 
 #[cfg(test)]
@@ -371,9 +371,39 @@ mod tests {
         let nan = f64::NAN;
         let inf = f64::INFINITY;
         let xs = [
-            0.0, -0.0, 1.0, -1.0, 5e-324, -5e-324, 2.2e-308, 1e-300, 0.5, 1e-20, 19.0, 19.1, 20.0, 21.0,
-            300.0, 354.9, 700.0, 709.78, 709.783, 710.0, 1e5, 1e300, f64::MAX, -708.4, -745.1, -745.2,
-            -746.0, -1e5, -1e300, -f64::MAX, inf, -inf, nan,
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            5e-324,
+            -5e-324,
+            2.2e-308,
+            1e-300,
+            0.5,
+            1e-20,
+            19.0,
+            19.1,
+            20.0,
+            21.0,
+            300.0,
+            354.9,
+            700.0,
+            709.78,
+            709.783,
+            710.0,
+            1e5,
+            1e300,
+            f64::MAX,
+            -708.4,
+            -745.1,
+            -745.2,
+            -746.0,
+            -1e5,
+            -1e300,
+            -f64::MAX,
+            inf,
+            -inf,
+            nan,
         ];
         let same_class = |got: f64, want: f64, what: &str, x: f64| {
             assert_eq!(got.is_nan(), want.is_nan(), "{what}({x}): {got} vs {want}");

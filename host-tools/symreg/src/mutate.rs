@@ -230,11 +230,8 @@ impl Grammar<'_> {
                 if !self.ops.unary.is_empty() && rng.chance(0.5) {
                     sub = Expr::unary(rng.pick(&self.ops.unary), sub);
                 }
-                *node = Expr::binary(
-                    BinaryOp::Add,
-                    Expr::Const(0.0),
-                    Expr::binary(BinaryOp::Mul, Expr::Const(1.0), sub),
-                );
+                *node =
+                    Expr::binary(BinaryOp::Add, Expr::Const(0.0), Expr::binary(BinaryOp::Mul, Expr::Const(1.0), sub));
             }
             Mutation::AddTerm => {
                 // sub -> sub + c*x_i (or - / * / a new leaf term).
@@ -403,12 +400,7 @@ mod tests {
     #[test]
     fn random_trees_have_the_requested_size() {
         let ops = OperatorSet::all();
-        let g = Grammar {
-            ops: &ops,
-            n_vars: 3,
-            max_complexity: 30,
-            max_depth: 30,
-        };
+        let g = Grammar { ops: &ops, n_vars: 3, max_complexity: 30, max_depth: 30 };
         let mut rng = Rand::new(7, 0);
         for size in 1..20 {
             let t = g.random_tree(&mut rng, size);
@@ -419,12 +411,7 @@ mod tests {
     #[test]
     fn mutations_and_simplification_keep_values_valid() {
         let ops = OperatorSet::all();
-        let g = Grammar {
-            ops: &ops,
-            n_vars: 3,
-            max_complexity: 30,
-            max_depth: 30,
-        };
+        let g = Grammar { ops: &ops, n_vars: 3, max_complexity: 30, max_depth: 30 };
         let mut rng = Rand::new(11, 0);
         let mut e = g.random_tree(&mut rng, 7);
         for _ in 0..3000 {

@@ -18,14 +18,7 @@ pub(crate) struct Workspace<'a> {
 impl<'a> Workspace<'a> {
     pub fn new(columns: &'a [&'a [f64]], y: &'a [f64]) -> Self {
         let n = y.len();
-        Workspace {
-            columns,
-            y,
-            evaluator: Evaluator::new(n),
-            pred: vec![0.0; n],
-            jac: Vec::new(),
-            evaluations: 0,
-        }
+        Workspace { columns, y, evaluator: Evaluator::new(n), pred: vec![0.0; n], jac: Vec::new(), evaluations: 0 }
     }
 
     /// Mean squared error, or `None` if the expression is invalid on the data.
@@ -66,10 +59,7 @@ impl<'a> Workspace<'a> {
         while iter < iterations {
             iter += 1;
             self.evaluations += 1;
-            if !self
-                .evaluator
-                .eval_with_jacobian(&program, self.columns, &mut self.pred, &mut self.jac)
-            {
+            if !self.evaluator.eval_with_jacobian(&program, self.columns, &mut self.pred, &mut self.jac) {
                 break;
             }
             let sse: f64 = self.pred.iter().zip(self.y).map(|(p, y)| (p - y) * (p - y)).sum();
@@ -203,16 +193,17 @@ mod tests {
         // y = 1.95 - 1.23*tanh(-0.0441*x0 + 0.122*x1 + 1.08)
         let x0: Vec<f64> = (0..60).map(|i| 5.0 + (i as f64 * 7.3) % 35.0).collect();
         let x1: Vec<f64> = (0..60).map(|i| 1.0 + (i as f64 * 3.1) % 9.0).collect();
-        let y: Vec<f64> = x0
-            .iter()
-            .zip(&x1)
-            .map(|(a, b)| 1.95 - 1.23 * (-0.0441 * a + 0.122 * b + 1.08).tanh())
-            .collect();
+        let y: Vec<f64> =
+            x0.iter().zip(&x1).map(|(a, b)| 1.95 - 1.23 * (-0.0441 * a + 0.122 * b + 1.08).tanh()).collect();
         let cols: Vec<&[f64]> = vec![&x0, &x1];
         let mut ws = Workspace::new(&cols, &y);
         let inner = Expr::binary(
             Add,
-            Expr::binary(Add, Expr::binary(Mul, Expr::Const(-0.1), Expr::Var(0)), Expr::binary(Mul, Expr::Const(0.2), Expr::Var(1))),
+            Expr::binary(
+                Add,
+                Expr::binary(Mul, Expr::Const(-0.1), Expr::Var(0)),
+                Expr::binary(Mul, Expr::Const(0.2), Expr::Var(1)),
+            ),
             Expr::Const(0.5),
         );
         let mut e = Expr::binary(Sub, Expr::Const(2.0), Expr::binary(Mul, Expr::Const(1.0), Expr::unary(Tanh, inner)));
@@ -228,7 +219,8 @@ mod tests {
         let y: Vec<f64> = x0.iter().map(|v| v.sin() * 3.0).collect();
         let cols: Vec<&[f64]> = vec![&x0];
         let mut ws = Workspace::new(&cols, &y);
-        let mut e = Expr::binary(Mul, Expr::Const(0.5), Expr::unary(Exp, Expr::binary(Mul, Expr::Const(0.1), Expr::Var(0))));
+        let mut e =
+            Expr::binary(Mul, Expr::Const(0.5), Expr::unary(Exp, Expr::binary(Mul, Expr::Const(0.1), Expr::Var(0))));
         let before = ws.mse(&e).unwrap();
         let after = ws.optimize_constants(&mut e, 20).unwrap();
         assert!(after <= before);

@@ -81,7 +81,18 @@ pub fn ranges(problem: Planted) -> [(f64, f64); N_FEATURES] {
         }
     }
     // Distractors on varied scales.
-    let distractors = [(0.5, 2.0), (1.0, 20.0), (0.5, 10.0), (2.0, 8.0), (0.5, 5.0), (1.0, 15.0), (0.5, 3.0), (3.0, 20.0), (0.5, 10.0), (1.0, 4.0)];
+    let distractors = [
+        (0.5, 2.0),
+        (1.0, 20.0),
+        (0.5, 10.0),
+        (2.0, 8.0),
+        (0.5, 5.0),
+        (1.0, 15.0),
+        (0.5, 3.0),
+        (3.0, 20.0),
+        (0.5, 10.0),
+        (1.0, 4.0),
+    ];
     for (j, d) in (problem.used_features().len()..N_FEATURES).zip(distractors) {
         r[j] = d;
     }
@@ -163,7 +174,11 @@ mod tests {
         // P2 truth and a linear stand-in.
         let inner = Expr::binary(
             Add,
-            Expr::binary(Add, Expr::binary(Mul, Expr::Const(-0.0441), Expr::Var(0)), Expr::binary(Mul, Expr::Const(0.122), Expr::Var(1))),
+            Expr::binary(
+                Add,
+                Expr::binary(Mul, Expr::Const(-0.0441), Expr::Var(0)),
+                Expr::binary(Mul, Expr::Const(0.122), Expr::Var(1)),
+            ),
             Expr::Const(1.08),
         );
         let p2 = Expr::binary(Sub, Expr::Const(1.95), Expr::binary(Mul, Expr::Const(1.23), Expr::unary(Tanh, inner)));

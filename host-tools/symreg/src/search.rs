@@ -31,10 +31,7 @@ pub struct OperatorSet {
 impl OperatorSet {
     /// All operators: `+ - * / pow abs sqrt exp log tanh sin`.
     pub fn all() -> OperatorSet {
-        OperatorSet {
-            unary: UnaryOp::ALL.to_vec(),
-            binary: BinaryOp::ALL.to_vec(),
-        }
+        OperatorSet { unary: UnaryOp::ALL.to_vec(), binary: BinaryOp::ALL.to_vec() }
     }
 
     /// Parses a comma- or space-separated list such as `"+,-,*,/,pow,tanh"`.
@@ -46,18 +43,14 @@ impl OperatorSet {
     /// assert!(OperatorSet::parse("+,cosh").is_err());
     /// ```
     pub fn parse(list: &str) -> Result<OperatorSet, SymregError> {
-        let mut set = OperatorSet {
-            unary: Vec::new(),
-            binary: Vec::new(),
-        };
+        let mut set = OperatorSet { unary: Vec::new(), binary: Vec::new() };
         for name in list.split([',', ' ']).map(str::trim).filter(|s| !s.is_empty()) {
             if let Some(op) = UnaryOp::ALL.iter().find(|o| o.name() == name) {
                 if !set.unary.contains(op) {
                     set.unary.push(*op);
                 }
-            } else if let Some(op) = BinaryOp::ALL
-                .iter()
-                .find(|o| o.name() == name || (name == "**" && **o == BinaryOp::Pow))
+            } else if let Some(op) =
+                BinaryOp::ALL.iter().find(|o| o.name() == name || (name == "**" && **o == BinaryOp::Pow))
             {
                 if !set.binary.contains(op) {
                     set.binary.push(*op);
@@ -348,12 +341,7 @@ impl Island {
         }
         let mse = mse?;
         let complexity = e.complexity();
-        Some(Member {
-            expr: e,
-            mse,
-            complexity,
-            birth: 0,
-        })
+        Some(Member { expr: e, mse, complexity, birth: 0 })
     }
 
     fn fitness(&self, m: &Member, var_y: f64, scaling: f64) -> f64 {
@@ -391,9 +379,10 @@ impl Island {
             };
             // De-duplicate: same complexity and the same error means the same function
             // (up to an equivalent rewrite); keep the population diverse.
-            let dup = self.pop.iter().any(|o| {
-                o.complexity == m.complexity && (o.mse - m.mse).abs() <= 1e-9 * o.mse.max(m.mse) + 1e-300
-            });
+            let dup = self
+                .pop
+                .iter()
+                .any(|o| o.complexity == m.complexity && (o.mse - m.mse).abs() <= 1e-9 * o.mse.max(m.mse) + 1e-300);
             if dup {
                 self.record(&m);
                 continue;
@@ -405,13 +394,7 @@ impl Island {
 
     /// Regularised (aging) evolution: the newcomer replaces the oldest member.
     fn replace_oldest(&mut self, mut m: Member) {
-        let oldest = self
-            .pop
-            .iter()
-            .enumerate()
-            .min_by_key(|(_, o)| o.birth)
-            .map(|(i, _)| i)
-            .unwrap_or(0);
+        let oldest = self.pop.iter().enumerate().min_by_key(|(_, o)| o.birth).map(|(i, _)| i).unwrap_or(0);
         self.counts[self.pop[oldest].complexity] -= 1;
         m.birth = self.births;
         self.births += 1;
@@ -422,13 +405,7 @@ impl Island {
 
     /// Replaces a random member (never the best one) with a migrant.
     fn receive(&mut self, migrant: &Member, rng: &mut Rand) {
-        let best = self
-            .pop
-            .iter()
-            .enumerate()
-            .min_by(|a, b| a.1.mse.total_cmp(&b.1.mse))
-            .map(|(i, _)| i)
-            .unwrap_or(0);
+        let best = self.pop.iter().enumerate().min_by(|a, b| a.1.mse.total_cmp(&b.1.mse)).map(|(i, _)| i).unwrap_or(0);
         let mut i = rng.below(self.pop.len());
         if i == best {
             i = (i + 1) % self.pop.len();
@@ -445,10 +422,7 @@ impl Island {
 /// Checks the data and returns `var(y)`.
 fn validate(x: &Matrix, y: &[f64]) -> Result<f64, SymregError> {
     if x.n_rows() != y.len() {
-        return Err(SymregError::RowCount {
-            x_rows: x.n_rows(),
-            y_len: y.len(),
-        });
+        return Err(SymregError::RowCount { x_rows: x.n_rows(), y_len: y.len() });
     }
     if y.len() < 3 {
         return Err(SymregError::TooFewRows { min: 3, got: y.len() });
@@ -543,9 +517,7 @@ where
         .build()
         .map_err(|e| SymregError::Config(format!("cannot start {} threads: {e}", cfg.threads)))?;
 
-    let mut islands: Vec<Island> = (0..cfg.islands)
-        .map(|i| Island::new(cfg.seed, i, cfg.max_complexity))
-        .collect();
+    let mut islands: Vec<Island> = (0..cfg.islands).map(|i| Island::new(cfg.seed, i, cfg.max_complexity)).collect();
     let mut master = Rand::new(cfg.seed, 0);
     pool.install(|| islands.par_iter_mut().for_each(|isl| isl.initialize(&problem)));
 
@@ -655,14 +627,7 @@ where
             "no valid formula was found (every candidate was non-finite on the data)".into(),
         ));
     }
-    Ok(SearchResult {
-        front: front_members,
-        selected,
-        explanation,
-        stop_reason,
-        epochs,
-        evaluations,
-    })
+    Ok(SearchResult { front: front_members, selected, explanation, stop_reason, epochs, evaluations })
 }
 
 /// Thorough constant optimisation of a hall-of-fame member (with restarts), then
@@ -696,12 +661,7 @@ fn polish(ws: &mut Workspace<'_>, rng: &mut Rand, p: &Problem<'_>, m: &Member) -
     if complexity > p.cfg.max_complexity || best_mse > m.mse {
         return None;
     }
-    Some(Member {
-        expr: best,
-        mse: best_mse,
-        complexity,
-        birth: 0,
-    })
+    Some(Member { expr: best, mse: best_mse, complexity, birth: 0 })
 }
 
 /// Removes nodes that do not pay for themselves: repeatedly replaces an operator node by one
@@ -728,15 +688,15 @@ fn prune(ws: &mut Workspace<'_>, p: &Problem<'_>, m: &Member) -> Vec<Member> {
                 if mse <= current.mse * (1.0 + 1e-6) || mse <= floor {
                     let simplified = simplify(&candidate);
                     let (expr, mse) = match ws.mse(&simplified) {
-                        Some(s) if simplified.complexity() < candidate.complexity() && (s <= mse * (1.0 + 1e-9) || s <= floor) => (simplified, s),
+                        Some(s)
+                            if simplified.complexity() < candidate.complexity()
+                                && (s <= mse * (1.0 + 1e-9) || s <= floor) =>
+                        {
+                            (simplified, s)
+                        }
                         _ => (candidate, mse),
                     };
-                    current = Member {
-                        complexity: expr.complexity(),
-                        expr,
-                        mse,
-                        birth: 0,
-                    };
+                    current = Member { complexity: expr.complexity(), expr, mse, birth: 0 };
                     kept.push(current.clone());
                     continue 'outer;
                 }
@@ -755,13 +715,7 @@ fn migrate(islands: &mut [Island], front: &[Member], rng: &mut Rand, cfg: &Searc
     }
     let bests: Vec<Member> = islands
         .iter()
-        .map(|isl| {
-            isl.pop
-                .iter()
-                .min_by(|a, b| a.mse.total_cmp(&b.mse))
-                .cloned()
-                .expect("islands are never empty")
-        })
+        .map(|isl| isl.pop.iter().min_by(|a, b| a.mse.total_cmp(&b.mse)).cloned().expect("islands are never empty"))
         .collect();
     let n = islands.len();
     for (i, isl) in islands.iter_mut().enumerate() {

@@ -29,10 +29,7 @@ pub struct SelectionConfig {
 
 impl Default for SelectionConfig {
     fn default() -> Self {
-        SelectionConfig {
-            exact_nmse: 1e-10,
-            accuracy_ratio: 1.5,
-        }
+        SelectionConfig { exact_nmse: 1e-10, accuracy_ratio: 1.5 }
     }
 }
 
@@ -82,19 +79,11 @@ pub fn select_model(front: &[(usize, f64)], cfg: &SelectionConfig) -> Option<Sel
             _ => selected = Some(i),
         }
     }
-    Some(Selection {
-        selected: selected.unwrap_or(front.len() - 1),
-        scores,
-        candidate,
-    })
+    Some(Selection { selected: selected.unwrap_or(front.len() - 1), scores, candidate })
 }
 
 /// A human-readable account of the choice: the rule and one line per member.
-pub(crate) fn explain(
-    rows: &[(usize, f64, f64, String)],
-    sel: &Selection,
-    cfg: &SelectionConfig,
-) -> String {
+pub(crate) fn explain(rows: &[(usize, f64, f64, String)], sel: &Selection, cfg: &SelectionConfig) -> String {
     let mut s = String::new();
     let (c, _, r2, _) = &rows[sel.selected];
     let _ = writeln!(

@@ -128,8 +128,7 @@ fn add(a: Expr, b: Expr) -> Expr {
         }
         // c1 + c2*(c3 + f) -> (c1 + c2*c3) + c2*f
         (Expr::Const(c1), Expr::Binary(Mul, ca, inner))
-            if const_of(&ca).is_some()
-                && matches!(&*inner, Expr::Binary(Add, cb, _) if const_of(cb).is_some()) =>
+            if const_of(&ca).is_some() && matches!(&*inner, Expr::Binary(Add, cb, _) if const_of(cb).is_some()) =>
         {
             let c2 = const_of(&ca).unwrap_or(1.0);
             let Expr::Binary(_, cb, f) = *inner else { unreachable!("matched above") };
@@ -137,12 +136,8 @@ fn add(a: Expr, b: Expr) -> Expr {
             add(c(c1 + c2 * c3), mul(c(c2), *f))
         }
         // (c + f) + g -> c + (f + g) ; f + (c + g) -> c + (f + g): constants bubble up.
-        (Expr::Binary(Add, ca, f), g) if const_of(&ca).is_some() && const_of(&g).is_none() => {
-            add(*ca, add(*f, g))
-        }
-        (f, Expr::Binary(Add, ca, g)) if const_of(&ca).is_some() && const_of(&f).is_none() => {
-            add(*ca, add(f, *g))
-        }
+        (Expr::Binary(Add, ca, f), g) if const_of(&ca).is_some() && const_of(&g).is_none() => add(*ca, add(*f, g)),
+        (f, Expr::Binary(Add, ca, g)) if const_of(&ca).is_some() && const_of(&f).is_none() => add(*ca, add(f, *g)),
         (a, b) => {
             if a == b {
                 // f + f -> 2*f
@@ -179,9 +174,7 @@ fn sub(a: Expr, b: Expr) -> Expr {
             add(c(c1 - c2), *f)
         }
         // (c + f) - g -> c + (f - g)
-        (Expr::Binary(Add, ca, f), g) if const_of(&ca).is_some() && const_of(&g).is_none() => {
-            add(*ca, sub(*f, g))
-        }
+        (Expr::Binary(Add, ca, f), g) if const_of(&ca).is_some() && const_of(&g).is_none() => add(*ca, sub(*f, g)),
         // f - (c + g) -> (-c) + (f - g)
         (f, Expr::Binary(Add, ca, g)) if const_of(&ca).is_some() && const_of(&f).is_none() => {
             let c2 = const_of(&ca).unwrap_or(0.0);
@@ -221,12 +214,8 @@ fn mul(a: Expr, b: Expr) -> Expr {
             div(c(c1 * c2), *f)
         }
         // (c*f)*g -> c*(f*g) ; f*(c*g) -> c*(f*g)
-        (Expr::Binary(Mul, ca, f), g) if const_of(&ca).is_some() && const_of(&g).is_none() => {
-            mul(*ca, mul(*f, g))
-        }
-        (f, Expr::Binary(Mul, ca, g)) if const_of(&ca).is_some() && const_of(&f).is_none() => {
-            mul(*ca, mul(f, *g))
-        }
+        (Expr::Binary(Mul, ca, f), g) if const_of(&ca).is_some() && const_of(&g).is_none() => mul(*ca, mul(*f, g)),
+        (f, Expr::Binary(Mul, ca, g)) if const_of(&ca).is_some() && const_of(&f).is_none() => mul(*ca, mul(f, *g)),
         (a, b) => {
             if const_of(&a).is_none() && a.structural_cmp(&b) == std::cmp::Ordering::Greater {
                 Expr::binary(Mul, b, a)

@@ -63,13 +63,24 @@ fn c_export_matches_the_engine() {
         let mut src = e.to_c("model", &["freq_hz", "shape"], float);
         src.push_str("#include <stdio.h>\nint main(void) {\n");
         for r in ROWS {
-            src.push_str(&format!("    {{ const {ty} x[2] = {{ {:?}, {:?} }}; printf(\"{fmt}\\n\", (double)model(x)); }}\n", r[0], r[1]));
+            src.push_str(&format!(
+                "    {{ const {ty} x[2] = {{ {:?}, {:?} }}; printf(\"{fmt}\\n\", (double)model(x)); }}\n",
+                r[0], r[1]
+            ));
         }
         src.push_str("    return 0;\n}\n");
         let c = d.join(format!("model_{ty}.c"));
         let bin = d.join(format!("model_{ty}"));
         std::fs::write(&c, &src).unwrap();
-        let st = Command::new("cc").arg("-std=c99").arg("-Wall").arg("-Werror").arg(&c).arg("-lm").arg("-o").arg(&bin).status();
+        let st = Command::new("cc")
+            .arg("-std=c99")
+            .arg("-Wall")
+            .arg("-Werror")
+            .arg(&c)
+            .arg("-lm")
+            .arg("-o")
+            .arg(&bin)
+            .status();
         let st = st.expect("a C compiler (cc) is needed for this test");
         assert!(st.success(), "cc failed on:\n{src}");
         let out = Command::new(&bin).output().unwrap();

@@ -6,10 +6,7 @@ use sts_symreg::{fit, Matrix, OperatorSet, SearchConfig};
 #[test]
 fn p1_exact_form_is_selected() {
     let (x, y) = generate(Planted::P1, 0, 99);
-    let cfg = SearchConfig {
-        seed: 0,
-        ..SearchConfig::default()
-    };
+    let cfg = SearchConfig { seed: 0, ..SearchConfig::default() };
     let r = fit(&x, &y, &cfg, |_| {}).unwrap();
     let best = r.best();
     assert!(is_exact_recovery(Planted::P1, &best.expr), "{}\n{}", best.expr, r.explanation);
@@ -22,11 +19,7 @@ fn p2_exact_form_is_selected_without_distractors() {
     let (x_full, y) = generate(Planted::P2, 1, 99);
     let rows: Vec<Vec<f64>> = (0..x_full.n_rows()).map(|r| x_full.row(r)[..2].to_vec()).collect();
     let x = Matrix::from_rows(&rows).unwrap();
-    let cfg = SearchConfig {
-        seed: 1,
-        operators: OperatorSet::parse("+,-,*,tanh").unwrap(),
-        ..SearchConfig::default()
-    };
+    let cfg = SearchConfig { seed: 1, operators: OperatorSet::parse("+,-,*,tanh").unwrap(), ..SearchConfig::default() };
     let r = fit(&x, &y, &cfg, |_| {}).unwrap();
     let best = r.best();
     assert!(is_exact_recovery(Planted::P2, &best.expr), "{}\n{}", best.expr, r.explanation);
@@ -47,11 +40,7 @@ fn noisy_target_selects_the_true_form_not_the_most_complex() {
             3.0 * x.get(r, 0) / x.get(r, 1) + 0.05 * u
         })
         .collect();
-    let cfg = SearchConfig {
-        seed: 2,
-        max_epochs: 12,
-        ..SearchConfig::default()
-    };
+    let cfg = SearchConfig { seed: 2, max_epochs: 12, ..SearchConfig::default() };
     let r = fit(&x, &y, &cfg, |_| {}).unwrap();
     let best = r.best();
     assert!(best.complexity <= 7, "picked complexity {}:\n{}", best.complexity, r.explanation);

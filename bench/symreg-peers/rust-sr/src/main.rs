@@ -48,8 +48,9 @@ fn main() {
     let dataset = Dataset::new(x, y);
 
     const D: usize = 2;
-    let operators = BuiltinOpsF64::from_names(["add", "sub", "mul", "div", "pow", "abs", "sqrt", "exp", "log", "tanh", "sin"])
-        .expect("operators");
+    let operators =
+        BuiltinOpsF64::from_names(["add", "sub", "mul", "div", "pow", "abs", "sqrt", "exp", "log", "tanh", "sin"])
+            .expect("operators");
     let options = Options::<f64, D> {
         operators,
         seed,

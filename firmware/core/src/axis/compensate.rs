@@ -171,7 +171,8 @@ impl Compensator {
         let error_pm = self.model.step_added(&mut self.state, cmd_pos_nm, to_nm(u_nm));
         // The command's fundamental, by a least-mean-squares fit of sine, cosine and mean.
         let (s1, c1) = trig[0];
-        let residual_nm = cmd_pos_nm as f32 - (self.command_nm.re * s1 + self.command_nm.im * c1 + self.command_mean_nm);
+        let residual_nm =
+            cmd_pos_nm as f32 - (self.command_nm.re * s1 + self.command_nm.im * c1 + self.command_mean_nm);
         let mu_command = COMMAND_TRACKING_PER_PERIOD * periods_per_tick(self.step_turns);
         self.command_nm.re += 2.0 * mu_command * residual_nm * s1;
         self.command_nm.im += 2.0 * mu_command * residual_nm * c1;
@@ -304,7 +305,15 @@ mod tests {
     }
 
     fn friction_axis() -> AxisParams {
-        AxisParams { friction: Some(Friction { coulomb_mps2: 3.0 / 45.0, static_mps2: 4.5 / 45.0, stribeck_mps: 2e-4, smooth_mps: 1e-5 }), ..machine() }
+        AxisParams {
+            friction: Some(Friction {
+                coulomb_mps2: 3.0 / 45.0,
+                static_mps2: 4.5 / 45.0,
+                stribeck_mps: 2e-4,
+                smooth_mps: 1e-5,
+            }),
+            ..machine()
+        }
     }
 
     /// RMS of the simulated error over `ticks` ticks, learning every `batch` ticks (never if 0).

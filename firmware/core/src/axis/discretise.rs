@@ -112,7 +112,13 @@ mod tests {
     #[test]
     fn a_free_mass_integrates_exactly() {
         // No drag, instant current loop approximated by a 1 ns lag: v grows by F h, x by F h^2 / 2.
-        let model = Continuous { viscous_per_s: 0.0, current_tau_s: 1e-9, mode_rad_per_s: 100.0, mode_damping: 0.5, mode_tcp_gain: 0.0 };
+        let model = Continuous {
+            viscous_per_s: 0.0,
+            current_tau_s: 1e-9,
+            mode_rad_per_s: 100.0,
+            mode_damping: 0.5,
+            mode_tcp_gain: 0.0,
+        };
         let (phi, gamma) = zoh(&model, 1e-3);
         assert!((phi[0][1] - 1e-3).abs() < 1e-15);
         assert!((gamma[1][1] - 1e-3).abs() < 1e-15);
@@ -123,7 +129,13 @@ mod tests {
     #[test]
     fn the_mode_oscillates_at_its_frequency() {
         let w = 2.0 * core::f64::consts::PI * 90.0;
-        let model = Continuous { viscous_per_s: 6.7, current_tau_s: 80e-6, mode_rad_per_s: w, mode_damping: 0.0, mode_tcp_gain: 2.0 };
+        let model = Continuous {
+            viscous_per_s: 6.7,
+            current_tau_s: 80e-6,
+            mode_rad_per_s: w,
+            mode_damping: 0.0,
+            mode_tcp_gain: 2.0,
+        };
         let (phi, _) = zoh(&model, 125e-6);
         // Undamped: the (q, q') block is a rotation by w h.
         let wh = w * 125e-6;

@@ -114,7 +114,11 @@ mod tests {
         while y < 20.0 {
             let (s, slope) = smooth_sign(y);
             let yf = y as f64;
-            let (want, want_slope) = if yf.abs() >= 3.0 { (yf.signum(), 0.0) } else { (yf * (27.0 + yf * yf) / (27.0 + 9.0 * yf * yf), ((9.0 - yf * yf) / (9.0 + 3.0 * yf * yf)).powi(2)) };
+            let (want, want_slope) = if yf.abs() >= 3.0 {
+                (yf.signum(), 0.0)
+            } else {
+                (yf * (27.0 + yf * yf) / (27.0 + 9.0 * yf * yf), ((9.0 - yf * yf) / (9.0 + 3.0 * yf * yf)).powi(2))
+            };
             worst = worst.max((s as f64 - want).abs()).max((slope as f64 - want_slope).abs());
             from_tanh = from_tanh.max((s as f64 - yf.tanh()).abs());
             assert_eq!(smooth_sign(-y).0, -s);

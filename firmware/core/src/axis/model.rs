@@ -153,8 +153,12 @@ impl AxisModel {
             p4: [c(phi[4][1]), c(phi[4][2]), c(phi[4][3]), c(phi[4][4])],
             effects,
             friction,
-            hysteresis: p.hysteresis.map_or((0.0, 0.0, 0.0), |h| (h.stiffness_per_s2, 1.0 / h.force_mps2, h.force_mps2)),
-            ripple: p.ripple.map_or((0.0, 0.0, 0, 0), |r| (r.amp_nm * 1e-9, r.harmonic2_nm * 1e-9, r.turns_per_nm, r.phase_turns)),
+            hysteresis: p
+                .hysteresis
+                .map_or((0.0, 0.0, 0.0), |h| (h.stiffness_per_s2, 1.0 / h.force_mps2, h.force_mps2)),
+            ripple: p
+                .ripple
+                .map_or((0.0, 0.0, 0, 0), |r| (r.amp_nm * 1e-9, r.harmonic2_nm * 1e-9, r.turns_per_nm, r.phase_turns)),
         })
     }
 
@@ -189,7 +193,12 @@ impl AxisModel {
     }
 
     #[inline(always)]
-    fn step_with<const F: bool, const H: bool, const R: bool>(&self, st: &mut AxisState, cmd_pos_nm: i32, added_nm: i32) -> i32 {
+    fn step_with<const F: bool, const H: bool, const R: bool>(
+        &self,
+        st: &mut AxisState,
+        cmd_pos_nm: i32,
+        added_nm: i32,
+    ) -> i32 {
         if !st.primed {
             st.history = [cmd_pos_nm; HISTORY];
             st.added_prev_nm = added_nm;
@@ -198,7 +207,8 @@ impl AxisModel {
         st.newest = (st.newest + 1) & (HISTORY - 1);
         st.history[st.newest] = cmd_pos_nm;
         let r_nm = st.history[(st.newest.wrapping_sub(self.delay)) & (HISTORY - 1)].wrapping_add(added_nm);
-        let r_before_nm = st.history[(st.newest.wrapping_sub(self.delay + 1)) & (HISTORY - 1)].wrapping_add(st.added_prev_nm);
+        let r_before_nm =
+            st.history[(st.newest.wrapping_sub(self.delay + 1)) & (HISTORY - 1)].wrapping_add(st.added_prev_nm);
         st.added_prev_nm = added_nm;
         let dr_m = r_nm.wrapping_sub(r_before_nm) as f32 * 1e-9;
         let ddr_m = dr_m - st.dr_prev_m;
@@ -241,17 +251,39 @@ impl AxisModel {
         }
         let step_x = self.p01 * v + self.p02 * f + self.gu[0] * u_prev + self.gf[0] * force;
         let (q, qd) = (st.q, st.qd);
-        st.q = self.p3[0] * v + self.p3[1] * f + self.p3[2] * q + self.p3[3] * qd + self.gu[3] * u_prev + self.gf[3] * force;
-        st.qd = self.p4[0] * v + self.p4[1] * f + self.p4[2] * q + self.p4[3] * qd + self.gu[4] * u_prev + self.gf[4] * force;
+        st.q = self.p3[0] * v
+            + self.p3[1] * f
+            + self.p3[2] * q
+            + self.p3[3] * qd
+            + self.gu[3] * u_prev
+            + self.gf[3] * force;
+        st.qd = self.p4[0] * v
+            + self.p4[1] * f
+            + self.p4[2] * q
+            + self.p4[3] * qd
+            + self.gu[4] * u_prev
+            + self.gf[4] * force;
         st.v = v_free + self.gf[1] * force;
         st.f = self.p22 * f + self.gu[2] * u_prev;
         st.w -= step_x;
         st.u_prev = u;
         if H {
             let (stiffness, inv_force, force_max) = self.hysteresis;
-            let sign = if step_x > 0.0 { 1.0 } else if step_x < 0.0 { -1.0 } else { 0.0 };
+            let sign = if step_x > 0.0 {
+                1.0
+            } else if step_x < 0.0 {
+                -1.0
+            } else {
+                0.0
+            };
             let h = st.dahl + stiffness * step_x * (1.0 - st.dahl * inv_force * sign);
-            st.dahl = if h > force_max { force_max } else if h < -force_max { -force_max } else { h };
+            st.dahl = if h > force_max {
+                force_max
+            } else if h < -force_max {
+                -force_max
+            } else {
+                h
+            };
         }
         // NaN compares false, and a non-finite velocity, force or rate reaches the
         // following error or the mode within a tick.
@@ -314,13 +346,26 @@ mod tests {
         // Linear: twice the command, twice the error (within the nanometre rounding of the
         // command and single precision).
         for k in 4000..8000 {
-            assert!((twice[k] - 2 * once[k]).abs() < 2_000 + peak / 10_000, "tick {k}: {} vs 2 x {}", twice[k], once[k]);
+            assert!(
+                (twice[k] - 2 * once[k]).abs() < 2_000 + peak / 10_000,
+                "tick {k}: {} vs 2 x {}",
+                twice[k],
+                once[k]
+            );
         }
     }
 
     #[test]
     fn friction_deviation_is_periodic_and_mirrored_each_half_period() {
-        let params = AxisParams { friction: Some(Friction { coulomb_mps2: 3.0 / 45.0, static_mps2: 4.5 / 45.0, stribeck_mps: 2e-4, smooth_mps: 1e-5 }), ..machine() };
+        let params = AxisParams {
+            friction: Some(Friction {
+                coulomb_mps2: 3.0 / 45.0,
+                static_mps2: 4.5 / 45.0,
+                stribeck_mps: 2e-4,
+                smooth_mps: 1e-5,
+            }),
+            ..machine()
+        };
         let out = effect_of(&params, 16_000);
         // Steady state after 1 s: one period (200 ticks) later the same error within 1 nm.
         for k in 8000..15_800 {
@@ -337,8 +382,14 @@ mod tests {
     #[test]
     fn hysteresis_and_ripple_deviate_boundedly() {
         for params in [
-            AxisParams { hysteresis: Some(Hysteresis { force_mps2: 2.5 / 45.0, stiffness_per_s2: 3e6 / 45.0 }), ..machine() },
-            AxisParams { ripple: Some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_000, phase_turns: 1 << 29 }), ..machine() },
+            AxisParams {
+                hysteresis: Some(Hysteresis { force_mps2: 2.5 / 45.0, stiffness_per_s2: 3e6 / 45.0 }),
+                ..machine()
+            },
+            AxisParams {
+                ripple: Some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_000, phase_turns: 1 << 29 }),
+                ..machine()
+            },
         ] {
             let out = effect_of(&params, 8000);
             let peak = out.iter().map(|x| x.abs()).max().unwrap();
@@ -349,7 +400,11 @@ mod tests {
     #[test]
     fn an_unstable_model_is_reset_not_output() {
         // A derivative gain far beyond what the tick can carry makes the loop diverge.
-        let params = AxisParams { kd_per_s: 9e5, friction: Some(Friction { coulomb_mps2: 0.1, static_mps2: 0.1, stribeck_mps: 1e-4, smooth_mps: 1e-5 }), ..machine() };
+        let params = AxisParams {
+            kd_per_s: 9e5,
+            friction: Some(Friction { coulomb_mps2: 0.1, static_mps2: 0.1, stribeck_mps: 1e-4, smooth_mps: 1e-5 }),
+            ..machine()
+        };
         let (out, st) = run(&params, 8000);
         assert!(st.resets > 0);
         assert!(out.iter().all(|pm| pm.abs() <= 2_100_000_000), "never beyond the divergence limit");
@@ -359,7 +414,10 @@ mod tests {
     fn out_of_range_parameters_name_their_field() {
         let bad = AxisParams { current_tau_s: f32::NAN, ..machine() };
         assert_eq!(AxisModel::new(&bad), Err(AxisError::OutOfRange("current_tau_s")));
-        let bad = AxisParams { friction: Some(Friction { coulomb_mps2: 0.1, static_mps2: 0.1, stribeck_mps: 0.0, smooth_mps: 1e-5 }), ..machine() };
+        let bad = AxisParams {
+            friction: Some(Friction { coulomb_mps2: 0.1, static_mps2: 0.1, stribeck_mps: 0.0, smooth_mps: 1e-5 }),
+            ..machine()
+        };
         assert_eq!(AxisModel::new(&bad), Err(AxisError::OutOfRange("friction.stribeck_mps")));
         let bad = AxisParams { cmd_delay_ticks: MAX_CMD_DELAY_TICKS + 1, ..machine() };
         assert_eq!(AxisModel::new(&bad), Err(AxisError::OutOfRange("cmd_delay_ticks")));

@@ -1,6 +1,9 @@
 //! Read-time assembly of the time-domain features from exact integer sums.
 
-use super::{Capture, CREST_FACTOR, IMPULSE_FACTOR, KURTOSIS, MEAN_ABS_MPS2, PEAK_MPS2, RMS_MPS2, SHAPE_FACTOR, SKEWNESS, VARIANCE_M2PS4};
+use super::{
+    Capture, CREST_FACTOR, IMPULSE_FACTOR, KURTOSIS, MEAN_ABS_MPS2, PEAK_MPS2, RMS_MPS2, SHAPE_FACTOR, SKEWNESS,
+    VARIANCE_M2PS4,
+};
 
 /// Correctly rounded square root of an f32, in integer arithmetic.
 ///

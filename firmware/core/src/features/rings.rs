@@ -2,7 +2,10 @@
 
 use super::moments::{time_domain, Extremes};
 use super::spectrum::{fft_bfp, lower_median, real_spectrum_powers, refine_peak, Hann, MAX_FFT_LEN};
-use super::{Capture, FeatureError, BLOCK_SAMPLES, MAX_WINDOW_SAMPLES, Features, DISTINCT_POWER_GAIN, FEATURE_COUNT, MEAN_FREQ_HZ, NOISE_FLOOR_FACTOR, SIGNAL_FREQ_HZ, TOTAL_POWER_M2PS4};
+use super::{
+    Capture, FeatureError, Features, BLOCK_SAMPLES, DISTINCT_POWER_GAIN, FEATURE_COUNT, MAX_WINDOW_SAMPLES,
+    MEAN_FREQ_HZ, NOISE_FLOOR_FACTOR, SIGNAL_FREQ_HZ, TOTAL_POWER_M2PS4,
+};
 use core::sync::atomic::{fence, AtomicI32, AtomicU32, Ordering};
 
 /// Rings shared between the interrupt (writer) and the feature reader, one slot per block:
@@ -163,7 +166,12 @@ fn block_sum(packed: &[u64], j: usize) -> i64 {
 }
 
 /// Spectral features (f1, f11, f12) from the `nd` block sums packed in `scratch.power`.
-fn spectral<const FFT_HALF: usize>(cap: &Capture, nd: usize, scratch: &mut Scratch<FFT_HALF>, out: &mut [f32; FEATURE_COUNT]) {
+fn spectral<const FFT_HALF: usize>(
+    cap: &Capture,
+    nd: usize,
+    scratch: &mut Scratch<FFT_HALF>,
+    out: &mut [f32; FEATURE_COUNT],
+) {
     let cfg = &cap.cfg;
     let nd = nd.min(FFT_HALF * 2);
     if nd < 2 {

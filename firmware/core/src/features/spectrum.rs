@@ -406,7 +406,8 @@ mod tests {
     fn real_split_matches_dft_of_real_signal() {
         let mut seed = 77u64;
         let h = 64;
-        let x: Vec<f64> = (0..2 * h).map(|_| ((rng(&mut seed) % 2_000_001) as i64 - 1_000_000) as f64 * 256.0).collect();
+        let x: Vec<f64> =
+            (0..2 * h).map(|_| ((rng(&mut seed) % 2_000_001) as i64 - 1_000_000) as f64 * 256.0).collect();
         let mut z: Vec<[i32; 2]> = (0..h).map(|m| [x[2 * m] as i32, x[2 * m + 1] as i32]).collect();
         let shift = fft_bfp(&mut z);
         let mut out = [0u64; 64];

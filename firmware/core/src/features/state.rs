@@ -1,6 +1,9 @@
 //! The interrupt-owned part: exact sliding sums, the raw ring and the block accumulator.
 
-use super::{FeatureConfig, FeatureError, SpectralRings, BLOCK_SAMPLES, MARGIN_BLOCKS, MAX_WINDOW_BLOCKS, MAX_WINDOW_SAMPLES, MIN_WINDOW_BLOCKS};
+use super::{
+    FeatureConfig, FeatureError, SpectralRings, BLOCK_SAMPLES, MARGIN_BLOCKS, MAX_WINDOW_BLOCKS, MAX_WINDOW_SAMPLES,
+    MIN_WINDOW_BLOCKS,
+};
 use fixed::types::I24F8;
 
 /// Interrupt-owned feature state for a window of up to `16 * WINDOW_BLOCKS` samples.
@@ -87,7 +90,17 @@ impl FeatureSnapshot {
     /// An empty window of `cfg`.
     pub const fn empty(cfg: FeatureConfig) -> Self {
         Self {
-            counts: SnapshotCounts { cfg, filled: 0, blocks_filled: 0, in_block: 0, s1: 0, blocks_written: 0, ring_slot: 0, block_max: i16::MIN, block_min: i16::MAX },
+            counts: SnapshotCounts {
+                cfg,
+                filled: 0,
+                blocks_filled: 0,
+                in_block: 0,
+                s1: 0,
+                blocks_written: 0,
+                ring_slot: 0,
+                block_max: i16::MIN,
+                block_min: i16::MAX,
+            },
             sums: SnapshotSums { s2: 0, s3: 0, s4: 0, sum_abs_q8: 0 },
         }
     }
@@ -198,7 +211,14 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         cfg.validate(Self::CAPACITY_SAMPLES)?;
         // The ring positions continue.
         let empty = FeatureSnapshot::empty(cfg);
-        self.snap = FeatureSnapshot { counts: SnapshotCounts { blocks_written: self.snap.counts.blocks_written, ring_slot: self.snap.counts.ring_slot, ..empty.counts }, ..empty };
+        self.snap = FeatureSnapshot {
+            counts: SnapshotCounts {
+                blocks_written: self.snap.counts.blocks_written,
+                ring_slot: self.snap.counts.ring_slot,
+                ..empty.counts
+            },
+            ..empty
+        };
         self.raw_block = 0;
         self.dc_new = I24F8::ZERO;
         self.dc_old = I24F8::ZERO;
@@ -264,12 +284,19 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
     /// Block end: publish the block, advance the ring positions, set the next DC reference.
     #[inline(never)]
     fn end_block<const RING_BLOCKS: usize>(&mut self, rings: &SpectralRings<RING_BLOCKS>) {
-        rings.publish(self.snap.counts.ring_slot as usize, self.snap.counts.blocks_written, self.block_sum, self.snap.counts.block_max, self.snap.counts.block_min);
+        rings.publish(
+            self.snap.counts.ring_slot as usize,
+            self.snap.counts.blocks_written,
+            self.block_sum,
+            self.snap.counts.block_max,
+            self.snap.counts.block_min,
+        );
         self.block_sum = 0;
         self.snap.counts.block_max = i16::MIN;
         self.snap.counts.block_min = i16::MAX;
         self.snap.counts.blocks_written = self.snap.counts.blocks_written.wrapping_add(1);
-        self.snap.counts.ring_slot = if self.snap.counts.ring_slot as usize + 1 >= RING_BLOCKS { 0 } else { self.snap.counts.ring_slot + 1 };
+        self.snap.counts.ring_slot =
+            if self.snap.counts.ring_slot as usize + 1 >= RING_BLOCKS { 0 } else { self.snap.counts.ring_slot + 1 };
         let window_blocks = self.snap.counts.cfg.window_blocks() as u32;
         if self.snap.counts.blocks_filled < window_blocks {
             self.snap.counts.blocks_filled += 1;
@@ -370,7 +397,10 @@ mod tests {
                 state.push(&rings, code);
                 fresh.push(&fresh_rings, code);
                 let (a, b) = (state.capture(&rings), fresh.capture(&fresh_rings));
-                assert_eq!(Capture { blocks_written: 0, ring_slot: 0, ..a }, Capture { blocks_written: 0, ring_slot: 0, ..b });
+                assert_eq!(
+                    Capture { blocks_written: 0, ring_slot: 0, ..a },
+                    Capture { blocks_written: 0, ring_slot: 0, ..b }
+                );
             }
         }
     }

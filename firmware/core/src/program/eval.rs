@@ -155,7 +155,9 @@ mod tests {
     #[test]
     fn the_paper_program_matches_f64_equations_2_and_3() {
         let program = paper_program();
-        for &(f1, f3, f5, f8, f10) in &[(30.0f32, 0.12, 0.35, 1.41, 1.11), (5.0, 1e-4, 0.01, 1.6, 1.2), (40.0, 0.5, 0.7, 1.42, 1.11)] {
+        for &(f1, f3, f5, f8, f10) in
+            &[(30.0f32, 0.12, 0.35, 1.41, 1.11), (5.0, 1e-4, 0.01, 1.6, 1.2), (40.0, 0.5, 0.7, 1.42, 1.11)]
+        {
             let mut features = [0.0f32; 12];
             features[0] = f1;
             features[2] = f3;

@@ -98,7 +98,9 @@ impl TickTerm {
     pub(super) fn check(&self, written: u16) -> bool {
         match *self {
             Self::Harmonic { order, amp_reg, phase_reg } => {
-                (1..=MAX_HARMONIC_ORDER).contains(&order) && register_ok(amp_reg, written) && register_ok(phase_reg, written)
+                (1..=MAX_HARMONIC_ORDER).contains(&order)
+                    && register_ok(amp_reg, written)
+                    && register_ok(phase_reg, written)
             }
             Self::Drift { tau_ticks, .. } => tau_ticks >= 256,
             Self::AxisCoupling { .. } => true,
@@ -201,7 +203,9 @@ impl TickTerm {
             Self::AxisCoupling { .. } => AXIS_COUPLING,
             Self::Laguerre { input, pole_q30, ref gains_pm } => {
                 let bank = match input {
-                    TermInput::VelocitySign { smooth_nm_per_4_ticks } if smooth_nm_per_4_ticks >= VELOCITY_SMOOTH_32_BIT_LIMIT => {
+                    TermInput::VelocitySign { smooth_nm_per_4_ticks }
+                        if smooth_nm_per_4_ticks >= VELOCITY_SMOOTH_32_BIT_LIMIT =>
+                    {
                         LAGUERRE_VELOCITY_SIGN + VELOCITY_64_BIT_DIVISION
                     }
                     TermInput::VelocitySign { .. } => LAGUERRE_VELOCITY_SIGN,

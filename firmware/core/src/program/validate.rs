@@ -2,7 +2,9 @@
 //! that evaluation itself cannot index out of bounds or overflow its stack.
 
 use super::term::{tick_cost, TICK_BUDGET_INSTRUCTIONS};
-use super::{op, Program, TickTerm, FEATURE_INPUTS, MAX_STACK, PROGRAM_VERSION, REGISTER_COUNT, REG_AMP_UM, REG_PHASE_DEG};
+use super::{
+    op, Program, TickTerm, FEATURE_INPUTS, MAX_STACK, PROGRAM_VERSION, REGISTER_COUNT, REG_AMP_UM, REG_PHASE_DEG,
+};
 
 /// Why a program was rejected. Byte positions are offsets into [`Program::code`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -107,11 +109,19 @@ impl core::fmt::Display for ProgramError {
             Self::StackUnderflow { at } => write!(f, "stack underflow at byte {at}"),
             Self::StackOverflow { at } => write!(f, "stack deeper than {MAX_STACK} at byte {at}"),
             Self::UnconsumedValues { count } => write!(f, "{count} value(s) left on the stack at the end"),
-            Self::UnknownFeature { at, index } => write!(f, "feature index {index} at byte {at} is not below {FEATURE_INPUTS}"),
-            Self::UnknownConstant { at, index } => write!(f, "constant index {index} at byte {at} is past the constant table"),
+            Self::UnknownFeature { at, index } => {
+                write!(f, "feature index {index} at byte {at} is not below {FEATURE_INPUTS}")
+            }
+            Self::UnknownConstant { at, index } => {
+                write!(f, "constant index {index} at byte {at} is past the constant table")
+            }
             Self::NonFiniteConstant { index } => write!(f, "constant {index} is not finite"),
-            Self::UnknownRegister { at, register } => write!(f, "register {register} at byte {at} is not below {REGISTER_COUNT}"),
-            Self::RegisterReadBeforeWrite { at, register } => write!(f, "register {register} read at byte {at} before it is stored"),
+            Self::UnknownRegister { at, register } => {
+                write!(f, "register {register} at byte {at} is not below {REGISTER_COUNT}")
+            }
+            Self::RegisterReadBeforeWrite { at, register } => {
+                write!(f, "register {register} read at byte {at} before it is stored")
+            }
             Self::MissingOutput { register } => write!(f, "program never stores output register {register}"),
             Self::TooLarge => write!(f, "program exceeds the code, constant or term capacity"),
             Self::BadTerm { index } => write!(f, "tick term {index} is malformed"),
@@ -150,7 +160,10 @@ impl Program {
         }
         let cost = self.tick_cost();
         if cost > TICK_BUDGET_INSTRUCTIONS {
-            return Err(ProgramError::TickBudget { cost: cost.min(u32::from(u16::MAX)) as u16, budget: TICK_BUDGET_INSTRUCTIONS as u16 });
+            return Err(ProgramError::TickBudget {
+                cost: cost.min(u32::from(u16::MAX)) as u16,
+                budget: TICK_BUDGET_INSTRUCTIONS as u16,
+            });
         }
         Ok(())
     }
@@ -269,9 +282,18 @@ mod tests {
         assert_eq!(raw(&[op::FEATURE, 12], &[]).validate(), Err(ProgramError::UnknownFeature { at: 0, index: 12 }));
         assert_eq!(raw(&[op::CONST, 1], &[1.0]).validate(), Err(ProgramError::UnknownConstant { at: 0, index: 1 }));
         assert_eq!(raw(&store_both, &[f32::NAN]).validate(), Err(ProgramError::NonFiniteConstant { index: 0 }));
-        assert_eq!(raw(&[op::CONST, 0, op::STORE, 8], &[1.0]).validate(), Err(ProgramError::UnknownRegister { at: 2, register: 8 }));
-        assert_eq!(raw(&[op::REG, 3, op::STORE, 0], &[]).validate(), Err(ProgramError::RegisterReadBeforeWrite { at: 0, register: 3 }));
-        assert_eq!(raw(&[op::CONST, 0, op::STORE, 0], &[1.0]).validate(), Err(ProgramError::MissingOutput { register: 1 }));
+        assert_eq!(
+            raw(&[op::CONST, 0, op::STORE, 8], &[1.0]).validate(),
+            Err(ProgramError::UnknownRegister { at: 2, register: 8 })
+        );
+        assert_eq!(
+            raw(&[op::REG, 3, op::STORE, 0], &[]).validate(),
+            Err(ProgramError::RegisterReadBeforeWrite { at: 0, register: 3 })
+        );
+        assert_eq!(
+            raw(&[op::CONST, 0, op::STORE, 0], &[1.0]).validate(),
+            Err(ProgramError::MissingOutput { register: 1 })
+        );
     }
 
     fn laguerre(input: super::super::TermInput, pole: f64) -> TickTerm {
@@ -301,9 +323,19 @@ mod tests {
         let coupling = TickTerm::AxisCoupling { x_gain_pm_per_mps2: 1, spindle_amp_pm: 1, spindle_phase_turns: 0 };
         let axis = |friction: bool, hysteresis: bool, ripple: bool| {
             TickTerm::Axis(crate::axis::AxisParams {
-                friction: friction.then_some(crate::axis::Friction { coulomb_mps2: 0.07, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 }),
+                friction: friction.then_some(crate::axis::Friction {
+                    coulomb_mps2: 0.07,
+                    static_mps2: 0.1,
+                    stribeck_mps: 2e-4,
+                    smooth_mps: 1e-5,
+                }),
                 hysteresis: hysteresis.then_some(crate::axis::Hysteresis { force_mps2: 0.05, stiffness_per_s2: 6e4 }),
-                ripple: ripple.then_some(crate::axis::Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_000, phase_turns: 0 }),
+                ripple: ripple.then_some(crate::axis::Ripple {
+                    amp_nm: 50.0,
+                    harmonic2_nm: 8.0,
+                    turns_per_nm: 810_000,
+                    phase_turns: 0,
+                }),
                 ..crate::axis::default_machine()
             })
         };
@@ -311,14 +343,31 @@ mod tests {
         // friction, hysteresis or encoder error, or all three, which the servo synthesises as
         // a harmonic; drift; coupling), one bank with a drift, the axis twin with a coupling.
         let eight: std::vec::Vec<TickTerm> = (2..10).map(harmonic).collect();
-        let fitted = [axis(true, false, false), axis(false, true, false), axis(false, false, true), axis(true, true, true)];
-        for terms in [&eight[..], &fitted[..1], &fitted[1..2], &fitted[2..3], &fitted[3..], &[velocity], &[dahl], &[sine, cosine], &[drift], &[coupling], &[velocity, drift], &[dahl, drift], &[fitted[0], coupling]] {
+        let fitted =
+            [axis(true, false, false), axis(false, true, false), axis(false, false, true), axis(true, true, true)];
+        for terms in [
+            &eight[..],
+            &fitted[..1],
+            &fitted[1..2],
+            &fitted[2..3],
+            &fitted[3..],
+            &[velocity],
+            &[dahl],
+            &[sine, cosine],
+            &[drift],
+            &[coupling],
+            &[velocity, drift],
+            &[dahl, drift],
+            &[fitted[0], coupling],
+        ] {
             let program = with_terms(terms);
             assert_eq!(program.validate(), Ok(()), "{terms:?}: {}", program.tick_cost());
         }
         // Just over: two velocity-sign banks, the ripple's two banks with a drift, a bank with
         // a drift and a coupling, the Dahl bank with a coupling.
-        for terms in [&[velocity, velocity][..], &[sine, cosine, drift], &[velocity, drift, coupling], &[dahl, coupling]] {
+        for terms in
+            [&[velocity, velocity][..], &[sine, cosine, drift], &[velocity, drift, coupling], &[dahl, coupling]]
+        {
             assert!(matches!(with_terms(terms).validate(), Err(ProgramError::TickBudget { .. })), "{terms:?}");
         }
         // Rejected, with the cost: three banks with a drift and a coupling, a bank whose pole

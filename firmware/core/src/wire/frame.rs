@@ -56,7 +56,8 @@ impl core::fmt::Display for FrameError {
 pub fn encode_frame<T: Serialize>(seq: u16, body: &T, out: &mut [u8]) -> Result<usize, FrameError> {
     let mut raw = [0u8; MAX_FRAME_PAYLOAD + 4];
     let envelope = Envelope { seq, body };
-    let used = postcard::to_slice(&envelope, &mut raw[..MAX_FRAME_PAYLOAD]).map_err(|_| FrameError::BufferTooSmall)?.len();
+    let used =
+        postcard::to_slice(&envelope, &mut raw[..MAX_FRAME_PAYLOAD]).map_err(|_| FrameError::BufferTooSmall)?.len();
     let crc = CRC32.checksum(&raw[..used]);
     raw[used..used + 4].copy_from_slice(&crc.to_le_bytes());
     let stuffed = cobs::try_encode(&raw[..used + 4], out).map_err(|_| FrameError::BufferTooSmall)?;

@@ -2,10 +2,10 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::counters::Counters;
 use crate::features::FeatureConfig;
 use crate::feedforward::{FeedforwardParams, ParamError};
 use crate::program::{Program, ProgramError};
-use crate::counters::Counters;
 
 /// A message with the sequence number its answer carries back.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -19,7 +19,9 @@ pub fn acc_code(acc_mps2: f64, acc_mps2_per_lsb: f64) -> i16 {
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FeatureExtractionError {
     /// The group (after the skipped start) is shorter than the feature window.
-    #[error("the group has {samples} samples after the skipped start, fewer than the feature window of {window} samples")]
+    #[error(
+        "the group has {samples} samples after the skipped start, fewer than the feature window of {window} samples"
+    )]
     TooShort {
         /// Samples in the group after the skipped start.
         samples: usize,
@@ -32,14 +34,21 @@ pub enum FeatureExtractionError {
 }
 
 /// Features over the group's first `config.window_samples` samples (the paper's t0..tn).
-pub fn group_features(group: &GroupData, config: &FeatureConfig) -> Result<[f32; FEATURE_COUNT], FeatureExtractionError> {
+pub fn group_features(
+    group: &GroupData,
+    config: &FeatureConfig,
+) -> Result<[f32; FEATURE_COUNT], FeatureExtractionError> {
     group_features_from(group, config, 0)
 }
 
 /// Features over the `config.window_samples` samples starting at sample `start`. The
 /// extractor is fed from the group's first sample on, so its sliding state (block alignment,
 /// DC references) is the one the firmware has after running through the same signal.
-pub fn group_features_from(group: &GroupData, config: &FeatureConfig, start: usize) -> Result<[f32; FEATURE_COUNT], FeatureExtractionError> {
+pub fn group_features_from(
+    group: &GroupData,
+    config: &FeatureConfig,
+    start: usize,
+) -> Result<[f32; FEATURE_COUNT], FeatureExtractionError> {
     let window = config.window_samples as usize;
     if group.acc_mps2.len() < start.saturating_add(window) {
         return Err(FeatureExtractionError::TooShort { samples: group.acc_mps2.len().saturating_sub(start), window });
@@ -74,6 +83,9 @@ mod tests {
         let f = group_features(&g, &FeatureConfig::DEFAULT).unwrap();
         assert!((f[0] - 40.0).abs() < 0.05, "f1 {}", f[0]);
         assert!((f[4] - 0.3 / 2f32.sqrt()).abs() < 1e-3, "f5 {}", f[4]);
-        assert!(matches!(group_features(&GroupData::with_len(10), &FeatureConfig::DEFAULT), Err(FeatureExtractionError::TooShort { .. })));
+        assert!(matches!(
+            group_features(&GroupData::with_len(10), &FeatureConfig::DEFAULT),
+            Err(FeatureExtractionError::TooShort { .. })
+        ));
     }
 }

@@ -41,7 +41,12 @@ pub struct GroupSample {
 pub fn read_dataset(dir: &std::path::Path) -> anyhow::Result<Dataset> {
     let dataset = sts_dataset::read(dir)?;
     if let std::borrow::Cow::Owned(resampled) = resample::to_servo_rate(&dataset) {
-        eprintln!("note: {} is sampled at {} Hz; resampled to the co-processor's servo rate, {} Hz", dir.display(), dataset.manifest.sample_rate_hz, resample::SERVO_RATE_HZ);
+        eprintln!(
+            "note: {} is sampled at {} Hz; resampled to the co-processor's servo rate, {} Hz",
+            dir.display(),
+            dataset.manifest.sample_rate_hz,
+            resample::SERVO_RATE_HZ
+        );
         return Ok(resampled);
     }
     Ok(dataset)
@@ -76,7 +81,11 @@ pub fn group_samples(dataset: &Dataset, config: &FeatureConfig) -> anyhow::Resul
 /// Features (over the window starting `skip_s` into each group, see [`feature_start`]) and
 /// targets (over each group's last second) of every group, in dataset order, computed in
 /// parallel; the result does not depend on the thread count. Errors name the group's file.
-pub fn group_samples_skipping(dataset: &Dataset, config: &FeatureConfig, skip_s: f64) -> anyhow::Result<Vec<GroupSample>> {
+pub fn group_samples_skipping(
+    dataset: &Dataset,
+    config: &FeatureConfig,
+    skip_s: f64,
+) -> anyhow::Result<Vec<GroupSample>> {
     let fs = dataset.manifest.sample_rate_hz;
     if fs != resample::SERVO_RATE_HZ {
         // Features per sample and terms per tick at another rate would not be what the board
@@ -94,8 +103,10 @@ pub fn group_samples_skipping(dataset: &Dataset, config: &FeatureConfig, skip_s:
         .enumerate()
         .map(|(index, (info, group))| {
             let start = feature_start(group.len(), config, fs, skip_s);
-            let features = features::group_features_from(group, config, start).map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
-            let targets = targets::group_targets(group, fs, info.freq_hz).map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
+            let features = features::group_features_from(group, config, start)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
+            let targets =
+                targets::group_targets(group, fs, info.freq_hz).map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
             Ok(GroupSample { index, info: info.clone(), features, feature_start: start, targets })
         })
         .collect::<anyhow::Result<Vec<_>>>()
@@ -112,7 +123,8 @@ pub fn group_samples_skipping(dataset: &Dataset, config: &FeatureConfig, skip_s:
 /// and near -180, which no smooth formula fits. Nothing changes when the cut already lies in
 /// the widest gap.
 pub fn unwrap_phases(samples: &mut [GroupSample], min_amp_um: f64) {
-    let phases: Vec<f64> = samples.iter().filter(|s| s.targets.de_amp_um >= min_amp_um).map(|s| s.targets.de_phase_deg).collect();
+    let phases: Vec<f64> =
+        samples.iter().filter(|s| s.targets.de_amp_um >= min_amp_um).map(|s| s.targets.de_phase_deg).collect();
     if let Some(branch) = Branch::of(phases) {
         for s in samples.iter_mut() {
             s.targets.de_phase_deg = branch.put(s.targets.de_phase_deg);
@@ -159,7 +171,6 @@ impl Branch {
         }
     }
 }
-
 
 /// The training table as CSV: one row per group with its file, command, features f1..f12
 /// (labels as in the formulas) and targets, for inspection or `sts-twin regress`.

@@ -49,7 +49,13 @@ pub fn non_repeating_rms_um(error_um: &[f64], freq_hz: f64, sample_rate_hz: f64)
         .min_by(|a, b| (a - a.round()).abs().total_cmp(&(b - b.round()).abs()))?;
     let whole = lag.floor() as usize;
     let frac = lag - lag.floor();
-    let (whole, frac) = if frac < 1e-6 { (whole, 0.0) } else if frac > 1.0 - 1e-6 { (whole + 1, 0.0) } else { (whole, frac) };
+    let (whole, frac) = if frac < 1e-6 {
+        (whole, 0.0)
+    } else if frac > 1.0 - 1e-6 {
+        (whole + 1, 0.0)
+    } else {
+        (whole, frac)
+    };
     let span = whole + usize::from(frac > 0.0);
     if whole == 0 || error_um.len() < 2 * span {
         return None;
@@ -57,7 +63,8 @@ pub fn non_repeating_rms_um(error_um: &[f64], freq_hz: f64, sample_rate_hz: f64)
     let n = error_um.len() - span;
     let sum_sq: f64 = (0..n)
         .map(|k| {
-            let later = (1.0 - frac) * error_um[k + whole] + if frac > 0.0 { frac * error_um[k + whole + 1] } else { 0.0 };
+            let later =
+                (1.0 - frac) * error_um[k + whole] + if frac > 0.0 { frac * error_um[k + whole + 1] } else { 0.0 };
             (later - error_um[k]).powi(2)
         })
         .sum();
@@ -69,7 +76,8 @@ pub fn non_repeating_rms_um(error_um: &[f64], freq_hz: f64, sample_rate_hz: f64)
 /// [`non_repeating_rms_um`] of a group's dynamic error (`z_tcp_um - z_cmd_um`) in steady
 /// motion: from its feature window's start to its end.
 pub fn group_non_repeating_um(group: &GroupData, sample: &GroupSample, sample_rate_hz: f64) -> Option<f64> {
-    let error_um: Vec<f64> = (sample.feature_start..group.len()).map(|k| group.z_tcp_um[k] - group.z_cmd_um[k]).collect();
+    let error_um: Vec<f64> =
+        (sample.feature_start..group.len()).map(|k| group.z_tcp_um[k] - group.z_cmd_um[k]).collect();
     non_repeating_rms_um(&error_um, sample.info.freq_hz, sample_rate_hz)
 }
 
@@ -155,7 +163,10 @@ pub fn group_places(groups: &[usize], label: impl Fn(usize) -> (f64, f64)) -> St
             None => by_freq.push((freq_hz, amp_um, amp_um)),
         }
     }
-    let places: Vec<String> = by_freq.iter().map(|&(f, lo, hi)| if lo == hi { format!("{f} Hz at {lo} um") } else { format!("{f} Hz at {lo}-{hi} um") }).collect();
+    let places: Vec<String> = by_freq
+        .iter()
+        .map(|&(f, lo, hi)| if lo == hi { format!("{f} Hz at {lo} um") } else { format!("{f} Hz at {lo}-{hi} um") })
+        .collect();
     places.join(", ")
 }
 

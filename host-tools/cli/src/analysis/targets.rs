@@ -56,8 +56,11 @@ pub fn group_targets(group: &GroupData, sample_rate_hz: f64, freq_hz: f64) -> Re
     }
     let start = n - needed;
     let t = &group.t_s[start..];
-    let cmd = fit_sine(t, &group.z_cmd_um[start..], freq_hz).filter(|f| f.amp > 0.0).ok_or(TargetError::NoCommand { freq_hz })?;
-    let de_samples: Vec<f64> = group.z_tcp_um[start..].iter().zip(&group.z_cmd_um[start..]).map(|(tcp, c)| tcp - c).collect();
+    let cmd = fit_sine(t, &group.z_cmd_um[start..], freq_hz)
+        .filter(|f| f.amp > 0.0)
+        .ok_or(TargetError::NoCommand { freq_hz })?;
+    let de_samples: Vec<f64> =
+        group.z_tcp_um[start..].iter().zip(&group.z_cmd_um[start..]).map(|(tcp, c)| tcp - c).collect();
     let de = fit_sine(t, &de_samples, freq_hz).ok_or(TargetError::NoCommand { freq_hz })?;
     Ok(GroupTargets {
         freq_hz,

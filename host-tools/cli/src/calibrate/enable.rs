@@ -52,7 +52,12 @@ impl EnableCheck {
 /// Runs the check on `rig` with the co-processor's parameters as they are (a program, if
 /// any, stays; with none the prediction is zero). `enable_ramp_ticks` is the co-processor's
 /// ramp, waited out before the last average. Compensation is switched off again at the end.
-pub fn enable_check(rig: &mut RestRig<'_>, pulse_nm: f64, enable_ramp_ticks: u32, config: &EnableConfig) -> anyhow::Result<EnableCheck> {
+pub fn enable_check(
+    rig: &mut RestRig<'_>,
+    pulse_nm: f64,
+    enable_ramp_ticks: u32,
+    config: &EnableConfig,
+) -> anyhow::Result<EnableCheck> {
     if !(config.settle_s >= 0.0 && config.window_s > 0.0 && config.sample_rate_hz > 0.0) {
         anyhow::bail!("the enable check's settling and window times must be positive");
     }

@@ -28,7 +28,12 @@ pub struct KdvConfig {
 
 impl Default for KdvConfig {
     fn default() -> Self {
-        Self { voltages_v: vec![0.0, 1.0, -1.0, 2.0, -2.0, 0.5, -0.5, 0.0], settle_s: 0.15, average_s: 0.05, sample_rate_hz: 8000.0 }
+        Self {
+            voltages_v: vec![0.0, 1.0, -1.0, 2.0, -2.0, 0.5, -0.5, 0.0],
+            settle_s: 0.15,
+            average_s: 0.05,
+            sample_rate_hz: 8000.0,
+        }
     }
 }
 
@@ -79,7 +84,12 @@ fn fit(points: &[KdvPoint], value: impl Fn(&KdvPoint) -> f64) -> anyhow::Result<
 
 /// Measures `K_dv` on `rig` about the calibrated `offset_v` (compensation off, no program).
 /// Switches the controller's analogue input on; the co-processor is left at its rest code.
-pub fn measure_kdv(rig: &mut RestRig<'_>, params: &FeedforwardParams, offset_v: f64, config: &KdvConfig) -> anyhow::Result<KdvReport> {
+pub fn measure_kdv(
+    rig: &mut RestRig<'_>,
+    params: &FeedforwardParams,
+    offset_v: f64,
+    config: &KdvConfig,
+) -> anyhow::Result<KdvReport> {
     if config.voltages_v.len() < 3 {
         anyhow::bail!("the K_dv fit needs at least three voltages, not {}", config.voltages_v.len());
     }
@@ -117,9 +127,11 @@ pub fn measure_kdv(rig: &mut RestRig<'_>, params: &FeedforwardParams, offset_v: 
     let k_dv_um_per_v = probe.coefficients[0];
     let t0 = points[0].time_s;
     for p in &mut points {
-        p.residual_um = p.z_tcp_um - (k_dv_um_per_v * p.volts + probe.coefficients[1] + probe.coefficients[2] * (p.time_s - t0));
+        p.residual_um =
+            p.z_tcp_um - (k_dv_um_per_v * p.volts + probe.coefficients[1] + probe.coefficients[2] * (p.time_s - t0));
     }
-    let span_um = points.iter().map(|p| p.z_tcp_um).fold(f64::MIN, f64::max) - points.iter().map(|p| p.z_tcp_um).fold(f64::MAX, f64::min);
+    let span_um = points.iter().map(|p| p.z_tcp_um).fold(f64::MIN, f64::max)
+        - points.iter().map(|p| p.z_tcp_um).fold(f64::MAX, f64::min);
     if k_dv_um_per_v.is_nan() || k_dv_um_per_v.abs() < 1e-4 || span_um < 4.0 * probe.residual_rms {
         anyhow::bail!(
             "the axis hardly moved with the analogue input ({k_dv_um_per_v:.5} um/V, span {span_um:.4} um, residual {:.4} um): is the controller's analogue feedforward on?",

@@ -59,7 +59,8 @@ pub fn least_squares<const N: usize>(rows: &[[f64; N]], y: &[f64]) -> Option<Lin
         let tail: f64 = (r + 1..N).map(|c| m[r][c] * b[c]).sum();
         b[r] = (v[r] - tail) / m[r][r];
     }
-    let residuals: Vec<f64> = rows.iter().zip(y).map(|(row, &yi)| yi - row.iter().zip(&b).map(|(x, c)| x * c).sum::<f64>()).collect();
+    let residuals: Vec<f64> =
+        rows.iter().zip(y).map(|(row, &yi)| yi - row.iter().zip(&b).map(|(x, c)| x * c).sum::<f64>()).collect();
     let residual_rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
     let residual_max = residuals.iter().fold(0.0f64, |m, r| m.max(r.abs()));
     if !b.iter().all(|c| c.is_finite()) {
@@ -75,7 +76,11 @@ mod tests {
     #[test]
     fn recovers_a_plane_and_reports_the_residual() {
         let rows: Vec<[f64; 3]> = (0..20).map(|k| [1.0, k as f64, (k as f64 * 0.7).sin()]).collect();
-        let y: Vec<f64> = rows.iter().enumerate().map(|(k, r)| 0.5 + 2.0 * r[1] - 3.0 * r[2] + if k % 2 == 0 { 0.01 } else { -0.01 }).collect();
+        let y: Vec<f64> = rows
+            .iter()
+            .enumerate()
+            .map(|(k, r)| 0.5 + 2.0 * r[1] - 3.0 * r[2] + if k % 2 == 0 { 0.01 } else { -0.01 })
+            .collect();
         let fit = least_squares(&rows, &y).unwrap();
         assert!((fit.coefficients[1] - 2.0).abs() < 1e-3, "{fit:?}");
         assert!((fit.coefficients[2] + 3.0).abs() < 1e-2, "{fit:?}");

@@ -34,7 +34,12 @@ pub struct OffsetConfig {
 
 impl Default for OffsetConfig {
     fn default() -> Self {
-        Self { fit_voltages_v: vec![-0.5, -0.2, -0.05, 0.0, 0.05, 0.2, 0.5], search_codes: 3, settle_ticks: 16, average_ticks: 64 }
+        Self {
+            fit_voltages_v: vec![-0.5, -0.2, -0.05, 0.0, 0.05, 0.2, 0.5],
+            search_codes: 3,
+            settle_ticks: 16,
+            average_ticks: 64,
+        }
     }
 }
 
@@ -84,10 +89,20 @@ impl OffsetReport {
 }
 
 fn point(rig: &RestRig<'_>, average: &RestAverage) -> OffsetPoint {
-    OffsetPoint { dac_code: average.dac_code, dac_v: f64::from(average.dac_code) * rig.volts_per_code(), ain_read_v: average.ain_read_v, ain_pulses: average.ain_pulses }
+    OffsetPoint {
+        dac_code: average.dac_code,
+        dac_v: f64::from(average.dac_code) * rig.volts_per_code(),
+        ain_read_v: average.ain_read_v,
+        ain_pulses: average.ain_pulses,
+    }
 }
 
-fn measure_at(rig: &mut RestRig<'_>, params: &FeedforwardParams, dac_v: f64, config: &OffsetConfig) -> anyhow::Result<OffsetPoint> {
+fn measure_at(
+    rig: &mut RestRig<'_>,
+    params: &FeedforwardParams,
+    dac_v: f64,
+    config: &OffsetConfig,
+) -> anyhow::Result<OffsetPoint> {
     rig.hold_dac_v(params, dac_v)?;
     let average = rig.average(config.settle_ticks, config.average_ticks)?;
     if !average.dac_steady {
@@ -103,7 +118,11 @@ fn measure_at(rig: &mut RestRig<'_>, params: &FeedforwardParams, dac_v: f64, con
 /// Measures the offset on `rig` (the co-processor's compensation off and no program; the
 /// controller's analogue input off). `params` are the co-processor's parameters apart from
 /// the offset. The co-processor is left writing the chosen code.
-pub fn measure_offset(rig: &mut RestRig<'_>, params: &FeedforwardParams, config: &OffsetConfig) -> anyhow::Result<OffsetReport> {
+pub fn measure_offset(
+    rig: &mut RestRig<'_>,
+    params: &FeedforwardParams,
+    config: &OffsetConfig,
+) -> anyhow::Result<OffsetReport> {
     if config.fit_voltages_v.len() < 2 {
         anyhow::bail!("the offset fit needs at least two DAC voltages, not {}", config.fit_voltages_v.len());
     }
@@ -119,7 +138,8 @@ pub fn measure_offset(rig: &mut RestRig<'_>, params: &FeedforwardParams, config:
     }
     let rows: Vec<[f64; 2]> = fit_points.iter().map(|p| [p.dac_v, 1.0]).collect();
     let reads: Vec<f64> = fit_points.iter().map(|p| p.ain_read_v).collect();
-    let fit = least_squares(&rows, &reads).ok_or_else(|| anyhow::anyhow!("the offset fit's DAC voltages are not distinct"))?;
+    let fit = least_squares(&rows, &reads)
+        .ok_or_else(|| anyhow::anyhow!("the offset fit's DAC voltages are not distinct"))?;
     let (gain, intercept_v) = (fit.coefficients[0], fit.coefficients[1]);
     if !(gain.is_finite() && gain.abs() > 0.1) {
         anyhow::bail!("the controller's reading hardly follows the DAC ({gain:.4} V per V): is the co-processor's output wired to the controller's analogue input?");
@@ -153,7 +173,11 @@ pub fn measure_offset(rig: &mut RestRig<'_>, params: &FeedforwardParams, config:
         search_points.push(p);
     }
     let score = |p: &OffsetPoint| (p.ain_pulses.abs(), p.ain_read_v.abs());
-    let best = search_points.iter().map(score).min_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal)).ok_or_else(|| anyhow::anyhow!("no DAC code to try"))?;
+    let best = search_points
+        .iter()
+        .map(score)
+        .min_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal))
+        .ok_or_else(|| anyhow::anyhow!("no DAC code to try"))?;
     // Equally good codes: the middle one, farthest from the pulses on either side.
     let ties: Vec<&OffsetPoint> = search_points.iter().filter(|p| score(p) == best).collect();
     let chosen = *ties[ties.len() / 2];

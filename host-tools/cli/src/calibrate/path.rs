@@ -71,13 +71,16 @@ pub struct PathPoint {
 /// The table for the firmware from measured points.
 pub fn path_table(points: &[PathPoint]) -> anyhow::Result<AnaloguePath> {
     let pairs: Vec<(f32, f32)> = points.iter().map(|p| (p.freq_hz as f32, p.phase_deg as f32)).collect();
-    AnaloguePath::from_points(&pairs).map_err(|err| anyhow::anyhow!("the measured analogue path is not a valid table: {err}"))
+    AnaloguePath::from_points(&pairs)
+        .map_err(|err| anyhow::anyhow!("the measured analogue path is not a valid table: {err}"))
 }
 
 /// Least-squares `a sin + b cos + c` of `values` against `angles`; returns `(a, b)`.
 fn phasor(angles: &[f64], values: &[f64]) -> anyhow::Result<(f64, f64)> {
     let rows: Vec<[f64; 3]> = angles.iter().map(|a| [a.sin(), a.cos(), 1.0]).collect();
-    let fit = least_squares(&rows, values).ok_or_else(|| anyhow::anyhow!("cannot fit a sine to {} points (too few, or not spread over the period)", angles.len()))?;
+    let fit = least_squares(&rows, values).ok_or_else(|| {
+        anyhow::anyhow!("cannot fit a sine to {} points (too few, or not spread over the period)", angles.len())
+    })?;
     Ok((fit.coefficients[0], fit.coefficients[1]))
 }
 
@@ -92,8 +95,19 @@ struct AtRest {
 impl AtRest {
     /// Steps the machine with the last output, then ticks the co-processor with the command
     /// phase `cmd_phase_turns` (turns) and keeps its output for the next step.
-    fn tick(&mut self, coprocessor: &mut dyn Coprocessor, machine: &mut Machine, cmd_phase_turns: f64) -> anyhow::Result<(StepOutput, OutputSlot)> {
-        let out = machine.step(&StepInput { z_cmd_um: 0.0, x_mm: 0.0, spindle_deg: 0.0, analog_in_v: self.analog_in_v, analog_enabled: true });
+    fn tick(
+        &mut self,
+        coprocessor: &mut dyn Coprocessor,
+        machine: &mut Machine,
+        cmd_phase_turns: f64,
+    ) -> anyhow::Result<(StepOutput, OutputSlot)> {
+        let out = machine.step(&StepInput {
+            z_cmd_um: 0.0,
+            x_mm: 0.0,
+            spindle_deg: 0.0,
+            analog_in_v: self.analog_in_v,
+            analog_enabled: true,
+        });
         let input = InputSlot {
             tick: self.tick as u32,
             acc_code: out.acc_code,
@@ -125,7 +139,8 @@ pub fn measure_path(
     let params = FeedforwardParams { analogue_path: AnaloguePath::NONE, ..params };
     expect_ack("the feedforward parameters", coprocessor.request(Request::SetParams(params))?)?;
     // The constant program ignores the features; a short window makes it start soon.
-    let features = FeatureConfig { window_samples: 800, sample_rate_hz: config.sample_rate_hz as f32, ..FeatureConfig::DEFAULT };
+    let features =
+        FeatureConfig { window_samples: 800, sample_rate_hz: config.sample_rate_hz as f32, ..FeatureConfig::DEFAULT };
     expect_ack("the feature settings", coprocessor.request(Request::SetFeatureConfig(features))?)?;
     let mut builder = ProgramBuilder::new();
     builder.id(PATH_PROGRAM_ID).constant(config.amp_um as f32).store(REG_AMP_UM);
@@ -135,7 +150,8 @@ pub fn measure_path(
     expect_ack("enabling the output", coprocessor.request(Request::SetEnabled(true))?)?;
 
     let rate = config.sample_rate_hz;
-    let mut rig = AtRest { tick: first_tick, analog_in_v: 0.0, volts_per_code: f64::from(params.dac_full_scale_v) / 32767.0 };
+    let mut rig =
+        AtRest { tick: first_tick, analog_in_v: 0.0, volts_per_code: f64::from(params.dac_full_scale_v) / 32767.0 };
     let mut points = Vec::with_capacity(config.freqs_hz.len());
     // The enable ramp and the first model update come before the first frequency's settling.
     let warmup_s = f64::from(params.enable_ramp_ticks) / rate + 0.25;
@@ -237,7 +253,8 @@ mod tests {
     #[test]
     fn friction_hardly_bends_the_path_measured_with_the_default_amplitude() {
         let plant = PlantParams::default();
-        let friction = "coulomb-friction:coulomb_n=3,static_n=4.5,stribeck_mps=2e-4".parse::<sts_emulator::EffectSpec>().unwrap();
+        let friction =
+            "coulomb-friction:coulomb_n=3,static_n=4.5,stribeck_mps=2e-4".parse::<sts_emulator::EffectSpec>().unwrap();
         let phase_at_40_hz = |effects: &[sts_emulator::EffectSpec], amp_um: f64| {
             let mut machine = Machine::new(&plant, effects, 3).unwrap();
             let mut cop = SimCoprocessor::boot(&[]);
@@ -250,6 +267,9 @@ mod tests {
         let default_deg = phase_at_40_hz(std::slice::from_ref(&friction), PathConfig::default().amp_um);
         // A 1 um sine at rest mostly sticks and lags far more; the default one slides.
         assert!(small_deg < linear_deg - 15.0, "1 um: {small_deg} deg, without friction {linear_deg} deg");
-        assert!((default_deg - linear_deg).abs() < 4.0, "default: {default_deg} deg, without friction {linear_deg} deg");
+        assert!(
+            (default_deg - linear_deg).abs() < 4.0,
+            "default: {default_deg} deg, without friction {linear_deg} deg"
+        );
     }
 }

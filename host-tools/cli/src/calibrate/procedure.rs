@@ -71,8 +71,18 @@ impl CalibrationConfig {
     pub fn quick() -> Self {
         Self {
             offset: OffsetConfig { fit_voltages_v: vec![-0.2, 0.0, 0.2], search_codes: 2, ..OffsetConfig::default() },
-            kdv: KdvConfig { voltages_v: vec![0.0, 1.0, -1.0, 2.0, 0.0], settle_s: 0.1, average_s: 0.03, ..KdvConfig::default() },
-            path: Some(PathConfig { freqs_hz: vec![10.0, 40.0], settle_s: 0.25, measure_s: 0.5, ..PathConfig::default() }),
+            kdv: KdvConfig {
+                voltages_v: vec![0.0, 1.0, -1.0, 2.0, 0.0],
+                settle_s: 0.1,
+                average_s: 0.03,
+                ..KdvConfig::default()
+            },
+            path: Some(PathConfig {
+                freqs_hz: vec![10.0, 40.0],
+                settle_s: 0.25,
+                measure_s: 0.5,
+                ..PathConfig::default()
+            }),
             enable: EnableConfig { settle_s: 0.15, window_s: 0.05, ..EnableConfig::default() },
         }
     }
@@ -130,7 +140,10 @@ pub struct StoreCheck {
 impl StoreCheck {
     /// Everything read back as written.
     pub fn passed(&self) -> bool {
-        self.saved && self.live_params_match && self.stored_params_match && self.config_source_after_reboot == ConfigSource::Stored
+        self.saved
+            && self.live_params_match
+            && self.stored_params_match
+            && self.config_source_after_reboot == ConfigSource::Stored
     }
 }
 
@@ -231,7 +244,12 @@ pub fn calibrate(
     progress("step 5: rebooting the co-processor and reading back what it loaded");
     board.reboot()?;
     let reloaded = BootState::read(board.coprocessor())?;
-    let store = StoreCheck { saved, live_params_match, config_source_after_reboot: reloaded.config_source, stored_params_match: reloaded.params == params };
+    let store = StoreCheck {
+        saved,
+        live_params_match,
+        config_source_after_reboot: reloaded.config_source,
+        stored_params_match: reloaded.params == params,
+    };
 
     progress("step 6: switching compensation on at rest");
     let mut rig = RestRig::new(board.coprocessor(), &mut machine, fs_v, 0);
@@ -273,10 +291,22 @@ impl fmt::Display for CalibrationReport {
         let o = &self.offset;
         let k = &self.kdv;
         let pulse_nm = self.enable.pulse_nm;
-        writeln!(f, "co-processor ({}): at the start it {}", self.coprocessor, describe_config_source(self.boot_config_source))?;
+        writeln!(
+            f,
+            "co-processor ({}): at the start it {}",
+            self.coprocessor,
+            describe_config_source(self.boot_config_source)
+        )?;
         writeln!(f, "1. interface offset (axis at rest, controller's analogue input off)")?;
         for p in &o.fit_points {
-            writeln!(f, "     DAC {:>+6} = {:>+9.3} mV -> controller reads {:>+9.3} mV = {:>+7.1} pulses", p.dac_code, p.dac_v * 1e3, p.ain_read_v * 1e3, p.ain_pulses)?;
+            writeln!(
+                f,
+                "     DAC {:>+6} = {:>+9.3} mV -> controller reads {:>+9.3} mV = {:>+7.1} pulses",
+                p.dac_code,
+                p.dac_v * 1e3,
+                p.ain_read_v * 1e3,
+                p.ain_pulses
+            )?;
         }
         writeln!(
             f,
@@ -286,7 +316,8 @@ impl fmt::Display for CalibrationReport {
             o.fit_residual_v * 1e3,
             o.k_vc_pulses_per_v
         )?;
-        let search: Vec<String> = o.search_points.iter().map(|p| format!("{} -> {:+.1}", p.dac_code, p.ain_pulses)).collect();
+        let search: Vec<String> =
+            o.search_points.iter().map(|p| format!("{} -> {:+.1}", p.dac_code, p.ain_pulses)).collect();
         writeln!(f, "   codes around the null (code -> pulses): {}", search.join(", "))?;
         writeln!(
             f,
@@ -299,7 +330,11 @@ impl fmt::Display for CalibrationReport {
         )?;
         writeln!(f, "2. K_dv (controller's analogue input on, voltages about the rest code, probe at the TCP)")?;
         for p in &k.points {
-            writeln!(f, "     {:>+7.4} V -> TCP {:>+8.4} um (encoder {:>+8.4} um), residual {:>+7.4} um", p.volts, p.z_tcp_um, p.z_enc_um, p.residual_um)?;
+            writeln!(
+                f,
+                "     {:>+7.4} V -> TCP {:>+8.4} um (encoder {:>+8.4} um), residual {:>+7.4} um",
+                p.volts, p.z_tcp_um, p.z_enc_um, p.residual_um
+            )?;
         }
         writeln!(
             f,
@@ -309,11 +344,20 @@ impl fmt::Display for CalibrationReport {
         if self.path.is_empty() {
             writeln!(f, "3. analogue path: not measured (empty table: no phase correction)")?;
         } else {
-            let cells: Vec<String> = self.path.iter().map(|p| format!("{:.0} Hz |H| {:.3} {:+.2} deg", p.freq_hz, p.gain, p.phase_deg)).collect();
+            let cells: Vec<String> = self
+                .path
+                .iter()
+                .map(|p| format!("{:.0} Hz |H| {:.3} {:+.2} deg", p.freq_hz, p.gain, p.phase_deg))
+                .collect();
             writeln!(f, "3. analogue path (DAC -> TCP): {}", cells.join("; "))?;
         }
         let s = &self.store;
-        writeln!(f, "4. stored (SetParams, SaveConfig): saved {}, parameters read back identical {}", yes_no(s.saved), yes_no(s.live_params_match))?;
+        writeln!(
+            f,
+            "4. stored (SetParams, SaveConfig): saved {}, parameters read back identical {}",
+            yes_no(s.saved),
+            yes_no(s.live_params_match)
+        )?;
         writeln!(
             f,
             "5. after a reboot the co-processor {}; parameters identical {}",
@@ -330,7 +374,14 @@ impl fmt::Display for CalibrationReport {
             pulse_nm
         )?;
         if self.verified {
-            write!(f, "calibration VERIFIED: offset {:+.3} mV, K_dv {:.5} um/V, K_vc {:.1} pulses/V, {} path points", self.offset_v * 1e3, self.k_dv_um_per_v, self.k_vc_pulses_per_v, self.path.len())
+            write!(
+                f,
+                "calibration VERIFIED: offset {:+.3} mV, K_dv {:.5} um/V, K_vc {:.1} pulses/V, {} path points",
+                self.offset_v * 1e3,
+                self.k_dv_um_per_v,
+                self.k_vc_pulses_per_v,
+                self.path.len()
+            )
         } else {
             write!(f, "calibration NOT VERIFIED: {}", self.failures().join("; "))
         }
@@ -351,7 +402,10 @@ impl CalibrationReport {
             out.push("the parameters in force differ from those sent".into());
         }
         if self.store.config_source_after_reboot != ConfigSource::Stored {
-            out.push(format!("after the reboot the configuration came from {:?}, not the store", self.store.config_source_after_reboot));
+            out.push(format!(
+                "after the reboot the configuration came from {:?}, not the store",
+                self.store.config_source_after_reboot
+            ));
         }
         if !self.store.stored_params_match {
             out.push("the parameters loaded after the reboot differ from those stored".into());
@@ -377,7 +431,9 @@ mod tests {
         let plant = PlantParams::default();
         let mut board = SimCoprocessor::boot(&[]);
         let mut heard = Vec::new();
-        let report = calibrate(&mut board, &plant, &[], 3, &CalibrationConfig::quick(), &mut |s| heard.push(s.to_string())).unwrap();
+        let report =
+            calibrate(&mut board, &plant, &[], 3, &CalibrationConfig::quick(), &mut |s| heard.push(s.to_string()))
+                .unwrap();
         assert!(report.verified, "{report}");
         assert_eq!(report.boot_config_source, ConfigSource::Defaults);
         assert_eq!(report.config_source, ConfigSource::Stored);
@@ -405,7 +461,9 @@ mod tests {
         expect_ack("params", board.request(Request::SetParams(uncalibrated)).unwrap()).unwrap();
         let mut machine = Machine::new(&plant, &[], 3).unwrap();
         let mut rig = RestRig::new(&mut board, &mut machine, 10.0, 0);
-        let check = enable_check(&mut rig, plant.interface.pulse_nm, uncalibrated.enable_ramp_ticks, &EnableConfig::default()).unwrap();
+        let check =
+            enable_check(&mut rig, plant.interface.pulse_nm, uncalibrated.enable_ramp_ticks, &EnableConfig::default())
+                .unwrap();
         assert_eq!(check.added_pulses_max, 24, "{check:?}");
         assert!((check.tcp_true_move_nm - 24.0).abs() < 1.0, "{check:?}");
         assert!(!check.passed());
@@ -415,7 +473,10 @@ mod tests {
     fn bad_path_frequencies_are_refused_before_measuring() {
         let plant = PlantParams::default();
         for freqs_hz in [vec![], vec![40.0, 10.0], vec![10.0, f64::NAN], vec![5000.0], vec![1.0; 9], vec![0.0, 10.0]] {
-            let config = CalibrationConfig { path: Some(PathConfig { freqs_hz: freqs_hz.clone(), ..PathConfig::default() }), ..CalibrationConfig::quick() };
+            let config = CalibrationConfig {
+                path: Some(PathConfig { freqs_hz: freqs_hz.clone(), ..PathConfig::default() }),
+                ..CalibrationConfig::quick()
+            };
             let mut board = SimCoprocessor::boot(&[]);
             let mut heard = 0;
             let err = calibrate(&mut board, &plant, &[], 1, &config, &mut |_| heard += 1).unwrap_err();

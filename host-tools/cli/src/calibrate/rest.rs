@@ -50,8 +50,20 @@ pub struct RestRig<'a> {
 
 impl<'a> RestRig<'a> {
     /// A rig from tick `first_tick`, the controller's analogue input off, the DAC at 0 V.
-    pub fn new(coprocessor: &'a mut dyn Coprocessor, machine: &'a mut Machine, dac_full_scale_v: f64, first_tick: u64) -> Self {
-        Self { coprocessor, machine, volts_per_code: dac_full_scale_v / DAC_FULL_SCALE_CODE, analog_in_v: 0.0, tick: first_tick, analog_enabled: false }
+    pub fn new(
+        coprocessor: &'a mut dyn Coprocessor,
+        machine: &'a mut Machine,
+        dac_full_scale_v: f64,
+        first_tick: u64,
+    ) -> Self {
+        Self {
+            coprocessor,
+            machine,
+            volts_per_code: dac_full_scale_v / DAC_FULL_SCALE_CODE,
+            analog_in_v: 0.0,
+            tick: first_tick,
+            analog_enabled: false,
+        }
     }
 
     /// Volts per DAC code.
@@ -66,7 +78,13 @@ impl<'a> RestRig<'a> {
 
     /// One tick.
     pub fn step(&mut self) -> anyhow::Result<(StepOutput, OutputSlot)> {
-        let machine = self.machine.step(&StepInput { z_cmd_um: 0.0, x_mm: 0.0, spindle_deg: 0.0, analog_in_v: self.analog_in_v, analog_enabled: self.analog_enabled });
+        let machine = self.machine.step(&StepInput {
+            z_cmd_um: 0.0,
+            x_mm: 0.0,
+            spindle_deg: 0.0,
+            analog_in_v: self.analog_in_v,
+            analog_enabled: self.analog_enabled,
+        });
         let input = InputSlot { tick: self.tick as u32, acc_code: machine.acc_code, ..Default::default() };
         let output = self.coprocessor.tick(&input)?;
         self.analog_in_v = f64::from(output.dac_code) * self.volts_per_code;

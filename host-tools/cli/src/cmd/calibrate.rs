@@ -79,11 +79,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         stopped?;
         report
     };
-    let text = if args.json { serde_json::to_string_pretty(&report).context("encoding the JSON report")? } else { report.to_string() };
+    let text = if args.json {
+        serde_json::to_string_pretty(&report).context("encoding the JSON report")?
+    } else {
+        report.to_string()
+    };
     writeln!(std::io::stdout().lock(), "{text}").context("writing the report")?;
     if !report.verified {
         anyhow::bail!("the calibration is not verified: {}", report.failures().join("; "));
     }
     Ok(())
 }
-

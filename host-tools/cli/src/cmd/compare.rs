@@ -35,7 +35,13 @@ fn file_label(path: &std::path::Path) -> String {
 }
 
 fn print_text(label: &str, c: &Comparison) {
-    println!("{label}: waveform RMS {:.1} nm, MAE {:.1} nm over {} groups' last second (measured RMS {:.1} nm)", c.waveform_rms_um * 1e3, c.waveform_mae_um * 1e3, c.groups.len(), c.measured_rms_um * 1e3);
+    println!(
+        "{label}: waveform RMS {:.1} nm, MAE {:.1} nm over {} groups' last second (measured RMS {:.1} nm)",
+        c.waveform_rms_um * 1e3,
+        c.waveform_mae_um * 1e3,
+        c.groups.len(),
+        c.measured_rms_um * 1e3
+    );
     println!("  amplitude R^2 {:.4}, phase R^2 {:.4}", c.amplitude_r2, c.phase_r2);
     let h: Vec<String> = c.harmonics_um.iter().enumerate().map(|(k, v)| format!("{}f {:.1}", k + 1, v * 1e3)).collect();
     println!("  residual at harmonics (nm, mean over groups): {}", h.join(", "));
@@ -95,7 +101,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         print_text(&file_label(&args.model), &c);
         if let Some((b, _, label)) = &baseline {
             print_text(label, b);
-            println!("waveform RMS falls by {:.0}% from {label}", (1.0 - c.waveform_rms_um / b.waveform_rms_um.max(1e-300)) * 100.0);
+            println!(
+                "waveform RMS falls by {:.0}% from {label}",
+                (1.0 - c.waveform_rms_um / b.waveform_rms_um.max(1e-300)) * 100.0
+            );
         }
         if let Some(path) = &args.html {
             println!("report written to {}", path.display());

@@ -85,7 +85,8 @@ pub fn measure_and_fit(seed: u64, out: &std::path::Path) -> anyhow::Result<crate
     let measure = MeasureConfig { seed, ..MeasureConfig::default() };
     let dataset = sts_emulator::measure::run(&measure, &|_| {})?;
     eprintln!("fitting the twin (symbolic regression, cross-validated) ...");
-    let model = fit(&dataset, "demo: default emulated machine", &FitConfig { seed, ..FitConfig::default() }, &mut |_| {})?;
+    let model =
+        fit(&dataset, "demo: default emulated machine", &FitConfig { seed, ..FitConfig::default() }, &mut |_| {})?;
     if let Some(dir) = out.parent() {
         std::fs::create_dir_all(dir)?;
     }

@@ -28,7 +28,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             .ranking
             .iter()
             .map(|r| {
-                let params: serde_json::Map<String, serde_json::Value> = r.params.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect();
+                let params: serde_json::Map<String, serde_json::Value> =
+                    r.params.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect();
                 serde_json::json!({
                     "effect": r.effect,
                     "explained_fraction": r.explained_fraction,
@@ -63,7 +64,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         println!("ranking (explained fraction of the held-out residual):");
         for (i, r) in d.ranking.iter().enumerate() {
             let params: Vec<String> = r.params.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect();
-            println!("  {}. {:<22} {:>6.1}%  p = {:.1e}{}  [{}]", i + 1, r.effect, r.explained_fraction * 100.0, r.p_value, if r.significant { "  significant" } else { "" }, params.join(", "));
+            println!(
+                "  {}. {:<22} {:>6.1}%  p = {:.1e}{}  [{}]",
+                i + 1,
+                r.effect,
+                r.explained_fraction * 100.0,
+                r.p_value,
+                if r.significant { "  significant" } else { "" },
+                params.join(", ")
+            );
             println!("     {}", r.evidence);
         }
         println!("{}", d.test);

@@ -106,7 +106,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let feature_config = analysis::feature_config_for(dataset, args.acc_scale);
     let samples = analysis::group_samples_skipping(dataset, &feature_config, args.skip_s)?;
     if let Some(path) = &args.table {
-        std::fs::write(path, analysis::training_table_csv(&samples)).with_context(|| format!("cannot write {}", path.display()))?;
+        std::fs::write(path, analysis::training_table_csv(&samples))
+            .with_context(|| format!("cannot write {}", path.display()))?;
     }
     let Some(out) = &args.out else {
         return Ok(());
@@ -114,9 +115,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let features_s = started.elapsed().as_secs_f64();
 
     let folds = config.folds.max(2);
-    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::with_draw_target(Some(2 * folds as u64 + 2), ProgressDrawTarget::stderr()) };
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::with_draw_target(Some(2 * folds as u64 + 2), ProgressDrawTarget::stderr())
+    };
     bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:20} {pos}/{len} searches  {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()),
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:20} {pos}/{len} searches  {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     // The bar shows the current best formulas of the final (all-group) searches.
     let mut finals = [String::new(), String::new()];
@@ -131,13 +137,20 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let description = format!("fitted by sts-twin fit on {} (seed {})", dataset_name(&args.data), args.seed);
     let model = fit_samples(dataset, &samples, feature_config, &description, &config, &mut on_progress)?;
     bar.finish_and_clear();
-    let model = match &prepared { Some(p) => p.attach(model)?, None => model };
+    let model = match &prepared {
+        Some(p) => p.attach(model)?,
+        None => model,
+    };
     model.write(out)?;
     if let Some(p) = &prepared {
         p.write_record(out)?;
     }
     print_report(&model, out);
-    let identified = if prepared.is_some() { format!(", the effects identified in {:.1} s", effects_s - read_s) } else { String::new() };
+    let identified = if prepared.is_some() {
+        format!(", the effects identified in {:.1} s", effects_s - read_s)
+    } else {
+        String::new()
+    };
     println!(
         "read {} groups in {read_s:.1} s{identified}, features and targets in {:.1} s, searches and validation in {:.1} s",
         samples.len(),
@@ -146,10 +159,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     );
 
     if let Some(path) = &args.export_rust {
-        std::fs::write(path, model.rust_source(&dataset_name(&args.data))).with_context(|| format!("cannot write {}", path.display()))?;
+        std::fs::write(path, model.rust_source(&dataset_name(&args.data)))
+            .with_context(|| format!("cannot write {}", path.display()))?;
     }
     if let Some(path) = &args.export_c {
-        std::fs::write(path, model.c_source(&dataset_name(&args.data))).with_context(|| format!("cannot write {}", path.display()))?;
+        std::fs::write(path, model.c_source(&dataset_name(&args.data)))
+            .with_context(|| format!("cannot write {}", path.display()))?;
     }
     Ok(())
 }
@@ -166,9 +181,15 @@ fn print_report(model: &ModelFile, out: &Path) {
     let v = &model.validation;
     // Six significant digits for reading; the model file holds the exact constants.
     println!("amplitude (um) = {}", model.amplitude.expr.to_infix_rounded(&FEATURE_LABELS, 6));
-    println!("  complexity {}, R^2 train {:.5}, held-out {:.5}", model.amplitude.complexity, model.amplitude.r2_train, v.amplitude_r2);
+    println!(
+        "  complexity {}, R^2 train {:.5}, held-out {:.5}",
+        model.amplitude.complexity, model.amplitude.r2_train, v.amplitude_r2
+    );
     println!("phase (deg)    = {}", model.phase.expr.to_infix_rounded(&FEATURE_LABELS, 6));
-    println!("  complexity {}, R^2 train {:.5}, held-out {:.5}", model.phase.complexity, model.phase.r2_train, v.phase_r2);
+    println!(
+        "  complexity {}, R^2 train {:.5}, held-out {:.5}",
+        model.phase.complexity, model.phase.r2_train, v.phase_r2
+    );
     println!("amplitude selection:\n{}", indent(&model.amplitude.selection));
     println!("phase selection:\n{}", indent(&model.phase.selection));
     println!(
@@ -194,7 +215,12 @@ fn print_report(model: &ModelFile, out: &Path) {
             g.waveform_rms_um * 1e3
         );
     }
-    println!("model written to {} (program id {:08x}, {} bytes of code)", out.display(), model.program.id, model.program.code_hex.len() / 2);
+    println!(
+        "model written to {} (program id {:08x}, {} bytes of code)",
+        out.display(),
+        model.program.id,
+        model.program.code_hex.len() / 2
+    );
 }
 
 fn indent(text: &str) -> String {

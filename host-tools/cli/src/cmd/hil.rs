@@ -63,7 +63,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     match &args.action {
         Action::Status { bus_file, raw } => {
             if args.bringup {
-                anyhow::bail!("`hil status` needs the twin firmware (the bring-up application has no control protocol)");
+                anyhow::bail!(
+                    "`hil status` needs the twin firmware (the bring-up application has no control protocol)"
+                );
             }
             let mut cop = HilCoprocessor::start(HilConfig { bus_path: bus_file.clone(), ..config(args) })?;
             let answer = cop.request(Request::GetStatus);
@@ -85,7 +87,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 status.gain,
                 status.program_id,
                 status.staged_program_id,
-                if status.degraded == 0 { "trusted".to_string() } else { format!("degraded (bits {:#06b})", status.degraded) }
+                if status.degraded == 0 {
+                    "trusted".to_string()
+                } else {
+                    format!("degraded (bits {:#06b})", status.degraded)
+                }
             );
             let p = &status.params;
             println!(
@@ -94,7 +100,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             );
             println!(
                 "features: window {} samples at {} Hz, {} m/s^2 per LSB",
-                status.feature_config.window_samples, status.feature_config.sample_rate_hz, status.feature_config.acc_mps2_per_lsb
+                status.feature_config.window_samples,
+                status.feature_config.sample_rate_hz,
+                status.feature_config.acc_mps2_per_lsb
             );
             println!("counters: {c:?}");
             Ok(())
@@ -103,7 +111,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let model = model.as_ref().map(|path| crate::model::ModelFile::read(path)).transpose()?;
             let requests = match &model {
                 Some(model) => {
-                    let features = sts_twin_core::features::FeatureConfig { window_samples: 2000, ..model.feature_config };
+                    let features =
+                        sts_twin_core::features::FeatureConfig { window_samples: 2000, ..model.feature_config };
                     vec![
                         Request::SetFeatureConfig(features),
                         Request::UploadProgram { program: model.firmware_program()?, activate: true },

@@ -5,10 +5,10 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use sts_emulator::{EffectSpec, PlantParams};
 
+use crate::calibrate::PathPoint;
 use crate::hil::HilConfig;
 use crate::model::ModelFile;
 use crate::rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
-use crate::calibrate::PathPoint;
 use crate::trial::{machine_params, run_trial, stored_params, with_measured_path, TrialConfig, TrialReport};
 
 /// Arguments of `sts-twin machine`.
@@ -93,7 +93,11 @@ pub fn coprocessor(sim: bool) -> anyhow::Result<Box<dyn Coprocessor>> {
 /// Boots the firmware in QEMU on an existing board memory file (its config store).
 fn stored_calibration_board(bus: &std::path::Path) -> anyhow::Result<Box<dyn Coprocessor>> {
     if !bus.is_file() {
-        anyhow::bail!("--bus {}: no such board memory file; calibrate first: sts-twin calibrate-offset --bus {}", bus.display(), bus.display());
+        anyhow::bail!(
+            "--bus {}: no such board memory file; calibrate first: sts-twin calibrate-offset --bus {}",
+            bus.display(),
+            bus.display()
+        );
     }
     Ok(Box::new(HilCoprocessor::start(HilConfig { bus_path: Some(bus.to_path_buf()), ..HilConfig::default() })?))
 }
@@ -105,7 +109,8 @@ pub fn print_path(points: &[PathPoint]) {
 
 /// An analogue-path table as `5 Hz +0.05 deg, 10 Hz ...` (`none` when empty).
 fn path_text(points: impl Iterator<Item = (f64, f64)>) -> String {
-    let cells: Vec<String> = points.map(|(freq_hz, phase_deg)| format!("{freq_hz:.0} Hz {phase_deg:+.2} deg")).collect();
+    let cells: Vec<String> =
+        points.map(|(freq_hz, phase_deg)| format!("{freq_hz:.0} Hz {phase_deg:+.2} deg")).collect();
     if cells.is_empty() {
         "none".to_string()
     } else {
@@ -148,7 +153,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 "stored calibration: offset {:+.3} mV, K_dv {:.4} um/V, analogue path {}",
                 f64::from(stored.offset_v) * 1e3,
                 stored.k_dv_um_per_v,
-                path_text(stored.analogue_path.points().map(|(freq_hz, phase_deg)| (f64::from(freq_hz), f64::from(phase_deg))))
+                path_text(
+                    stored
+                        .analogue_path
+                        .points()
+                        .map(|(freq_hz, phase_deg)| (f64::from(freq_hz), f64::from(phase_deg)))
+                )
             );
         }
         stored
@@ -168,8 +178,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         print_report(&report);
     }
     if let Some(path) = &args.html {
-        let title = format!("bicuspid cut at {} Hz, {}", report.freq_hz, if report.twin { "with the twin" } else { "bare machine" });
-        std::fs::write(path, crate::report::trial::render(&title, std::slice::from_ref(&report))).with_context(|| format!("writing {}", path.display()))?;
+        let title = format!(
+            "bicuspid cut at {} Hz, {}",
+            report.freq_hz,
+            if report.twin { "with the twin" } else { "bare machine" }
+        );
+        std::fs::write(path, crate::report::trial::render(&title, std::slice::from_ref(&report)))
+            .with_context(|| format!("writing {}", path.display()))?;
         if !args.json {
             eprintln!("report written to {}", path.display());
         }

@@ -59,8 +59,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     } else {
         let bar = indicatif::ProgressBar::new(total);
         bar.set_style(
-            indicatif::ProgressStyle::with_template("measure {bar:40} {pos}/{len} groups [{elapsed_precise}, eta {eta}]")
-                .context("progress style")?,
+            indicatif::ProgressStyle::with_template(
+                "measure {bar:40} {pos}/{len} groups [{elapsed_precise}, eta {eta}]",
+            )
+            .context("progress style")?,
         );
         bar
     };

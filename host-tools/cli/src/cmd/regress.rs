@@ -89,11 +89,7 @@ pub fn read_table(path: &Path) -> anyhow::Result<Table> {
         let mut row = Vec::with_capacity(columns.len());
         for (i, field) in record.iter().enumerate() {
             let value: f64 = field.parse().map_err(|_| {
-                anyhow::anyhow!(
-                    "{shown}:{line}: column {} (`{}`): `{field}` is not a number",
-                    i + 1,
-                    columns[i]
-                )
+                anyhow::anyhow!("{shown}:{line}: column {} (`{}`): `{field}` is not a number", i + 1, columns[i])
             })?;
             if !value.is_finite() {
                 bail!("{shown}:{line}: column {} (`{}`): `{field}` is not a finite number", i + 1, columns[i]);
@@ -112,10 +108,7 @@ fn csv_error(file: &str, columns: &[String], e: csv::Error) -> anyhow::Error {
     match e.kind() {
         csv::ErrorKind::UnequalLengths { pos, expected_len, len } => {
             let line = pos.as_ref().map_or(0, |p| p.line());
-            anyhow::anyhow!(
-                "{file}:{line}: {len} fields, expected {expected_len} (columns: {})",
-                columns.join(", ")
-            )
+            anyhow::anyhow!("{file}:{line}: {len} fields, expected {expected_len} (columns: {})", columns.join(", "))
         }
         csv::ErrorKind::Utf8 { pos, err } => {
             let line = pos.as_ref().map_or(0, |p| p.line());
@@ -181,9 +174,11 @@ struct Problem {
 fn prepare(table: &Table, args: &Args) -> anyhow::Result<Problem> {
     let shown = args.file.display();
     let find = |name: &str| {
-        table.columns.iter().position(|c| c == name).with_context(|| {
-            format!("{shown}: no column `{name}` (columns: {})", table.columns.join(", "))
-        })
+        table
+            .columns
+            .iter()
+            .position(|c| c == name)
+            .with_context(|| format!("{shown}: no column `{name}` (columns: {})", table.columns.join(", ")))
     };
     let target = find(&args.target)?;
     let feature_idx: Vec<usize> = match &args.features {
@@ -194,17 +189,10 @@ fn prepare(table: &Table, args: &Args) -> anyhow::Result<Problem> {
         bail!("the target `{}` cannot also be a feature", args.target);
     }
     let features: Vec<String> = feature_idx.iter().map(|&i| table.columns[i].clone()).collect();
-    let rows: Vec<Vec<f64>> = table
-        .rows
-        .iter()
-        .map(|r| feature_idx.iter().map(|&i| r[i]).collect())
-        .collect();
+    let rows: Vec<Vec<f64>> = table.rows.iter().map(|r| feature_idx.iter().map(|&i| r[i]).collect()).collect();
     let y: Vec<f64> = table.rows.iter().map(|r| r[target]).collect();
-    let x = if features.is_empty() {
-        Matrix::from_row_major(y.len(), 0, Vec::new())?
-    } else {
-        Matrix::from_rows(&rows)?
-    };
+    let x =
+        if features.is_empty() { Matrix::from_row_major(y.len(), 0, Vec::new())? } else { Matrix::from_rows(&rows)? };
     Ok(Problem { x, y, features })
 }
 
@@ -275,7 +263,8 @@ fn rename_vars(explanation: &str, features: &[String]) -> String {
     let bytes = explanation.as_bytes();
     let mut i = 0;
     while i < bytes.len() {
-        let at_word_start = i == 0 || !(bytes[i - 1].is_ascii_alphanumeric() || bytes[i - 1] == b'_' || bytes[i - 1] == b'.');
+        let at_word_start =
+            i == 0 || !(bytes[i - 1].is_ascii_alphanumeric() || bytes[i - 1] == b'_' || bytes[i - 1] == b'.');
         if at_word_start && bytes[i] == b'x' {
             let mut j = i + 1;
             while j < bytes.len() && bytes[j].is_ascii_digit() {
@@ -321,11 +310,7 @@ pub fn run_to(args: &Args, out: &mut dyn Write, show_progress: bool) -> anyhow::
     let result = fit(&problem.x, &problem.y, &cfg, |p| {
         if let Some(bar) = &bar {
             bar.set_position(p.epoch as u64);
-            let front: Vec<String> = p
-                .front
-                .iter()
-                .map(|m| format!("c{}:R2={:.4}", m.complexity, m.r2))
-                .collect();
+            let front: Vec<String> = p.front.iter().map(|m| format!("c{}:R2={:.4}", m.complexity, m.r2)).collect();
             if let Some(sel) = p.front.get(p.selected) {
                 bar.set_message(format!(
                     "best c={} R2={:.6} {} | front {}",
@@ -428,7 +413,10 @@ mod tests {
     fn bad_cells_are_reported_with_file_line_and_column() {
         let path = temp_csv("bad.csv", "a,b,y\n1,2,3\n4,oops,6\n");
         let err = run_cli(&["--target", "y", path.to_str().unwrap()]).unwrap_err().to_string();
-        assert!(err.contains("bad.csv:3") && err.contains("column 2") && err.contains("`b`") && err.contains("oops"), "{err}");
+        assert!(
+            err.contains("bad.csv:3") && err.contains("column 2") && err.contains("`b`") && err.contains("oops"),
+            "{err}"
+        );
 
         let path = temp_csv("short.csv", "a,b,y\n1,2,3\n4,5\n");
         let err = format!("{:#}", run_cli(&["--target", "y", path.to_str().unwrap()]).unwrap_err());

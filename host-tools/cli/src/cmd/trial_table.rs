@@ -81,7 +81,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     for row in &rows {
         println!(
             "| {:.0} Hz | {:.3} um | {:.3} um | {:.1}% | {:+.2} deg | {:+.2} deg |",
-            row.bare.freq_hz, row.bare.form_error_pv_um, row.twin.form_error_pv_um, row.reduction_pct, row.bare.phase_error_deg, row.twin.phase_error_deg
+            row.bare.freq_hz,
+            row.bare.form_error_pv_um,
+            row.twin.form_error_pv_um,
+            row.reduction_pct,
+            row.bare.phase_error_deg,
+            row.twin.phase_error_deg
         );
     }
     println!("\nCo-processor: {which}; model: {}; machine seed {}.", model.description, args.seed);

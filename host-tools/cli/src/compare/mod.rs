@@ -133,7 +133,8 @@ impl Comparison {
         let snr: Vec<f64> = positions.iter().map(|&p| self.groups[p].acc_snr).collect();
         let (lo, hi) = (snr.iter().copied().fold(f64::INFINITY, f64::min), snr.iter().copied().fold(0.0, f64::max));
         let ss = |g: &GroupComparison| g.waveform_rms_um * g.waveform_rms_um;
-        let share = positions.iter().map(|&p| ss(&self.groups[p])).sum::<f64>() / self.groups.iter().map(ss).sum::<f64>().max(1e-300);
+        let share = positions.iter().map(|&p| ss(&self.groups[p])).sum::<f64>()
+            / self.groups.iter().map(ss).sum::<f64>().max(1e-300);
         Some(format!(
             "in {} group{} ({}) its line at the command frequency is only {:.2}-{:.2} of the rest of its signal: \
              it barely sees the motion there, the features are mostly noise and the formulas extrapolate. Those groups hold {:.0}% of the waveform error{}",
@@ -150,7 +151,9 @@ impl Comparison {
     /// Indices of the `n` worst groups by waveform RMS.
     pub fn worst(&self, n: usize) -> Vec<usize> {
         let mut order: Vec<usize> = (0..self.groups.len()).collect();
-        order.sort_by(|&a, &b| self.groups[b].waveform_rms_um.total_cmp(&self.groups[a].waveform_rms_um).then(a.cmp(&b)));
+        order.sort_by(|&a, &b| {
+            self.groups[b].waveform_rms_um.total_cmp(&self.groups[a].waveform_rms_um).then(a.cmp(&b))
+        });
         order.truncate(n);
         order
     }
@@ -192,7 +195,12 @@ pub fn tick_input_with_phase(group: &GroupData, k: usize, cmd_phase_turns: u32) 
 /// The predicted dynamic error of a whole group, um, sample by sample: the firmware's
 /// synthesiser on the program's output, started at the group's machine time with its
 /// kernels at rest (the group starts from rest).
-pub fn predict_group(program: &Program, sample: &GroupSample, group: &GroupData, sample_rate_hz: f64) -> (Vec<f64>, bool) {
+pub fn predict_group(
+    program: &Program,
+    sample: &GroupSample,
+    group: &GroupData,
+    sample_rate_hz: f64,
+) -> (Vec<f64>, bool) {
     let (output, ok) = program_output(program, sample);
     let mut synth = Synth::new(0);
     synth.set_time_ticks((sample.info.start_s.max(0.0) * sample_rate_hz).round() as u64);
@@ -236,47 +244,50 @@ pub fn compare(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<(Comparis
     let skip_s = model.training.as_ref().map_or(analysis::DEFAULT_SKIP_S, |t| t.skip_s);
     let samples = analysis::group_samples_skipping(dataset, &feature_config, skip_s)?;
     let fs = dataset.manifest.sample_rate_hz;
-    let per_group: Vec<(GroupComparison, GroupWaves, Vec<f64>)> = samples
-        .par_iter()
-        .map(|s| {
-            let group = &dataset.groups[s.index];
-            let (pred, ok) = predict_group(&program, s, group, fs);
-            let (out, _) = program_output(&program, s);
-            let start = s.targets.window_start;
-            let t = &group.t_s[start..];
-            let measured: Vec<f64> = (start..group.len()).map(|k| group.z_tcp_um[k] - group.z_cmd_um[k]).collect();
-            let predicted = pred[start..].to_vec();
-            let residual: Vec<f64> = measured.iter().zip(&predicted).map(|(m, p)| m - p).collect();
-            let n = residual.len().max(1) as f64;
-            let rms = (residual.iter().map(|r| r * r).sum::<f64>() / n).sqrt();
-            let mae = residual.iter().map(|r| r.abs()).sum::<f64>() / n;
-            let mean = residual.iter().sum::<f64>() / n;
-            let measured_rms = (measured.iter().map(|m| m * m).sum::<f64>() / n).sqrt();
-            let harmonics = (1..=MAX_ORDER).map(|k| line_amp(t, &residual, k as f64 * s.info.freq_hz)).collect();
-            let spectrum = signals::amplitude_spectrum(&residual);
-            let acc_snr = crate::analysis::sine::fit_sine(t, &group.acc_mps2[start..], s.info.freq_hz)
-                .map_or(f64::NAN, |fit| if fit.residual_rms > 0.0 { fit.amp / fit.residual_rms } else { f64::INFINITY });
-            let g = GroupComparison {
-                index: s.index,
-                file: s.info.file.clone(),
-                freq_hz: s.info.freq_hz,
-                amp_um: s.info.amp_um,
-                start_s: s.info.start_s,
-                measured_amp_um: s.targets.de_amp_um,
-                predicted_amp_um: f64::from(out.amp_um()),
-                measured_phase_deg: s.targets.de_phase_deg,
-                predicted_phase_deg: f64::from(out.phase_deg()),
-                waveform_rms_um: rms,
-                waveform_mae_um: mae,
-                measured_rms_um: measured_rms,
-                residual_mean_um: mean,
-                residual_harmonics_um: harmonics,
-                program_ok: ok,
-                acc_snr,
-            };
-            (g, GroupWaves { t_s: t.to_vec(), measured_um: measured, predicted_um: predicted }, spectrum)
-        })
-        .collect();
+    let per_group: Vec<(GroupComparison, GroupWaves, Vec<f64>)> =
+        samples
+            .par_iter()
+            .map(|s| {
+                let group = &dataset.groups[s.index];
+                let (pred, ok) = predict_group(&program, s, group, fs);
+                let (out, _) = program_output(&program, s);
+                let start = s.targets.window_start;
+                let t = &group.t_s[start..];
+                let measured: Vec<f64> = (start..group.len()).map(|k| group.z_tcp_um[k] - group.z_cmd_um[k]).collect();
+                let predicted = pred[start..].to_vec();
+                let residual: Vec<f64> = measured.iter().zip(&predicted).map(|(m, p)| m - p).collect();
+                let n = residual.len().max(1) as f64;
+                let rms = (residual.iter().map(|r| r * r).sum::<f64>() / n).sqrt();
+                let mae = residual.iter().map(|r| r.abs()).sum::<f64>() / n;
+                let mean = residual.iter().sum::<f64>() / n;
+                let measured_rms = (measured.iter().map(|m| m * m).sum::<f64>() / n).sqrt();
+                let harmonics = (1..=MAX_ORDER).map(|k| line_amp(t, &residual, k as f64 * s.info.freq_hz)).collect();
+                let spectrum = signals::amplitude_spectrum(&residual);
+                let acc_snr = crate::analysis::sine::fit_sine(t, &group.acc_mps2[start..], s.info.freq_hz).map_or(
+                    f64::NAN,
+                    |fit| if fit.residual_rms > 0.0 { fit.amp / fit.residual_rms } else { f64::INFINITY },
+                );
+                let g = GroupComparison {
+                    index: s.index,
+                    file: s.info.file.clone(),
+                    freq_hz: s.info.freq_hz,
+                    amp_um: s.info.amp_um,
+                    start_s: s.info.start_s,
+                    measured_amp_um: s.targets.de_amp_um,
+                    predicted_amp_um: f64::from(out.amp_um()),
+                    measured_phase_deg: s.targets.de_phase_deg,
+                    predicted_phase_deg: f64::from(out.phase_deg()),
+                    waveform_rms_um: rms,
+                    waveform_mae_um: mae,
+                    measured_rms_um: measured_rms,
+                    residual_mean_um: mean,
+                    residual_harmonics_um: harmonics,
+                    program_ok: ok,
+                    acc_snr,
+                };
+                (g, GroupWaves { t_s: t.to_vec(), measured_um: measured, predicted_um: predicted }, spectrum)
+            })
+            .collect();
     let mut groups = Vec::with_capacity(per_group.len());
     let mut waves = Vec::with_capacity(per_group.len());
     let mut spectra = Vec::with_capacity(per_group.len());
@@ -294,7 +305,8 @@ pub fn compare(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<(Comparis
     let phased: Vec<&GroupComparison> = groups.iter().filter(|g| g.measured_amp_um >= PHASE_MIN_AMP_UM).collect();
     let m_ph: Vec<f64> = phased.iter().map(|g| g.measured_phase_deg).collect();
     let p_ph: Vec<f64> = phased.iter().map(|g| g.predicted_phase_deg).collect();
-    let harmonics_um = (0..MAX_ORDER).map(|k| groups.iter().map(|g| g.residual_harmonics_um[k]).sum::<f64>() / ng).collect();
+    let harmonics_um =
+        (0..MAX_ORDER).map(|k| groups.iter().map(|g| g.residual_harmonics_um[k]).sum::<f64>() / ng).collect();
     let other_lines = signals::other_lines(&groups, &spectra, fs, 6);
     let binned = signals::binned_residuals(dataset, &samples, &waves, 24);
     let repeatability = Repeatability::of_samples(dataset, &samples);
@@ -321,7 +333,8 @@ mod tests {
     #[test]
     fn line_amplitude_of_a_sine() {
         let t: Vec<f64> = (0..8000).map(|i| i as f64 / 8000.0).collect();
-        let y: Vec<f64> = t.iter().map(|t| 0.3 * (2.0 * PI * 15.0 * t + 0.4).sin() + 0.1 * (2.0 * PI * 45.0 * t).sin()).collect();
+        let y: Vec<f64> =
+            t.iter().map(|t| 0.3 * (2.0 * PI * 15.0 * t + 0.4).sin() + 0.1 * (2.0 * PI * 45.0 * t).sin()).collect();
         assert!((line_amp(&t, &y, 15.0) - 0.3).abs() < 1e-9);
         assert!((line_amp(&t, &y, 45.0) - 0.1).abs() < 1e-9);
         assert!(line_amp(&t, &y, 30.0) < 1e-9);

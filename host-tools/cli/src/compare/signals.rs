@@ -53,8 +53,10 @@ pub fn other_lines(groups: &[GroupComparison], spectra: &[Vec<f64>], _sample_rat
     }
     let mean: Vec<f64> = sum.iter().zip(&used).map(|(s, &u)| if u > 0 { s / u as f64 } else { 0.0 }).collect();
     // Local maxima, strongest first.
-    let mut peaks: Vec<(usize, f64)> =
-        (1..bins - 1).filter(|&k| mean[k] > 0.0 && mean[k] >= mean[k - 1] && mean[k] >= mean[k + 1]).map(|k| (k, mean[k])).collect();
+    let mut peaks: Vec<(usize, f64)> = (1..bins - 1)
+        .filter(|&k| mean[k] > 0.0 && mean[k] >= mean[k - 1] && mean[k] >= mean[k + 1])
+        .map(|k| (k, mean[k]))
+        .collect();
     peaks.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
     peaks.truncate(count);
     peaks.into_iter().map(|(k, a)| Line { freq_hz: k as f64, amp_um: a }).collect()
@@ -95,7 +97,12 @@ impl Acc {
         Binned {
             signal: signal.to_string(),
             centres: (0..bins).map(|b| lo + (b as f64 + 0.5) * width).collect(),
-            rms_um: self.sq.iter().zip(&self.n).map(|(s, &n)| if n > 0 { (s / n as f64).sqrt() } else { 0.0 }).collect(),
+            rms_um: self
+                .sq
+                .iter()
+                .zip(&self.n)
+                .map(|(s, &n)| if n > 0 { (s / n as f64).sqrt() } else { 0.0 })
+                .collect(),
             mean_um: self.sum.iter().zip(&self.n).map(|(s, &n)| if n > 0 { s / n as f64 } else { 0.0 }).collect(),
         }
     }

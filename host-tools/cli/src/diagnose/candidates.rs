@@ -8,8 +8,16 @@ use super::{solve, GroupCtx, Stats};
 use crate::compare::line_amp;
 
 /// The canonical effect names, in the library's order.
-pub const EFFECTS: [&str; 8] =
-    ["coulomb-friction", "presliding-hysteresis", "structural-mode", "loop-delay", "thermal-drift", "force-ripple", "axis-coupling", "sensor-gain"];
+pub const EFFECTS: [&str; 8] = [
+    "coulomb-friction",
+    "presliding-hysteresis",
+    "structural-mode",
+    "loop-delay",
+    "thermal-drift",
+    "force-ripple",
+    "axis-coupling",
+    "sensor-gain",
+];
 
 /// Pole of the Laguerre filters modelling the servo's response to a disturbance.
 pub const LAGUERRE_POLE: f64 = 0.93;
@@ -168,7 +176,8 @@ fn odd_harmonics_by_amplitude(ctx: &[GroupCtx]) -> (f64, f64) {
             .iter()
             .map(|c| {
                 let t = &c.data.t_s[c.start..];
-                line_amp(t, &c.residual, 3.0 * c.sample.info.freq_hz) + line_amp(t, &c.residual, 5.0 * c.sample.info.freq_hz)
+                line_amp(t, &c.residual, 3.0 * c.sample.info.freq_hz)
+                    + line_amp(t, &c.residual, 5.0 * c.sample.info.freq_hz)
             })
             .sum();
         sum / sel.len().max(1) as f64
@@ -216,8 +225,9 @@ fn friction(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                 .collect()
         })
         .collect();
-    let stats: Vec<Vec<Stats>> =
-        (0..smooth_grid.len()).map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| Stats::from_columns(&cols[v], &c.residual)).collect()).collect();
+    let stats: Vec<Vec<Stats>> = (0..smooth_grid.len())
+        .map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| Stats::from_columns(&cols[v], &c.residual)).collect())
+        .collect();
     let (improvements, v, theta) = cross_validate(&stats, folds);
     let contrib_rms = rms(&columns.iter().flat_map(|cols| contribution(&cols[v], &theta)).collect::<Vec<f64>>());
     let (small, large) = odd_harmonics_by_amplitude(ctx);
@@ -237,10 +247,16 @@ fn hysteresis(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     let x0_grid = [0.1, 0.3, 1.0, 3.0];
     let columns: Vec<Vec<Vec<Vec<f64>>>> = ctx
         .par_iter()
-        .map(|c| x0_grid.iter().map(|x0| laguerre(&dahl(&c.data.z_enc_um, *x0), c.start, LAGUERRE_POLE, LAGUERRE_STAGES)).collect())
+        .map(|c| {
+            x0_grid
+                .iter()
+                .map(|x0| laguerre(&dahl(&c.data.z_enc_um, *x0), c.start, LAGUERRE_POLE, LAGUERRE_STAGES))
+                .collect()
+        })
         .collect();
-    let stats: Vec<Vec<Stats>> =
-        (0..x0_grid.len()).map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| Stats::from_columns(&cols[v], &c.residual)).collect()).collect();
+    let stats: Vec<Vec<Stats>> = (0..x0_grid.len())
+        .map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| Stats::from_columns(&cols[v], &c.residual)).collect())
+        .collect();
     let (improvements, v, theta) = cross_validate(&stats, folds);
     let contrib_rms = rms(&columns.iter().flat_map(|cols| contribution(&cols[v], &theta)).collect::<Vec<f64>>());
     let (small, large) = odd_harmonics_by_amplitude(ctx);
@@ -268,12 +284,17 @@ fn fundamental_shape(ctx: &[GroupCtx], folds: usize, which: Candidate) -> Evalua
             let s: Vec<f64> = c.theta.iter().map(|t| t.sin()).collect();
             let co: Vec<f64> = c.theta.iter().map(|t| t.cos()).collect();
             match which {
-                Candidate::Mode => vec![s.iter().map(|v| a * w * w * v).collect(), co.iter().map(|v| a * w * w * v).collect()],
-                _ => vec![co.iter().map(|v| a * w.powi(3) * v).collect(), s.iter().map(|v| a * w.powi(4) * v).collect()],
+                Candidate::Mode => {
+                    vec![s.iter().map(|v| a * w * w * v).collect(), co.iter().map(|v| a * w * w * v).collect()]
+                }
+                _ => {
+                    vec![co.iter().map(|v| a * w.powi(3) * v).collect(), s.iter().map(|v| a * w.powi(4) * v).collect()]
+                }
             }
         })
         .collect();
-    let stats: Vec<Vec<Stats>> = vec![ctx.iter().zip(&columns).map(|(c, cols)| Stats::from_columns(cols, &c.residual)).collect()];
+    let stats: Vec<Vec<Stats>> =
+        vec![ctx.iter().zip(&columns).map(|(c, cols)| Stats::from_columns(cols, &c.residual)).collect()];
     let (improvements, _, theta) = cross_validate(&stats, folds);
     // Transient line: the residual's strongest line above 100 Hz in each group's first 0.25 s.
     let line_hz = transient_line_hz(ctx);
@@ -340,19 +361,29 @@ fn thermal(ctx: &[GroupCtx], folds: usize) -> Evaluated {
         })
         .collect();
     if has_temp {
-        let mean_t: f64 = ctx.iter().map(|c| c.data.temp_c.as_ref().map_or(0.0, |v| v[c.start])).sum::<f64>() / ctx.len().max(1) as f64;
+        let mean_t: f64 = ctx.iter().map(|c| c.data.temp_c.as_ref().map_or(0.0, |v| v[c.start])).sum::<f64>()
+            / ctx.len().max(1) as f64;
         variants.push(
             ctx.iter()
                 .map(|c| {
-                    let temp = c.data.temp_c.as_ref().map(|v| v[c.start..].iter().map(|x| x - mean_t).collect::<Vec<f64>>()).unwrap_or_default();
+                    let temp = c
+                        .data
+                        .temp_c
+                        .as_ref()
+                        .map(|v| v[c.start..].iter().map(|x| x - mean_t).collect::<Vec<f64>>())
+                        .unwrap_or_default();
                     Stats::from_columns(&[vec![1.0; temp.len()], temp], &c.residual)
                 })
                 .collect(),
         );
     }
     let (improvements, v, theta) = cross_validate(&variants, folds);
-    let means: Vec<(f64, f64)> = ctx.iter().map(|c| (c.sample.info.start_s, c.residual.iter().sum::<f64>() / c.residual.len().max(1) as f64)).collect();
-    let span = means.iter().map(|m| m.1).fold(f64::NEG_INFINITY, f64::max) - means.iter().map(|m| m.1).fold(f64::INFINITY, f64::min);
+    let means: Vec<(f64, f64)> = ctx
+        .iter()
+        .map(|c| (c.sample.info.start_s, c.residual.iter().sum::<f64>() / c.residual.len().max(1) as f64))
+        .collect();
+    let span = means.iter().map(|m| m.1).fold(f64::NEG_INFINITY, f64::max)
+        - means.iter().map(|m| m.1).fold(f64::INFINITY, f64::min);
     let t_span = means.last().map_or(0.0, |m| m.0) - means.first().map_or(0.0, |m| m.0);
     let mut params = vec![("drift_span_um".into(), span)];
     let evidence = if v < tau_grid.len() {
@@ -445,7 +476,15 @@ fn coupling(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                     (Some(a), _) => a[c.start..].to_vec(),
                     (None, Some(x)) => {
                         let dt = 1.0 / c.sample_rate_hz;
-                        (c.start..x.len()).map(|k| if k >= 1 && k + 1 < x.len() { (x[k + 1] - 2.0 * x[k] + x[k - 1]) * 1e-3 / (dt * dt) } else { 0.0 }).collect()
+                        (c.start..x.len())
+                            .map(|k| {
+                                if k >= 1 && k + 1 < x.len() {
+                                    (x[k + 1] - 2.0 * x[k] + x[k - 1]) * 1e-3 / (dt * dt)
+                                } else {
+                                    0.0
+                                }
+                            })
+                            .collect()
                     }
                     _ => vec![0.0; c.residual.len()],
                 };
@@ -474,12 +513,19 @@ fn coupling(ctx: &[GroupCtx], folds: usize) -> Evaluated {
         params.push(("spindle_um".into(), amp));
         words.push(format!("a once-per-revolution component of the spindle of {:.0} nm", amp * 1e3));
     }
-    Evaluated { improvements, params, evidence: format!("{}: motion of another axis reaches the tool in Z", words.join(" and ")), testable: true }
+    Evaluated {
+        improvements,
+        params,
+        evidence: format!("{}: motion of another axis reaches the tool in Z", words.join(" and ")),
+        testable: true,
+    }
 }
 
 fn gain(ctx: &[GroupCtx], folds: usize) -> Evaluated {
-    let probe: Vec<Stats> = ctx.iter().map(|c| Stats::from_columns(&[c.data.z_tcp_um[c.start..].to_vec()], &c.residual)).collect();
-    let acc: Vec<Stats> = ctx.iter().map(|c| Stats::from_columns(&[c.predicted_um[c.start..].to_vec()], &c.residual)).collect();
+    let probe: Vec<Stats> =
+        ctx.iter().map(|c| Stats::from_columns(&[c.data.z_tcp_um[c.start..].to_vec()], &c.residual)).collect();
+    let acc: Vec<Stats> =
+        ctx.iter().map(|c| Stats::from_columns(&[c.predicted_um[c.start..].to_vec()], &c.residual)).collect();
     let (improvements, v, theta) = cross_validate(&[probe, acc], folds);
     let k = theta.first().copied().unwrap_or(0.0);
     if v == 0 {

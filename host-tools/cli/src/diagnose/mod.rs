@@ -207,9 +207,15 @@ fn relative_improvement(d: f64, ss: f64) -> f64 {
 fn libm_erfc(x: f64) -> f64 {
     let z = x.abs();
     let t = 1.0 / (1.0 + 0.5 * z);
-    let r = t * (-z * z - 1.26551223
-        + t * (1.00002368 + t * (0.37409196 + t * (0.09678418 + t * (-0.18628806 + t * (0.27886807 + t * (-1.13520398 + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277)))))))))
-        .exp();
+    let r = t
+        * (-z * z - 1.26551223
+            + t * (1.00002368
+                + t * (0.37409196
+                    + t * (0.09678418
+                        + t * (-0.18628806
+                            + t * (0.27886807
+                                + t * (-1.13520398 + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277)))))))))
+            .exp();
     if x >= 0.0 {
         r
     } else {
@@ -232,7 +238,11 @@ pub fn sign_test_p(k: usize, n: usize) -> f64 {
 }
 
 /// Builds each group's context: the model's predictions and the residual over the last second.
-pub fn contexts<'a>(dataset: &'a Dataset, samples: &'a [GroupSample], model: &ModelFile) -> anyhow::Result<Vec<GroupCtx<'a>>> {
+pub fn contexts<'a>(
+    dataset: &'a Dataset,
+    samples: &'a [GroupSample],
+    model: &ModelFile,
+) -> anyhow::Result<Vec<GroupCtx<'a>>> {
     let program = model.firmware_program()?;
     let fs = dataset.manifest.sample_rate_hz;
     Ok(samples
@@ -242,7 +252,9 @@ pub fn contexts<'a>(dataset: &'a Dataset, samples: &'a [GroupSample], model: &Mo
             let (predicted_um, _) = predict_group(&program, s, data, fs);
             let start = s.targets.window_start;
             let residual = (start..data.len()).map(|k| data.z_tcp_um[k] - data.z_cmd_um[k] - predicted_um[k]).collect();
-            let theta = (start..data.len()).map(|k| 2.0 * PI * s.targets.freq_hz * data.t_s[k] + s.targets.cmd.phase_rad).collect();
+            let theta = (start..data.len())
+                .map(|k| 2.0 * PI * s.targets.freq_hz * data.t_s[k] + s.targets.cmd.phase_rad)
+                .collect();
             GroupCtx { sample: s, data, predicted_um, start, residual, theta, sample_rate_hz: fs }
         })
         .collect())
@@ -278,9 +290,11 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
             // effect confined to the slow, small groups (friction); relative ones weigh every
             // group alike, which finds one spread over all the fast groups of a small grid
             // (a delay, on 35 groups) where a few large ones would outvote the rest.
-            let relative: Vec<f64> = evaluated.improvements.iter().zip(&group_ss).map(|(d, ss)| relative_improvement(*d, *ss)).collect();
+            let relative: Vec<f64> =
+                evaluated.improvements.iter().zip(&group_ss).map(|(d, ss)| relative_improvement(*d, *ss)).collect();
             let p_value = sign_flip_p(&evaluated.improvements).min(sign_flip_p(&relative));
-            let explained_fraction = if total_ss > 0.0 { evaluated.improvements.iter().sum::<f64>() / total_ss } else { 0.0 };
+            let explained_fraction =
+                if total_ss > 0.0 { evaluated.improvements.iter().sum::<f64>() / total_ss } else { 0.0 };
             let explained_rms = (explained_fraction.max(0.0) * total_ss / total_n.max(1) as f64).sqrt();
             let significant = evaluated.testable
                 && explained_fraction >= MIN_EXPLAINED
@@ -328,7 +342,9 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         significance_threshold(),
         model_cv_rms_um * 1e3
     );
-    let repeatability = Repeatability::from_groups(ctx.par_iter().map(|c| group_non_repeating_um(c.data, c.sample, c.sample_rate_hz)).collect());
+    let repeatability = Repeatability::from_groups(
+        ctx.par_iter().map(|c| group_non_repeating_um(c.data, c.sample, c.sample_rate_hz)).collect(),
+    );
     let not_repeating = repeatability.describe(|i| (ctx[i].sample.info.freq_hz, ctx[i].sample.info.amp_um));
     Diagnosis { verdict, ranking, residual_rms_um, model_cv_rms_um, summary, test, repeatability, not_repeating }
 }

@@ -136,10 +136,16 @@ impl Candidate {
             ripple: None,
         };
         if self.effects.friction {
-            p.friction = Some(Friction { coulomb_mps2: g(Slot::Coulomb), static_mps2: g(Slot::Static), stribeck_mps: g(Slot::Stribeck), smooth_mps: g(Slot::Smooth) });
+            p.friction = Some(Friction {
+                coulomb_mps2: g(Slot::Coulomb),
+                static_mps2: g(Slot::Static),
+                stribeck_mps: g(Slot::Stribeck),
+                smooth_mps: g(Slot::Smooth),
+            });
         }
         if self.effects.hysteresis {
-            p.hysteresis = Some(Hysteresis { force_mps2: g(Slot::DahlForce), stiffness_per_s2: g(Slot::DahlStiffness) });
+            p.hysteresis =
+                Some(Hysteresis { force_mps2: g(Slot::DahlForce), stiffness_per_s2: g(Slot::DahlStiffness) });
         }
         if self.effects.ripple_pitch_um.is_some() {
             // Negative amplitude: the same sine half a turn on.
@@ -170,7 +176,11 @@ impl Candidate {
         if self.effects.hysteresis {
             encoder.extend([Slot::DahlForce, Slot::DahlStiffness]);
         }
-        let probe = if self.effects.ripple_pitch_um.is_some() { vec![Slot::RippleAmp, Slot::RipplePhase, Slot::Ripple2, Slot::RipplePitch] } else { Vec::new() };
+        let probe = if self.effects.ripple_pitch_um.is_some() {
+            vec![Slot::RippleAmp, Slot::RipplePhase, Slot::Ripple2, Slot::RipplePitch]
+        } else {
+            Vec::new()
+        };
         (encoder, probe)
     }
 }
@@ -205,7 +215,12 @@ fn simulate(c: &Candidate, discrete: &Discrete, cmd_um: &[f64]) -> (Vec<f64>, Ve
     let hysteresis = c.effects.hysteresis;
     let (hf, hs) = (c.get(Slot::DahlForce), c.get(Slot::DahlStiffness));
     let ripple = c.effects.ripple_pitch_um.is_some();
-    let (ra, rph, r2, pitch_m) = (c.get(Slot::RippleAmp) * 1e-9, c.get(Slot::RipplePhase), c.get(Slot::Ripple2) * 1e-9, c.get(Slot::RipplePitch) * 1e-6);
+    let (ra, rph, r2, pitch_m) = (
+        c.get(Slot::RippleAmp) * 1e-9,
+        c.get(Slot::RipplePhase),
+        c.get(Slot::Ripple2) * 1e-9,
+        c.get(Slot::RipplePitch) * 1e-6,
+    );
     let n = cmd_um.len();
     let mut s = [0.0f64; STATES];
     let (mut integral, mut e_prev, mut u_prev, mut dahl) = (0.0, 0.0, 0.0, 0.0);
@@ -247,7 +262,11 @@ fn simulate(c: &Candidate, discrete: &Discrete, cmd_um: &[f64]) -> (Vec<f64>, Ve
             let level = fc + (fs - fc) * ex;
             // The firmware's smoothed sign (a Pade form of tanh, saturating at |y| = 3).
             let y = v / sm;
-            let (th, th_slope) = if y.abs() >= 3.0 { (y.signum(), 0.0) } else { (y * (27.0 + y * y) / (27.0 + 9.0 * y * y), ((9.0 - y * y) / (9.0 + 3.0 * y * y)).powi(2)) };
+            let (th, th_slope) = if y.abs() >= 3.0 {
+                (y.signum(), 0.0)
+            } else {
+                (y * (27.0 + y * y) / (27.0 + 9.0 * y * y), ((9.0 - y * y) / (9.0 + 3.0 * y * y)).powi(2))
+            };
             let f0 = -level * th;
             let slope = -((fs - fc) * ex * (-2.0 * z / vs) * th + level * th_slope / sm);
             let g = gamma[1][1];
@@ -319,7 +338,13 @@ fn rms(r: &[f64]) -> f64 {
 }
 
 /// Levenberg-Marquardt over `free` slots, at most `iterations`.
-fn levenberg_marquardt(start: Candidate, free: &[Slot], sample: &Sample, what: Fit, iterations: usize) -> (Candidate, f64) {
+fn levenberg_marquardt(
+    start: Candidate,
+    free: &[Slot],
+    sample: &Sample,
+    what: Fit,
+    iterations: usize,
+) -> (Candidate, f64) {
     let mut c = start;
     let mut r = sample.residuals(&c, what);
     let mut cost = rms(&r);
@@ -396,10 +421,13 @@ fn ripple_linear(c: &Candidate, sample: &Sample, what: Fit) -> Candidate {
     };
     let unit_nm = 10.0;
     let r0 = sample.residuals(&with(0.0, 0.0, 0.0), what);
-    let columns: Vec<Vec<f64>> = [(unit_nm, 0.0, 0.0), (unit_nm, PI / 2.0, 0.0), (0.0, 0.0, unit_nm), (0.0, PI / 4.0, unit_nm)]
-        .par_iter()
-        .map(|&(a, ph, a2)| sample.residuals(&with(a, ph, a2), what).iter().zip(&r0).map(|(r, r0)| (r0 - r) / unit_nm).collect())
-        .collect();
+    let columns: Vec<Vec<f64>> =
+        [(unit_nm, 0.0, 0.0), (unit_nm, PI / 2.0, 0.0), (0.0, 0.0, unit_nm), (0.0, PI / 4.0, unit_nm)]
+            .par_iter()
+            .map(|&(a, ph, a2)| {
+                sample.residuals(&with(a, ph, a2), what).iter().zip(&r0).map(|(r, r0)| (r0 - r) / unit_nm).collect()
+            })
+            .collect();
     let b = solve(&[&Stats::from_columns(&columns, &r0)]);
     if b.iter().any(|x| !x.is_finite()) {
         return *c;
@@ -423,7 +451,10 @@ pub struct AxisFit {
 /// Identifies the axis with `effects` from `dataset` (8 kHz samples, with encoder and probe).
 pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisFit> {
     if (dataset.manifest.sample_rate_hz - 1.0 / TICK_S).abs() > 1e-6 {
-        anyhow::bail!("the axis twin needs samples at the 8 kHz servo rate, the dataset has {} Hz", dataset.manifest.sample_rate_hz);
+        anyhow::bail!(
+            "the axis twin needs samples at the 8 kHz servo rate, the dataset has {} Hz",
+            dataset.manifest.sample_rate_hz
+        );
     }
     let n = dataset.groups.len();
     if n == 0 {
@@ -479,7 +510,8 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisF
             levenberg_marquardt(lin, &free, &coarse, Fit::Encoder, 45)
         })
         .collect();
-    let mut best = searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or_else(|| anyhow::anyhow!("no start"))?;
+    let mut best =
+        searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or_else(|| anyhow::anyhow!("no start"))?;
     if effects.friction {
         // The Stribeck velocity from a grid too, from the best servo: a local fit from one
         // guess can trade the Stribeck peak for a friction that rises with velocity (static

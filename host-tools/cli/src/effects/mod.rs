@@ -119,7 +119,12 @@ fn group_inputs(group: &GroupData, fs: f64, freq_hz: f64) -> anyhow::Result<Grou
     let theta: Vec<f64> = group.t_s.iter().map(|ts| 2.0 * PI * freq_hz * ts + t.cmd.phase_rad).collect();
     let de: Vec<f64> = (start..group.len()).map(|k| group.z_tcp_um[k] - group.z_cmd_um[k]).collect();
     let target = project_out_fundamental(&de, &theta[start..]);
-    Ok(GroupInputs { pos_nm: group.z_cmd_um.iter().map(|z| (z * 1000.0).round() as i32).collect(), theta, start, target })
+    Ok(GroupInputs {
+        pos_nm: group.z_cmd_um.iter().map(|z| (z * 1000.0).round() as i32).collect(),
+        theta,
+        start,
+        target,
+    })
 }
 
 /// The window the terms are fitted on: after the start transient (0.5 s) to the end.
@@ -177,11 +182,17 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
     let limit = sorted.get(sorted.len() / 5).copied().unwrap_or(0.0).max(100.0);
     let slow: Vec<&GroupInputs> = inputs.iter().zip(&vpeak).filter(|(_, v)| **v <= limit).map(|(g, _)| g).collect();
     let sse_of = |turns_per_nm: u32| -> f64 {
-        let kinds = [TermInput::PositionSine { turns_per_nm, phase_turns: 0 }, TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 }];
+        let kinds = [
+            TermInput::PositionSine { turns_per_nm, phase_turns: 0 },
+            TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 },
+        ];
         let stats: Vec<Stats> = slow
             .iter()
             .map(|g| {
-                let cols: Vec<Vec<f64>> = kinds.iter().map(|k| project_out_fundamental(&term_input(k, &g.pos_nm)[g.start..], &g.theta[g.start..])).collect();
+                let cols: Vec<Vec<f64>> = kinds
+                    .iter()
+                    .map(|k| project_out_fundamental(&term_input(k, &g.pos_nm)[g.start..], &g.theta[g.start..]))
+                    .collect();
                 Stats::from_columns(&cols, &g.target)
             })
             .collect();
@@ -190,7 +201,8 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
         stats.iter().map(|s| s.sse(&theta)).sum()
     };
     let best_of = |pitches_um: Vec<f64>| -> f64 {
-        let sse: Vec<f64> = pitches_um.par_iter().map(|&p| sse_of((4_294_967_296.0 / (1000.0 * p)).round() as u32)).collect();
+        let sse: Vec<f64> =
+            pitches_um.par_iter().map(|&p| sse_of((4_294_967_296.0 / (1000.0 * p)).round() as u32)).collect();
         let best = (0..pitches_um.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
         pitches_um[best]
     };
@@ -214,14 +226,21 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
         let gain = probe_gain(dataset);
         let significant = (gain - 1.0).abs() >= PROBE_GAIN_TOLERANCE;
         let others: Vec<String> = names.iter().filter(|n| *n != "sensor-gain").cloned().collect();
-        let corrected = if significant { std::borrow::Cow::Owned(with_probe_gain(dataset, gain)) } else { std::borrow::Cow::Borrowed(dataset) };
+        let corrected = if significant {
+            std::borrow::Cow::Owned(with_probe_gain(dataset, gain))
+        } else {
+            std::borrow::Cow::Borrowed(dataset)
+        };
         let mut prepared = prepare(&corrected, &others)?;
         let note = if significant {
             format!("the probe reads {:+.2}%: its readings are divided by {gain:.5} here and, from the model file, in compare and diagnose", (gain - 1.0) * 100.0)
         } else {
             "probe gain within 0.5% of one: a changed accelerometer gain, carried by the refitted amplitude and phase formulas".to_string()
         };
-        prepared.records.insert(0, EffectRecord { effect: "sensor-gain".into(), params: vec![("probe_gain".into(), gain)], terms: 0, note });
+        prepared.records.insert(
+            0,
+            EffectRecord { effect: "sensor-gain".into(), params: vec![("probe_gain".into(), gain)], terms: 0, note },
+        );
         prepared.probe_gain = significant.then_some(gain);
         return Ok(prepared);
     }
@@ -262,11 +281,18 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
         records.extend(axis_records);
     }
     if terms.len() > sts_twin_core::program::MAX_TERMS {
-        anyhow::bail!("--effect: {} per-tick terms needed, the program holds at most {}", terms.len(), sts_twin_core::program::MAX_TERMS);
+        anyhow::bail!(
+            "--effect: {} per-tick terms needed, the program holds at most {}",
+            terms.len(),
+            sts_twin_core::program::MAX_TERMS
+        );
     }
     // The dataset without the terms' output, through the firmware's own synthesiser.
     let mut reduced = dataset.clone();
-    let program = sts_twin_core::program::Program { terms: terms.iter().copied().collect(), ..sts_twin_core::program::Program::empty(0) };
+    let program = sts_twin_core::program::Program {
+        terms: terms.iter().copied().collect(),
+        ..sts_twin_core::program::Program::empty(0)
+    };
     let diverged: Vec<Option<String>> = reduced
         .groups
         .par_iter_mut()
@@ -300,16 +326,26 @@ fn terms_output_counted(terms: &[TickTerm], group: &GroupData, start_s: f64, fs:
     synth.set_time_ticks((start_s.max(0.0) * fs).round() as u64);
     synth.update(&sts_twin_core::program::ModelOutput::default(), terms);
     synth.restart_kernels();
-    let out = (0..group.len()).map(|k| f64::from(synth.next_input(&crate::compare::tick_input_with_phase(group, k, 0))) * 1e-6).collect();
+    let out = (0..group.len())
+        .map(|k| f64::from(synth.next_input(&crate::compare::tick_input_with_phase(group, k, 0))) * 1e-6)
+        .collect();
     (out, synth.axis_resets())
 }
 
 /// The servo-axis twin for friction, hysteresis and encoder error (any of them): one term,
 /// and a record per effect with its parameters (per kg of moving mass) and the axis's fit.
-fn fit_axis(dataset: &Dataset, inputs: &[GroupInputs], names: &[String]) -> anyhow::Result<(TickTerm, Vec<EffectRecord>)> {
+fn fit_axis(
+    dataset: &Dataset,
+    inputs: &[GroupInputs],
+    names: &[String],
+) -> anyhow::Result<(TickTerm, Vec<EffectRecord>)> {
     let has = |n: &str| names.iter().any(|x| x == n);
     let ripple_pitch_um = has("force-ripple").then(|| ripple_pitch_um(dataset, inputs));
-    let effects = axis::AxisEffects { friction: has("coulomb-friction"), hysteresis: has("presliding-hysteresis"), ripple_pitch_um };
+    let effects = axis::AxisEffects {
+        friction: has("coulomb-friction"),
+        hysteresis: has("presliding-hysteresis"),
+        ripple_pitch_um,
+    };
     let fit = axis::identify(dataset, effects).context("identifying the servo axis")?;
     let p = fit.params;
     let shared = |params: &mut Vec<(String, f64)>| {
@@ -331,7 +367,9 @@ fn fit_axis(dataset: &Dataset, inputs: &[GroupInputs], names: &[String]) -> anyh
                 // The Stribeck zone's steepest fall of friction with velocity (at vs / sqrt 2)
                 // is negative damping; near the servo's own damping the axis hunts there
                 // (oscillates by itself, in a phase no twin can predict from the command).
-                let negative_damping = (f64::from(f.static_mps2) - f64::from(f.coulomb_mps2)) * 2f64.sqrt() * (-0.5f64).exp() / f64::from(f.stribeck_mps);
+                let negative_damping =
+                    (f64::from(f.static_mps2) - f64::from(f.coulomb_mps2)) * 2f64.sqrt() * (-0.5f64).exp()
+                        / f64::from(f.stribeck_mps);
                 vec![
                     ("coulomb_mps2".to_string(), f64::from(f.coulomb_mps2)),
                     ("static_mps2".to_string(), f64::from(f.static_mps2)),
@@ -419,7 +457,11 @@ fn fit_drift(dataset: &Dataset, inputs: &[GroupInputs], fs: f64) -> (TickTerm, V
     let searched = if fa <= fb { a.exp() } else { b.exp() };
     let tau = if fa.min(fb) < sse[best] { searched } else { GRID_S[best] };
     let (theta, _) = fit_at(tau);
-    let term = TickTerm::Drift { offset_pm: (theta[0] * 1e6).round() as i32, decay_pm: (theta[1] * 1e6).round() as i32, tau_ticks: (tau * fs).round() as u32 };
+    let term = TickTerm::Drift {
+        offset_pm: (theta[0] * 1e6).round() as i32,
+        decay_pm: (theta[1] * 1e6).round() as i32,
+        tau_ticks: (tau * fs).round() as u32,
+    };
     (term, vec![("offset_um".into(), theta[0]), ("decay_um".into(), theta[1]), ("time_constant_s".into(), tau)])
 }
 
@@ -446,7 +488,11 @@ fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> anyhow::Result<(Ti
             let w = gi.start..g.len();
             let x: Vec<f64> = g.x_acc_mps2.as_ref().map_or(vec![0.0; w.len()], |v| v[w.clone()].to_vec());
             let sp: Vec<f64> = g.spindle_deg.as_ref().map_or(vec![0.0; w.len()], |v| v[w.clone()].to_vec());
-            let cols = [x, sp.iter().map(|d| d.to_radians().sin()).collect(), sp.iter().map(|d| d.to_radians().cos()).collect()];
+            let cols = [
+                x,
+                sp.iter().map(|d| d.to_radians().sin()).collect(),
+                sp.iter().map(|d| d.to_radians().cos()).collect(),
+            ];
             let cols: Vec<Vec<f64>> = cols.iter().map(|c| project_out_fundamental(c, &gi.theta[gi.start..])).collect();
             Stats::from_columns(&cols, &gi.target)
         })
@@ -461,7 +507,14 @@ fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> anyhow::Result<(Ti
         spindle_amp_pm: (amp * 1e6).round() as i32,
         spindle_phase_turns: ((phase / (2.0 * PI)).rem_euclid(1.0) * 4_294_967_296.0) as u64 as u32,
     };
-    Ok((term, vec![("x_um_per_mps2".into(), theta[0]), ("spindle_um".into(), amp), ("spindle_phase_deg".into(), phase.to_degrees())]))
+    Ok((
+        term,
+        vec![
+            ("x_um_per_mps2".into(), theta[0]),
+            ("spindle_um".into(), amp),
+            ("spindle_phase_deg".into(), phase.to_degrees()),
+        ],
+    ))
 }
 
 impl Prepared {
@@ -478,9 +531,11 @@ impl Prepared {
         program.id = 0;
         program.validate().map_err(|e| anyhow::anyhow!("program with effect terms: {e}"))?;
         let mut buf = [0u8; 2048];
-        let bytes = postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+        let bytes =
+            postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
         program.id = sts_twin_core::wire::frame_crc32(bytes);
-        let bytes = postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+        let bytes =
+            postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
         model.program_postcard_hex = hex_encode(bytes);
         model.program.id = program.id;
         model.program.terms = program.terms.len();
@@ -490,16 +545,19 @@ impl Prepared {
     /// Adds the `effects` field to a written model file.
     pub fn write_record(&self, path: &Path) -> anyhow::Result<()> {
         let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-        let mut value: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+        let mut value: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
         value["effects"] = serde_json::to_value(&self.records)?;
-        std::fs::write(path, serde_json::to_string_pretty(&value)? + "\n").with_context(|| format!("cannot write {}", path.display()))
+        std::fs::write(path, serde_json::to_string_pretty(&value)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))
     }
 }
 
 /// The `effects` field of a model file, if any.
 pub fn read_records(path: &Path) -> anyhow::Result<Vec<EffectRecord>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let value: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
     match value.get("effects") {
         Some(v) => serde_json::from_value(v.clone()).with_context(|| format!("{}: field `effects`", path.display())),
         None => Ok(Vec::new()),
@@ -515,7 +573,14 @@ mod tests {
         use sts_emulator::{measure::MeasureConfig, EffectSpec};
         let measure = |spec: &str| {
             let effects = vec![spec.parse::<EffectSpec>().expect("effect")];
-            let config = MeasureConfig { effects, freqs_hz: vec![1.0, 20.0, 40.0], amps_um: vec![4.0, 8.0], duration_s: 3.0, seed: 3, ..MeasureConfig::default() };
+            let config = MeasureConfig {
+                effects,
+                freqs_hz: vec![1.0, 20.0, 40.0],
+                amps_um: vec![4.0, 8.0],
+                duration_s: 3.0,
+                seed: 3,
+                ..MeasureConfig::default()
+            };
             sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
         };
         let short = measure("sensor-gain:probe_gain=0.94,acc_gain=1");
@@ -554,9 +619,15 @@ mod tests {
             TermInput::PositionSine { turns_per_nm: (4_294_967_296.0f64 / 3000.0) as u32, phase_turns: 1 << 30 },
         ] {
             let gains_pm = gains.map(|w| (w * 1e6) as i32);
-            let terms = [TickTerm::Laguerre { input: kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm }];
+            let terms =
+                [TickTerm::Laguerre { input: kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm }];
             let kernel = terms_output(&terms, &g, 0.0, 8000.0);
-            let stages = crate::diagnose::laguerre_bank(&term_input(&kind, &pos), 0, POLE, sts_twin_core::program::LAGUERRE_STAGES);
+            let stages = crate::diagnose::laguerre_bank(
+                &term_input(&kind, &pos),
+                0,
+                POLE,
+                sts_twin_core::program::LAGUERRE_STAGES,
+            );
             let worst = (0..g.len())
                 .map(|k| (kernel[k] - stages.iter().zip(&gains).map(|(s, w)| s[k] * w).sum::<f64>()).abs())
                 .fold(0.0, f64::max);

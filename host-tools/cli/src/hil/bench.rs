@@ -71,10 +71,23 @@ pub struct InstructionReport {
 impl std::fmt::Display for InstructionReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "servo tick, guest instructions ({} ticks, -icount shift={}):", self.ticks, self.icount_shift)?;
-        writeln!(f, "  input arrival -> output written (app + bus): median {:.0}, mean {:.1}, p99 {:.0}, worst {:.0}", self.busy_median, self.busy_mean, self.busy_p99, self.busy_max)?;
-        writeln!(f, "  input arrival -> handler end (+ counters, diagnostics): median {:.0}, worst {:.0}", self.handler_median, self.handler_max)?;
+        writeln!(
+            f,
+            "  input arrival -> output written (app + bus): median {:.0}, mean {:.1}, p99 {:.0}, worst {:.0}",
+            self.busy_median, self.busy_mean, self.busy_p99, self.busy_max
+        )?;
+        writeln!(
+            f,
+            "  input arrival -> handler end (+ counters, diagnostics): median {:.0}, worst {:.0}",
+            self.handler_median, self.handler_max
+        )?;
         writeln!(f, "  tick edge -> input wait (entry): worst {:.0}", self.entry_max)?;
-        writeln!(f, "  whole servo handler excluding the wait: typical {:.0}, worst {:.0}", self.typical_per_tick(), self.worst_per_tick())?;
+        writeln!(
+            f,
+            "  whole servo handler excluding the wait: typical {:.0}, worst {:.0}",
+            self.typical_per_tick(),
+            self.worst_per_tick()
+        )?;
         writeln!(f, "one model evaluation (the paper's Eqs. 2-3, measured at boot): {:.0}", self.paper_eval)?;
         write!(f, "  underruns {}, overruns {}", self.underruns, self.overruns)
     }
@@ -126,7 +139,9 @@ pub fn bench_instructions_prepared(
     hil.shutdown()?;
     busy.sort_unstable();
     handler.sort_unstable();
-    let quantile = |v: &[u32], q: f64| v.get(((v.len().max(1) - 1) as f64 * q).round() as usize).map_or(0.0, |&c| f64::from(c) * per_count);
+    let quantile = |v: &[u32], q: f64| {
+        v.get(((v.len().max(1) - 1) as f64 * q).round() as usize).map_or(0.0, |&c| f64::from(c) * per_count)
+    };
     let at = |q: f64| quantile(&busy, q);
     Ok(InstructionReport {
         elf,
@@ -173,8 +188,18 @@ impl ThroughputReport {
 impl std::fmt::Display for ThroughputReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "HIL throughput ({} ticks each):", self.ticks)?;
-        writeln!(f, "  lockstep:  {:>9.0} ticks/s = {:.2} simulated s per wall s", self.lockstep_ticks_per_s, self.lockstep_sim_per_wall())?;
-        writeln!(f, "  open loop: {:>9.0} ticks/s = {:.2} simulated s per wall s", self.open_loop_ticks_per_s, self.open_loop_sim_per_wall())?;
+        writeln!(
+            f,
+            "  lockstep:  {:>9.0} ticks/s = {:.2} simulated s per wall s",
+            self.lockstep_ticks_per_s,
+            self.lockstep_sim_per_wall()
+        )?;
+        writeln!(
+            f,
+            "  open loop: {:>9.0} ticks/s = {:.2} simulated s per wall s",
+            self.open_loop_ticks_per_s,
+            self.open_loop_sim_per_wall()
+        )?;
         write!(f, "  underruns {}", self.underruns)
     }
 }

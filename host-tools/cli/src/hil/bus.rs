@@ -34,7 +34,8 @@ impl BusFile {
     pub fn anonymous() -> Result<Self, HilError> {
         static COUNTER: AtomicU64 = AtomicU64::new(0);
         let dir = if Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
-        let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
+        let nanos =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
         let name = format!("sts-twin-bus-{}-{}-{}", std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed), nanos);
         let path = dir.join(name);
         let file = OpenOptions::new()

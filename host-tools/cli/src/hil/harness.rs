@@ -114,7 +114,12 @@ impl Hil {
         Err(last_err.expect("three attempts"))
     }
 
-    fn try_start(config: &HilConfig, program: &str, elf: &std::path::Path, bus: &Arc<BusFile>) -> Result<Self, HilError> {
+    fn try_start(
+        config: &HilConfig,
+        program: &str,
+        elf: &std::path::Path,
+        bus: &Arc<BusFile>,
+    ) -> Result<Self, HilError> {
         let port = {
             let l = TcpListener::bind("127.0.0.1:0").map_err(|e| HilError::io("finding a free port", e))?;
             l.local_addr().map_err(|e| HilError::io("finding a free port", e))?.port()
@@ -126,7 +131,8 @@ impl Hil {
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        let mut qemu = QemuProcess::spawn(cmd, bus.inherited_fds()).map_err(|e| HilError::io(format!("starting {program}"), e))?;
+        let mut qemu =
+            QemuProcess::spawn(cmd, bus.inherited_fds()).map_err(|e| HilError::io(format!("starting {program}"), e))?;
         let logs: SharedLog = Arc::new(Mutex::new(LogSink::default()));
         if let Some(out) = qemu.take_stdout() {
             log::spawn_decoder(elf.to_path_buf(), out, logs.clone(), config.echo_logs);
@@ -138,12 +144,24 @@ impl Hil {
             let mut alive = || check_alive(&mut qemu, &logs, "connecting the control link");
             ControlPort::connect(serial_addr, config.boot_timeout, &mut alive)?
         };
-        let mut hil = Self { config: config.clone(), elf: elf.to_path_buf(), bus: bus.clone(), qemu, link, logs, next_tick: 0, serial_addr };
+        let mut hil = Self {
+            config: config.clone(),
+            elf: elf.to_path_buf(),
+            bus: bus.clone(),
+            qemu,
+            link,
+            logs,
+            next_tick: 0,
+            serial_addr,
+        };
         let deadline = Instant::now() + hil.config.boot_timeout;
         while !hil.bus.firmware_ready() {
             hil.alive("waiting for the firmware to serve the bus")?;
             if Instant::now() >= deadline {
-                return Err(HilError::Timeout { what: "the firmware to serve the bus (FW_READY)".into(), seconds: hil.config.boot_timeout.as_secs_f64() });
+                return Err(HilError::Timeout {
+                    what: "the firmware to serve the bus (FW_READY)".into(),
+                    seconds: hil.config.boot_timeout.as_secs_f64(),
+                });
             }
             std::thread::sleep(Duration::from_millis(1));
         }
@@ -244,14 +262,22 @@ impl Hil {
 
     /// Like [`Hil::run_open_loop`] but hands each output to `sink` as it comes, for long
     /// runs.
-    pub fn stream_open_loop(&mut self, inputs: impl IntoIterator<Item = InputSlot>, sink: impl FnMut(OutputSlot)) -> Result<u32, HilError> {
+    pub fn stream_open_loop(
+        &mut self,
+        inputs: impl IntoIterator<Item = InputSlot>,
+        sink: impl FnMut(OutputSlot),
+    ) -> Result<u32, HilError> {
         self.active();
         let result = self.stream_inner(inputs, sink);
         self.idle();
         result
     }
 
-    fn stream_inner(&mut self, inputs: impl IntoIterator<Item = InputSlot>, mut sink: impl FnMut(OutputSlot)) -> Result<u32, HilError> {
+    fn stream_inner(
+        &mut self,
+        inputs: impl IntoIterator<Item = InputSlot>,
+        mut sink: impl FnMut(OutputSlot),
+    ) -> Result<u32, HilError> {
         let mut inputs = inputs.into_iter().peekable();
         let first = self.next_tick;
         let mut written = first;
@@ -313,7 +339,12 @@ impl Hil {
     }
 
     /// With the bus paused: sends `request`, receives until `done(reply so far)`, resumes.
-    pub fn transact(&mut self, request: &[u8], timeout: Duration, done: impl FnMut(&[u8]) -> bool) -> Result<Vec<u8>, HilError> {
+    pub fn transact(
+        &mut self,
+        request: &[u8],
+        timeout: Duration,
+        done: impl FnMut(&[u8]) -> bool,
+    ) -> Result<Vec<u8>, HilError> {
         self.pause();
         let result = self.link.send(request).and_then(|()| self.link.recv_until(timeout, done));
         if !self.config.idle_paused {
@@ -346,7 +377,10 @@ impl Hil {
                 return Ok(line.clone());
             }
             if Instant::now() >= deadline {
-                return Err(HilError::Timeout { what: "a matching firmware log line".into(), seconds: timeout.as_secs_f64() });
+                return Err(HilError::Timeout {
+                    what: "a matching firmware log line".into(),
+                    seconds: timeout.as_secs_f64(),
+                });
             }
             if let Some(status) = self.qemu.try_status() {
                 // One last look: the line may have been decoded just before the exit.
@@ -380,15 +414,23 @@ impl Hil {
 /// The QEMU command line (without the program).
 pub(crate) fn qemu_args(icount_shift: u32, mem_path: &str, port: u16, elf: &std::path::Path) -> Vec<String> {
     [
-        "-machine", "mps2-an386,memory-backend=psram",
-        "-object", &format!("memory-backend-file,id=psram,size=16M,mem-path={mem_path},share=on"),
-        "-display", "none",
-        "-monitor", "none",
-        "-serial", &format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"),
-        "-semihosting-config", "enable=on,target=native",
-        "-icount", &format!("shift={icount_shift},sleep=off"),
+        "-machine",
+        "mps2-an386,memory-backend=psram",
+        "-object",
+        &format!("memory-backend-file,id=psram,size=16M,mem-path={mem_path},share=on"),
+        "-display",
+        "none",
+        "-monitor",
+        "none",
+        "-serial",
+        &format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"),
+        "-semihosting-config",
+        "enable=on,target=native",
+        "-icount",
+        &format!("shift={icount_shift},sleep=off"),
         "-no-reboot",
-        "-kernel", &elf.display().to_string(),
+        "-kernel",
+        &elf.display().to_string(),
     ]
     .iter()
     .map(|s| s.to_string())

@@ -17,7 +17,11 @@ pub struct ControlPort {
 impl ControlPort {
     /// Connects to QEMU's serial server at `addr`, retrying until `timeout` (QEMU listens a
     /// moment after it starts).
-    pub(crate) fn connect(addr: SocketAddr, timeout: Duration, alive: &mut dyn FnMut() -> Result<(), HilError>) -> Result<Self, HilError> {
+    pub(crate) fn connect(
+        addr: SocketAddr,
+        timeout: Duration,
+        alive: &mut dyn FnMut() -> Result<(), HilError>,
+    ) -> Result<Self, HilError> {
         let deadline = Instant::now() + timeout;
         loop {
             match TcpStream::connect_timeout(&addr, Duration::from_millis(200)) {

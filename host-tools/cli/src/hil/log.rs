@@ -72,11 +72,13 @@ pub(crate) fn spawn_decoder(elf: PathBuf, mut stdout: impl Read + Send + 'static
                 for _ in 0..100_000 {
                     match decoder.decode() {
                         Ok(frame) => {
-                            let location = locations
-                                .get(&frame.index())
-                                .map(|l| format!("{}:{}", l.file.display(), l.line));
+                            let location =
+                                locations.get(&frame.index()).map(|l| format!("{}:{}", l.file.display(), l.line));
                             let line = LogLine {
-                                level: frame.level().map(|l| l.as_str().to_uppercase()).unwrap_or_else(|| "PRINTLN".into()),
+                                level: frame
+                                    .level()
+                                    .map(|l| l.as_str().to_uppercase())
+                                    .unwrap_or_else(|| "PRINTLN".into()),
                                 timestamp: frame.display_timestamp().map(|t| t.to_string()).unwrap_or_default(),
                                 message: frame.display_message().to_string(),
                                 location,

@@ -28,10 +28,16 @@ mod link;
 mod log;
 mod process;
 
-pub use bench::{bench_inputs, bench_instructions, bench_instructions_prepared, bench_throughput, InstructionReport, ThroughputReport, INSTRUCTION_BENCH_SHIFT};
+pub use bench::{
+    bench_inputs, bench_instructions, bench_instructions_prepared, bench_throughput, InstructionReport,
+    ThroughputReport, INSTRUCTION_BENCH_SHIFT,
+};
 pub use bus::{BusCounters, BusFile, Diagnostics};
 pub use error::HilError;
-pub use firmware::{build_firmware, build_firmware_variant, firmware_elf, firmware_elf_of, FirmwareVariant, BRINGUP_ELF_ENV, FIRMWARE_ELF_ENV, FIRMWARE_TARGET};
+pub use firmware::{
+    build_firmware, build_firmware_variant, firmware_elf, firmware_elf_of, FirmwareVariant, BRINGUP_ELF_ENV,
+    FIRMWARE_ELF_ENV, FIRMWARE_TARGET,
+};
 pub use harness::{Hil, HilConfig};
 pub use link::ControlPort;
 pub use log::LogLine;

@@ -63,7 +63,14 @@ mod tests {
             Expr::binary(
                 BinaryOp::Mul,
                 Expr::Const(1.23),
-                Expr::unary(UnaryOp::Tanh, Expr::binary(BinaryOp::Add, Expr::binary(BinaryOp::Mul, Expr::Const(-0.0441), Expr::Var(0)), Expr::Const(1.08))),
+                Expr::unary(
+                    UnaryOp::Tanh,
+                    Expr::binary(
+                        BinaryOp::Add,
+                        Expr::binary(BinaryOp::Mul, Expr::Const(-0.0441), Expr::Var(0)),
+                        Expr::Const(1.08),
+                    ),
+                ),
             ),
         );
         let program = compile_program(&amp, &phase).unwrap();

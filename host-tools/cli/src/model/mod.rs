@@ -225,7 +225,8 @@ impl ModelFile {
 impl ModelFile {
     /// Reads and checks a model file; errors name the file (and line and column for JSON).
     pub fn read(path: &Path) -> anyhow::Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read model file {}", path.display()))?;
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("cannot read model file {}", path.display()))?;
         Self::from_json(&text).map_err(|e| match e {
             ModelFileError::Json { .. } => anyhow::anyhow!("{}:{e}", path.display()),
             ModelFileError::Field { .. } => anyhow::anyhow!("{}: {e}", path.display()),
@@ -234,16 +235,32 @@ impl ModelFile {
 
     /// Parses and checks the text of a model file.
     pub fn from_json(text: &str) -> Result<Self, ModelFileError> {
-        let json = |e: serde_json::Error| ModelFileError::Json { line: e.line(), column: e.column(), message: json_message(&e) };
+        let json = |e: serde_json::Error| ModelFileError::Json {
+            line: e.line(),
+            column: e.column(),
+            message: json_message(&e),
+        };
         // The format first, so that another kind of file is named as such.
         let value: serde_json::Value = serde_json::from_str(text).map_err(json)?;
         match value.get("format").and_then(|f| f.as_str()) {
             Some(MODEL_FORMAT) => {}
-            Some(other) => return Err(ModelFileError::Field { field: "format", message: format!("is {other:?}, expected {MODEL_FORMAT:?}") }),
-            None => return Err(ModelFileError::Field { field: "format", message: format!("is missing or not a string (expected {MODEL_FORMAT:?})") }),
+            Some(other) => {
+                return Err(ModelFileError::Field {
+                    field: "format",
+                    message: format!("is {other:?}, expected {MODEL_FORMAT:?}"),
+                })
+            }
+            None => {
+                return Err(ModelFileError::Field {
+                    field: "format",
+                    message: format!("is missing or not a string (expected {MODEL_FORMAT:?})"),
+                })
+            }
         }
         let model: ModelFile = serde_json::from_str(text).map_err(json)?;
-        model.firmware_program().map_err(|e| ModelFileError::Field { field: "program_postcard_hex", message: format!("{e:#}") })?;
+        model
+            .firmware_program()
+            .map_err(|e| ModelFileError::Field { field: "program_postcard_hex", message: format!("{e:#}") })?;
         Ok(model)
     }
 
@@ -275,7 +292,8 @@ impl ModelFile {
 
     /// The firmware program, decoded from the postcard bytes and validated.
     pub fn firmware_program(&self) -> anyhow::Result<Program> {
-        let bytes = hex_decode(&self.program_postcard_hex).context("is not hexadecimal (an even number of 0-9, a-f digits)")?;
+        let bytes =
+            hex_decode(&self.program_postcard_hex).context("is not hexadecimal (an even number of 0-9, a-f digits)")?;
         let (program, rest): (Program, &[u8]) =
             postcard::take_from_bytes(&bytes).map_err(|e| anyhow::anyhow!("is not a postcard-encoded program: {e}"))?;
         if !rest.is_empty() {
@@ -316,7 +334,14 @@ mod tests {
     fn a_non_finite_statistic_is_written_as_null_and_read_back() {
         // A phase R^2 over groups without variance is -inf: JSON writes null, which must
         // read back (the refit of a presliding-hysteresis dataset wrote one).
-        let validation = Validation { folds: 5, amplitude_r2: 0.99, phase_r2: f64::NEG_INFINITY, waveform_mae_um: 0.004, waveform_rms_um: 0.005, groups: vec![] };
+        let validation = Validation {
+            folds: 5,
+            amplitude_r2: 0.99,
+            phase_r2: f64::NEG_INFINITY,
+            waveform_mae_um: 0.004,
+            waveform_rms_um: 0.005,
+            groups: vec![],
+        };
         let json = serde_json::to_string(&validation).unwrap();
         assert!(json.contains("\"phase_r2\":null"), "{json}");
         let back: Validation = serde_json::from_str(&json).unwrap();

@@ -55,7 +55,13 @@ pub fn render(input: &ReportInput) -> String {
         "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>sts-twin compare: {}</title><style>{STYLE}</style></head><body>",
         esc(&input.dataset)
     );
-    let _ = write!(h, "<h1 id=\"title\">Dynamic error: model against measurement</h1><p>Dataset <b>{}</b>; model <b>{}</b> ({}).</p>", esc(&input.dataset), esc(&input.model_label), esc(&c.model));
+    let _ = write!(
+        h,
+        "<h1 id=\"title\">Dynamic error: model against measurement</h1><p>Dataset <b>{}</b>; model <b>{}</b> ({}).</p>",
+        esc(&input.dataset),
+        esc(&input.model_label),
+        esc(&c.model)
+    );
 
     // Summary.
     h.push_str("<h2>Summary</h2><table id=\"summary\"><tr><th class=\"l\">model</th><th>waveform RMS (nm)</th><th>waveform MAE (nm)</th><th>amplitude R<sup>2</sup></th><th>phase R<sup>2</sup></th><th>measured RMS (nm)</th></tr>");
@@ -78,7 +84,13 @@ pub fn render(input: &ReportInput) -> String {
     h.push_str("</table>");
     if let Some((b, _, label)) = &input.baseline {
         let fall = 1.0 - c.waveform_rms_um / b.waveform_rms_um.max(1e-300);
-        let _ = write!(h, "<p id=\"fall\">Waveform RMS error {} by {:.0}% against {}.</p>", if fall >= 0.0 { "falls" } else { "rises" }, fall.abs() * 100.0, esc(label));
+        let _ = write!(
+            h,
+            "<p id=\"fall\">Waveform RMS error {} by {:.0}% against {}.</p>",
+            if fall >= 0.0 { "falls" } else { "rises" },
+            fall.abs() * 100.0,
+            esc(label)
+        );
     }
     if let Some(text) = c.describe_acc_blind() {
         let _ = write!(h, "<p id=\"acc-blind\"><b>Accelerometer:</b> {}</p>", esc(&text));
@@ -87,7 +99,12 @@ pub fn render(input: &ReportInput) -> String {
     // Diagnosis.
     if let Some(d) = input.diagnosis {
         h.push_str("<h2>Diagnosis</h2>");
-        let _ = write!(h, "<p class=\"verdict\" id=\"verdict\">Missing effect: <b>{}</b></p><p>{}</p>", esc(&d.verdict), esc(&d.summary));
+        let _ = write!(
+            h,
+            "<p class=\"verdict\" id=\"verdict\">Missing effect: <b>{}</b></p><p>{}</p>",
+            esc(&d.verdict),
+            esc(&d.summary)
+        );
         if let Some(text) = &d.not_repeating {
             let _ = write!(h, "<p id=\"not-repeating\"><b>Not repeating:</b> {}</p>", esc(text));
         }
@@ -112,10 +129,28 @@ pub fn render(input: &ReportInput) -> String {
     // Error map.
     h.push_str("<h2>Error map</h2><div class=\"charts\">");
     let (fs, amps, cells) = grid_of(c, |i| c.groups[i].waveform_rms_um * 1e3);
-    h.push_str(&heat_map("map-model", &format!("waveform RMS error, {}", input.model_label), "command frequency (Hz)", "command amplitude (um)", &fs, &amps, &cells, "nm"));
+    h.push_str(&heat_map(
+        "map-model",
+        &format!("waveform RMS error, {}", input.model_label),
+        "command frequency (Hz)",
+        "command amplitude (um)",
+        &fs,
+        &amps,
+        &cells,
+        "nm",
+    ));
     if let Some((b, _, label)) = &input.baseline {
         let (fs, amps, cells) = grid_of(b, |i| b.groups[i].waveform_rms_um * 1e3);
-        h.push_str(&heat_map("map-baseline", &format!("waveform RMS error, {label}"), "command frequency (Hz)", "command amplitude (um)", &fs, &amps, &cells, "nm"));
+        h.push_str(&heat_map(
+            "map-baseline",
+            &format!("waveform RMS error, {label}"),
+            "command frequency (Hz)",
+            "command amplitude (um)",
+            &fs,
+            &amps,
+            &cells,
+            "nm",
+        ));
     }
     h.push_str("</div>");
 
@@ -139,9 +174,20 @@ pub fn render(input: &ReportInput) -> String {
             Series { name: input.model_label.clone(), x: &w.t_s[..keep], y: &w.predicted_um[..keep], markers: false },
         ];
         if let Some((_, bw, label)) = &input.baseline {
-            series.push(Series { name: label.clone(), x: &bw[gi].t_s[..keep], y: &bw[gi].predicted_um[..keep], markers: false });
+            series.push(Series {
+                name: label.clone(),
+                x: &bw[gi].t_s[..keep],
+                y: &bw[gi].predicted_um[..keep],
+                markers: false,
+            });
         }
-        let title = format!("{} ({} Hz, {} um): RMS {:.1} nm", g.file, tick_label(g.freq_hz), tick_label(g.amp_um), g.waveform_rms_um * 1e3);
+        let title = format!(
+            "{} ({} Hz, {} um): RMS {:.1} nm",
+            g.file,
+            tick_label(g.freq_hz),
+            tick_label(g.amp_um),
+            g.waveform_rms_um * 1e3
+        );
         h.push_str(&line_chart(&format!("wave-{gi}"), &title, "time in group (s)", "dynamic error (um)", &series));
     }
     h.push_str("</div>");
@@ -153,11 +199,25 @@ pub fn render(input: &ReportInput) -> String {
     if let Some((b, _, label)) = &input.baseline {
         series.push((label.clone(), b.harmonics_um.iter().map(|v| v * 1e3).collect()));
     }
-    h.push_str(&bar_chart("harmonics", "residual at harmonics of the command frequency (mean over groups)", "harmonic order", "amplitude (nm)", &labels, &series));
+    h.push_str(&bar_chart(
+        "harmonics",
+        "residual at harmonics of the command frequency (mean over groups)",
+        "harmonic order",
+        "amplitude (nm)",
+        &labels,
+        &series,
+    ));
     if !c.other_lines.is_empty() {
         let labels: Vec<String> = c.other_lines.iter().map(|l| format!("{} Hz", tick_label(l.freq_hz))).collect();
         let values: Vec<f64> = c.other_lines.iter().map(|l| l.amp_um * 1e3).collect();
-        h.push_str(&bar_chart("other-lines", "residual lines that are not harmonics", "frequency", "amplitude (nm)", &labels, &[(input.model_label.clone(), values)]));
+        h.push_str(&bar_chart(
+            "other-lines",
+            "residual lines that are not harmonics",
+            "frequency",
+            "amplitude (nm)",
+            &labels,
+            &[(input.model_label.clone(), values)],
+        ));
     }
     h.push_str("</div>");
 
@@ -171,7 +231,10 @@ pub fn render(input: &ReportInput) -> String {
         "residual per group against machine time",
         "machine time at group start (s)",
         "nm",
-        &[Series { name: "mean".into(), x: &start, y: &mean, markers: true }, Series { name: "RMS".into(), x: &start, y: &rms, markers: true }],
+        &[
+            Series { name: "mean".into(), x: &start, y: &mean, markers: true },
+            Series { name: "RMS".into(), x: &start, y: &rms, markers: true },
+        ],
     ));
     for (i, b) in c.binned.iter().enumerate() {
         let rms: Vec<f64> = b.rms_um.iter().map(|v| v * 1e3).collect();
@@ -181,7 +244,10 @@ pub fn render(input: &ReportInput) -> String {
             &format!("residual against {}", b.signal),
             &b.signal,
             "nm",
-            &[Series { name: "RMS".into(), x: &b.centres, y: &rms, markers: false }, Series { name: "mean".into(), x: &b.centres, y: &mean, markers: false }],
+            &[
+                Series { name: "RMS".into(), x: &b.centres, y: &rms, markers: false },
+                Series { name: "mean".into(), x: &b.centres, y: &mean, markers: false },
+            ],
         ));
     }
     h.push_str("</div>");

@@ -141,7 +141,12 @@ pub fn line_chart(id: &str, title: &str, x_label: &str, y_label: &str, series: &
         if s.markers {
             for k in (0..n).step_by(step) {
                 if s.x[k].is_finite() && s.y[k].is_finite() {
-                    let _ = write!(out, r##"<circle cx="{:.1}" cy="{:.1}" r="2.5" fill="{colour}"/>"##, px(s.x[k]), py(s.y[k]));
+                    let _ = write!(
+                        out,
+                        r##"<circle cx="{:.1}" cy="{:.1}" r="2.5" fill="{colour}"/>"##,
+                        px(s.x[k]),
+                        py(s.y[k])
+                    );
                 }
             }
         } else {
@@ -169,7 +174,16 @@ pub fn line_chart(id: &str, title: &str, x_label: &str, y_label: &str, series: &
 }
 
 /// A heat map of `values[row][col]` (rows: y values, columns: x values), with a colour bar.
-pub fn heat_map(id: &str, title: &str, x_label: &str, y_label: &str, xs: &[f64], ys: &[f64], values: &[Vec<Option<f64>>], unit: &str) -> String {
+pub fn heat_map(
+    id: &str,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    xs: &[f64],
+    ys: &[f64],
+    values: &[Vec<Option<f64>>],
+    unit: &str,
+) -> String {
     let vmax = values.iter().flatten().flatten().fold(0.0f64, |m, v| m.max(*v)).max(1e-12);
     let mut out = String::new();
     open_chart(&mut out, "chart heatmap", id, title, W, H);
@@ -197,16 +211,34 @@ pub fn heat_map(id: &str, title: &str, x_label: &str, y_label: &str, xs: &[f64],
         }
     }
     for (c, x) in xs.iter().enumerate() {
-        let _ = write!(out, r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" font-size="11">{}</text>"##, LEFT + (c as f64 + 0.5) * cw, TOP + ph + 15.0, tick_label(*x));
+        let _ = write!(
+            out,
+            r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" font-size="11">{}</text>"##,
+            LEFT + (c as f64 + 0.5) * cw,
+            TOP + ph + 15.0,
+            tick_label(*x)
+        );
     }
     for (r, y) in ys.iter().enumerate() {
-        let _ = write!(out, r##"<text x="{:.1}" y="{:.1}" text-anchor="end" font-size="11">{}</text>"##, LEFT - 5.0, TOP + ph - (r as f64 + 0.5) * ch + 4.0, tick_label(*y));
+        let _ = write!(
+            out,
+            r##"<text x="{:.1}" y="{:.1}" text-anchor="end" font-size="11">{}</text>"##,
+            LEFT - 5.0,
+            TOP + ph - (r as f64 + 0.5) * ch + 4.0,
+            tick_label(*y)
+        );
     }
     // Colour bar.
     let bx = LEFT + pw + 20.0;
     for i in 0..20 {
         let f = i as f64 / 19.0;
-        let _ = write!(out, r##"<rect x="{bx:.1}" y="{:.1}" width="14" height="{:.1}" fill="{}"/>"##, TOP + ph - (i + 1) as f64 * ph / 20.0, ph / 20.0 + 0.5, colour_scale(f));
+        let _ = write!(
+            out,
+            r##"<rect x="{bx:.1}" y="{:.1}" width="14" height="{:.1}" fill="{}"/>"##,
+            TOP + ph - (i + 1) as f64 * ph / 20.0,
+            ph / 20.0 + 0.5,
+            colour_scale(f)
+        );
     }
     let _ = write!(
         out,
@@ -242,8 +274,17 @@ pub fn colour_scale(f: f64) -> String {
 }
 
 /// Grouped bars: one group per label, one bar per series.
-pub fn bar_chart(id: &str, title: &str, x_label: &str, y_label: &str, labels: &[String], series: &[(String, Vec<f64>)]) -> String {
-    let ymax = series.iter().flat_map(|s| s.1.iter().copied()).filter(|v| v.is_finite()).fold(0.0f64, f64::max).max(1e-12) * 1.08;
+pub fn bar_chart(
+    id: &str,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    labels: &[String],
+    series: &[(String, Vec<f64>)],
+) -> String {
+    let ymax =
+        series.iter().flat_map(|s| s.1.iter().copied()).filter(|v| v.is_finite()).fold(0.0f64, f64::max).max(1e-12)
+            * 1.08;
     let mut out = String::new();
     frame(&mut out, id, title, x_label, y_label, (0.0, labels.len() as f64), (0.0, ymax));
     let (pw, ph) = (W - LEFT - RIGHT, H - TOP - BOTTOM);
@@ -263,7 +304,13 @@ pub fn bar_chart(id: &str, title: &str, x_label: &str, y_label: &str, labels: &[
                 tick_label(v)
             );
         }
-        let _ = write!(out, r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" font-size="11" fill="#333">{}</text>"##, LEFT + (i as f64 + 0.5) * slot, TOP + ph + 28.0, esc(label));
+        let _ = write!(
+            out,
+            r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" font-size="11" fill="#333">{}</text>"##,
+            LEFT + (i as f64 + 0.5) * slot,
+            TOP + ph + 28.0,
+            esc(label)
+        );
     }
     for (j, (name, _)) in series.iter().enumerate() {
         let ly = TOP + 14.0 + 15.0 * j as f64;

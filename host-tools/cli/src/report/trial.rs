@@ -25,7 +25,15 @@ fn diverging(f: f64) -> String {
 
 /// A polar map of `values[radial][angular]` over the disc of radius `r_max_mm`, coloured by
 /// `colour(value)`, with a legend from `lo` to `hi`.
-fn polar_map(id: &str, title: &str, r_max_mm: f64, values: &[Vec<Option<f64>>], lo: f64, hi: f64, colour: impl Fn(f64) -> String) -> String {
+fn polar_map(
+    id: &str,
+    title: &str,
+    r_max_mm: f64,
+    values: &[Vec<Option<f64>>],
+    lo: f64,
+    hi: f64,
+    colour: impl Fn(f64) -> String,
+) -> String {
     let (w, h) = (SIZE + 2.0 * PAD + 90.0, SIZE + 2.0 * PAD + 10.0);
     let (cx, cy, radius) = (PAD + SIZE / 2.0, PAD + 10.0 + SIZE / 2.0, SIZE / 2.0);
     let mut out = String::new();
@@ -59,7 +67,13 @@ fn polar_map(id: &str, title: &str, r_max_mm: f64, values: &[Vec<Option<f64>>], 
     let bx = PAD + SIZE + 25.0;
     for i in 0..20 {
         let v = lo + (hi - lo) * i as f64 / 19.0;
-        let _ = write!(out, r##"<rect x="{bx:.1}" y="{:.1}" width="14" height="{:.1}" fill="{}"/>"##, cy + radius - (i + 1) as f64 * SIZE / 20.0, SIZE / 20.0 + 0.5, colour(v));
+        let _ = write!(
+            out,
+            r##"<rect x="{bx:.1}" y="{:.1}" width="14" height="{:.1}" fill="{}"/>"##,
+            cy + radius - (i + 1) as f64 * SIZE / 20.0,
+            SIZE / 20.0 + 0.5,
+            colour(v)
+        );
     }
     let _ = write!(
         out,
@@ -81,10 +95,21 @@ fn range(values: &[Vec<Option<f64>>]) -> (f64, f64) {
 pub fn cut_maps(id: &str, maps: &CutMaps) -> String {
     let (lo, hi) = range(&maps.surface_um);
     let span = (hi - lo).max(1e-9);
-    let surface = polar_map(&format!("{id}-surface"), "surface: TCP height (um)", maps.r_max_mm, &maps.surface_um, lo, hi, |v| colour_scale((v - lo) / span));
+    let surface =
+        polar_map(&format!("{id}-surface"), "surface: TCP height (um)", maps.r_max_mm, &maps.surface_um, lo, hi, |v| {
+            colour_scale((v - lo) / span)
+        });
     let (dlo, dhi) = range(&maps.deviation_um);
     let extent = dlo.abs().max(dhi.abs()).max(1e-9);
-    let error = polar_map(&format!("{id}-error"), "error: TCP minus design (um)", maps.r_max_mm, &maps.deviation_um, -extent, extent, |v| diverging(v / extent));
+    let error = polar_map(
+        &format!("{id}-error"),
+        "error: TCP minus design (um)",
+        maps.r_max_mm,
+        &maps.deviation_um,
+        -extent,
+        extent,
+        |v| diverging(v / extent),
+    );
     format!("<div class=\"charts\">{surface}{error}</div>")
 }
 
@@ -132,7 +157,9 @@ mod tests {
     fn a_bare_cut_gives_both_maps_over_the_whole_disc() {
         let plant = PlantParams::default();
         let config = TrialConfig { freq_hz: 40.0, r_start_mm: 0.1, r_eval_mm: 0.1, ..TrialConfig::default() };
-        let report = run_trial(&mut SimCoprocessor::boot(&[]), &plant, &[], None, machine_params(&plant, 0.012), &config).unwrap();
+        let report =
+            run_trial(&mut SimCoprocessor::boot(&[]), &plant, &[], None, machine_params(&plant, 0.012), &config)
+                .unwrap();
         let maps = &report.maps;
         // 0.1 mm at 5 um per revolution: 10 rings of two revolutions each.
         assert_eq!(maps.surface_um.len(), 10);

@@ -17,7 +17,9 @@
 //! assert!(lines[0].starts_with("3 control frames"));
 //! ```
 
-use sts_twin_core::servo::{Counters, DEGRADED_MODEL, DEGRADED_NO_INPUT, DEGRADED_RECOVERING, DEGRADED_SATURATED, DEGRADED_STUCK};
+use sts_twin_core::servo::{
+    Counters, DEGRADED_MODEL, DEGRADED_NO_INPUT, DEGRADED_RECOVERING, DEGRADED_SATURATED, DEGRADED_STUCK,
+};
 use sts_twin_core::wire::{ConfigSource, Request, Response, Status};
 
 use super::Coprocessor;
@@ -33,7 +35,9 @@ pub fn fault_report(status: &Status) -> Vec<String> {
         lines.push(format!("compensation is ramped out now, the inputs are not trusted: {}", reasons.join("; ")));
     }
     if status.program_id.is_none() {
-        lines.push("no twin model is active: the prediction is zero and nothing is compensated (upload a model)".to_string());
+        lines.push(
+            "no twin model is active: the prediction is zero and nothing is compensated (upload a model)".to_string(),
+        );
     }
     match status.config_source {
         ConfigSource::DefaultsAfterCorrupt => lines.push(
@@ -56,7 +60,8 @@ pub fn degraded_reasons(degraded: u16) -> Vec<String> {
         (DEGRADED_MODEL, "the model's last evaluation failed"),
         (DEGRADED_RECOVERING, "inputs are healthy again, waiting for a clean feature window"),
     ];
-    let mut reasons: Vec<String> = KNOWN.iter().filter(|(bit, _)| degraded & bit != 0).map(|(_, text)| text.to_string()).collect();
+    let mut reasons: Vec<String> =
+        KNOWN.iter().filter(|(bit, _)| degraded & bit != 0).map(|(_, text)| text.to_string()).collect();
     let unknown = KNOWN.iter().fold(degraded, |rest, (bit, _)| rest & !bit);
     if unknown != 0 {
         reasons.push(format!("unknown degraded bits {unknown:#06x}"));
@@ -70,14 +75,29 @@ fn counter_lines(c: &Counters) -> Vec<String> {
     let entries: [(u32, &str); 14] = [
         (c.input_stuck, "episodes of a stuck or dead accelerometer (compensation ramped out until it recovered)"),
         (c.input_saturated, "episodes of accelerometer saturation (compensation ramped out until it recovered)"),
-        (c.bus_underruns, "bus underruns: the host's sample for a tick came late or not at all (the DAC held its value)"),
+        (
+            c.bus_underruns,
+            "bus underruns: the host's sample for a tick came late or not at all (the DAC held its value)",
+        ),
         (c.bus_overruns, "bus overruns: a servo tick ran into the next period"),
-        (c.model_faults, "failed model evaluations (a non-finite output or a torn feature snapshot; the prediction ramped out)"),
+        (
+            c.model_faults,
+            "failed model evaluations (a non-finite output or a torn feature snapshot; the prediction ramped out)",
+        ),
         (c.model_late, "model results applied after their due tick"),
         (c.rejected_programs, "uploaded models rejected as malformed (the previous model stayed in force)"),
-        (c.rejected_params, "parameter sets rejected (e.g. K_dv zero or not finite; the previous parameters stayed in force)"),
-        (c.rejected_feature_configs, "feature settings rejected (a zero or too long window; the previous settings stayed in force)"),
-        (c.axis_resets, "servo-axis twin restarts after it diverged (its identified loop is unstable on this motion; refit it)"),
+        (
+            c.rejected_params,
+            "parameter sets rejected (e.g. K_dv zero or not finite; the previous parameters stayed in force)",
+        ),
+        (
+            c.rejected_feature_configs,
+            "feature settings rejected (a zero or too long window; the previous settings stayed in force)",
+        ),
+        (
+            c.axis_resets,
+            "servo-axis twin restarts after it diverged (its identified loop is unstable on this motion; refit it)",
+        ),
         (c.frame_errors, "control frames dropped as corrupt (CRC, stuffing or length; the host retries)"),
         (c.dac_saturations, "ticks with the DAC target clamped at full scale"),
         (c.config_store_errors, "config store errors (a corrupt record at boot or a failed save)"),

@@ -64,7 +64,8 @@ impl Coprocessor for HilCoprocessor {
 pub fn request_on(hil: &mut Hil, seq: u16, request: Request) -> anyhow::Result<Response> {
     let mut frame = [0u8; MAX_ENCODED_FRAME + 1];
     // A leading delimiter resynchronises the firmware's decoder after any line noise.
-    let len = encode_frame(seq, &request, &mut frame[1..]).map_err(|e| anyhow::anyhow!("cannot encode {request:?}: {e}"))?;
+    let len =
+        encode_frame(seq, &request, &mut frame[1..]).map_err(|e| anyhow::anyhow!("cannot encode {request:?}: {e}"))?;
     let reply = hil.transact(&frame[..len + 1], REQUEST_TIMEOUT, |bytes| answered(bytes, seq))?;
     let mut decoder = FrameDecoder::<Response>::new();
     for &byte in &reply {

@@ -162,7 +162,13 @@ pub struct LossyHilCoprocessor {
 impl LossyHilCoprocessor {
     /// Wraps `inner`: requests lose frames at `inbound` rates, answers at `outbound` rates,
     /// the two directions seeded from `seed`.
-    pub fn new(inner: HilCoprocessor, inbound: LinkFaults, outbound: LinkFaults, seed: u64, policy: RetryPolicy) -> Self {
+    pub fn new(
+        inner: HilCoprocessor,
+        inbound: LinkFaults,
+        outbound: LinkFaults,
+        seed: u64,
+        policy: RetryPolicy,
+    ) -> Self {
         Self {
             inner,
             inbound: FrameInjector::new(inbound, seed),
@@ -210,7 +216,8 @@ impl LossyHilCoprocessor {
         let seq = self.seq;
         let mut frame = [0u8; MAX_ENCODED_FRAME + 1];
         // A leading delimiter resynchronises the firmware's decoder after a damaged frame.
-        let len = encode_frame(seq, request, &mut frame[1..]).map_err(|e| anyhow::anyhow!("cannot encode {request:?}: {e}"))?;
+        let len = encode_frame(seq, request, &mut frame[1..])
+            .map_err(|e| anyhow::anyhow!("cannot encode {request:?}: {e}"))?;
         let wire: &[u8] = match self.inbound.pass(&mut frame[1..len]) {
             FrameFate::Dropped => &[],
             FrameFate::Delivered | FrameFate::Corrupted => &frame[..len + 1],

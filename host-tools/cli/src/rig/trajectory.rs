@@ -46,7 +46,12 @@ pub struct Sinusoid {
 impl Trajectory for Sinusoid {
     fn at(&self, t_s: f64) -> TrajectoryPoint {
         let turns = self.freq_hz * t_s;
-        TrajectoryPoint { z_cmd_um: self.amp_um * (2.0 * PI * turns).sin(), x_mm: 0.0, spindle_deg: 0.0, phase_turns: turns_u32(turns) }
+        TrajectoryPoint {
+            z_cmd_um: self.amp_um * (2.0 * PI * turns).sin(),
+            x_mm: 0.0,
+            spindle_deg: 0.0,
+            phase_turns: turns_u32(turns),
+        }
     }
     fn sample_rate_hz(&self) -> f64 {
         self.sample_rate_hz
@@ -93,7 +98,12 @@ impl Trajectory for Bicuspid {
         let revs = self.spindle_rev_per_s() * t_s;
         let x_mm = (self.r_start_mm - revs * self.feed_um_per_rev * 1e-3).max(0.0);
         let c_deg = 360.0 * revs.fract();
-        TrajectoryPoint { z_cmd_um: Self::design_z_um(x_mm, c_deg), x_mm, spindle_deg: c_deg, phase_turns: turns_u32(2.0 * revs) }
+        TrajectoryPoint {
+            z_cmd_um: Self::design_z_um(x_mm, c_deg),
+            x_mm,
+            spindle_deg: c_deg,
+            phase_turns: turns_u32(2.0 * revs),
+        }
     }
     fn sample_rate_hz(&self) -> f64 {
         self.sample_rate_hz

@@ -125,7 +125,14 @@ impl Foreign {
     }
 
     fn rk4(&self, s: &State, force_cmd: f64, dt: f64) -> State {
-        let add = |a: &State, b: &State, h: f64| State { x1: a.x1 + h * b.x1, v1: a.v1 + h * b.v1, x2: a.x2 + h * b.x2, v2: a.v2 + h * b.v2, force: a.force + h * b.force, z: a.z + h * b.z };
+        let add = |a: &State, b: &State, h: f64| State {
+            x1: a.x1 + h * b.x1,
+            v1: a.v1 + h * b.v1,
+            x2: a.x2 + h * b.x2,
+            v2: a.v2 + h * b.v2,
+            force: a.force + h * b.force,
+            z: a.z + h * b.z,
+        };
         let k1 = self.derivative(s, force_cmd);
         let k2 = self.derivative(&add(s, &k1, dt / 2.0), force_cmd);
         let k3 = self.derivative(&add(s, &k2, dt / 2.0), force_cmd);
@@ -197,12 +204,23 @@ impl Foreign {
             let [cmd, enc, tcp, acc] = self.run(f, a, duration_s, seed * 1000 + i as u64);
             let mut csv = String::from("t_s,acc_mps2,z_cmd_um,z_tcp_um,z_enc_um\r\n");
             for k in 0..cmd.len() {
-                writeln!(csv, "{:.8},{:.6},{:.6},{:.6},{:.4}\r", k as f64 / self.record_hz, acc[k], cmd[k], tcp[k], enc[k]).unwrap();
+                writeln!(
+                    csv,
+                    "{:.8},{:.6},{:.6},{:.6},{:.4}\r",
+                    k as f64 / self.record_hz,
+                    acc[k],
+                    cmd[k],
+                    tcp[k],
+                    enc[k]
+                )
+                .unwrap();
             }
             let file = format!("run-{f}hz-{a}um.csv");
             std::fs::write(dir.join(&file), csv).unwrap();
             // Groups 1.5 s apart on machine time (the operator's pauses).
-            groups.push(serde_json::json!({"file": file, "freq_hz": f, "amp_um": a, "start_s": i as f64 * (duration_s + 1.5)}));
+            groups.push(
+                serde_json::json!({"file": file, "freq_hz": f, "amp_um": a, "start_s": i as f64 * (duration_s + 1.5)}),
+            );
         }
         let manifest = serde_json::json!({
             "format": "sts-twin-dataset/1",

@@ -1,6 +1,6 @@
 //! Shared helpers of the HIL tests.
 
-use sts_twin::hil::{FirmwareVariant, HilConfig};
+use sts_hil::{FirmwareVariant, HilConfig};
 use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
 
 /// A harness configuration that boots the bring-up application of the board seam (the
@@ -42,7 +42,7 @@ pub fn tone_input(k: u32) -> InputSlot {
 
 /// The twin tests' common set-up: a short feature window, gentle ramps, a simple program.
 pub mod twin {
-    use sts_twin::rig::{expect_ack, Coprocessor, HilCoprocessor};
+    use sts_rig::{expect_ack, Coprocessor, HilCoprocessor};
     use sts_twin_core::features::FeatureConfig;
     use sts_twin_core::feedforward::FeedforwardParams;
     use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};

@@ -5,13 +5,13 @@
 
 use std::path::{Path, PathBuf};
 
-use sts_twin::calibrate::{
+use sts_hil::board::qemu::{CONFIG_OFFSET, CONFIG_SLOT_BYTES};
+use sts_hil::HilConfig;
+use sts_rig::calibrate::{
     calibrate, enable_check, Board, BootState, CalibrationConfig, HilBoard, Machine, PlantParams, RestRig,
 };
-use sts_twin::hil::board::qemu::{CONFIG_OFFSET, CONFIG_SLOT_BYTES};
-use sts_twin::hil::HilConfig;
-use sts_twin::rig::{expect_ack, Coprocessor, SimCoprocessor};
-use sts_twin::trial::stored_params;
+use sts_rig::trial::stored_params;
+use sts_rig::{expect_ack, Coprocessor, SimCoprocessor};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::{frame_crc32, ConfigSource, Request};
 
@@ -150,7 +150,7 @@ fn a_corrupt_config_store_boots_on_safe_defaults_and_is_reported() {
     assert!(!state.enabled);
     let text = state.to_string();
     assert!(text.contains("CORRUPT") && text.contains("safe defaults"), "{text}");
-    let status = sts_twin::calibrate::rest::status(&mut board).unwrap();
+    let status = sts_rig::calibrate::rest::status(&mut board).unwrap();
     assert_eq!(status.counters.config_store_errors, 1);
     board.shutdown().unwrap();
 

@@ -4,7 +4,7 @@
 //! cargo test -p sts-hil-tests --release --test platform_bench -- --ignored --nocapture --test-threads=1
 //! ```
 
-use sts_twin::hil::{bench_instructions, bench_throughput, HilConfig};
+use sts_hil::{bench_instructions, bench_throughput, HilConfig};
 
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]

@@ -5,8 +5,8 @@
 use std::sync::Mutex;
 use std::time::Duration;
 
-use sts_twin::hil::board::bringup::{reference_outputs, DEFAULT_GAIN};
-use sts_twin::hil::{bench_inputs, Hil};
+use sts_hil::board::bringup::{reference_outputs, DEFAULT_GAIN};
+use sts_hil::{bench_inputs, Hil};
 use sts_twin_core::bus::{InputSlot, OutputSlot, OUT_FLAG_MODEL_ACTIVE};
 
 /// One QEMU at a time: the machine has two cores and the guest spins while it waits.

@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use sts_twin::hil::{bench_inputs, Diagnostics, Hil, HilConfig};
+use sts_hil::{bench_inputs, Diagnostics, Hil, HilConfig};
 use sts_twin_core::bus::OutputSlot;
 
 const TICKS: u32 = 3000;

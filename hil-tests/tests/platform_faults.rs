@@ -4,7 +4,7 @@
 use std::sync::Mutex;
 use std::time::Duration;
 
-use sts_twin::hil::{bench_inputs, Hil, HilError};
+use sts_hil::{bench_inputs, Hil, HilError};
 
 static SERIAL: Mutex<()> = Mutex::new(());
 

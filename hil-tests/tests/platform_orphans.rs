@@ -7,7 +7,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use sts_twin::hil::{bench_inputs, live_qemu_pids, Hil, HilConfig, HilError};
+use sts_hil::{bench_inputs, live_qemu_pids, Hil, HilConfig, HilError};
 
 const MODE_ENV: &str = "STS_HIL_ORPHAN_CHILD_MODE";
 const GONE_WITHIN: Duration = Duration::from_secs(5);

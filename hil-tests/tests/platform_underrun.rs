@@ -4,8 +4,8 @@
 
 use std::time::{Duration, Instant};
 
-use sts_twin::hil::board::bringup::{reference_outputs, DEFAULT_GAIN};
-use sts_twin::hil::{bench_inputs, Hil, HilConfig};
+use sts_hil::board::bringup::{reference_outputs, DEFAULT_GAIN};
+use sts_hil::{bench_inputs, Hil, HilConfig};
 use sts_twin_core::bus::OutputSlot;
 
 #[test]

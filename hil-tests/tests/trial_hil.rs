@@ -7,10 +7,11 @@
 use std::path::Path;
 
 use sts_emulator::{EffectSpec, PlantParams};
-use sts_twin::calibrate::PathPoint;
-use sts_twin::model::ModelFile;
-use sts_twin::rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
-use sts_twin::trial::{machine_params, run_trial, with_measured_path, TrialConfig, TrialReport};
+use sts_model::ModelFile;
+use sts_rig::calibrate::PathPoint;
+use sts_rig::machine_params;
+use sts_rig::trial::{run_trial, with_measured_path, TrialConfig, TrialReport};
+use sts_rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
 
 fn fixture(name: &str) -> ModelFile {
     ModelFile::read(&Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)).expect("the fixture model")

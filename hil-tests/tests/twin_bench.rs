@@ -21,8 +21,8 @@
 
 use std::time::{Duration, Instant};
 
-use sts_twin::hil::{bench_inputs, Hil, HilError, INSTRUCTION_BENCH_SHIFT};
-use sts_twin::rig::request_on;
+use sts_hil::{bench_inputs, Hil, HilError, INSTRUCTION_BENCH_SHIFT};
+use sts_rig::request_on;
 use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
 use sts_twin_core::features::{FeatureConfig, BLOCK_SAMPLES};
 use sts_twin_core::feedforward::FeedforwardParams;

@@ -9,7 +9,7 @@
 
 use std::time::{Duration, Instant};
 
-use sts_twin::rig::{
+use sts_rig::{
     expect_ack, fault_report, Coprocessor, FrameInjector, HilCoprocessor, LinkFaults, LossyHilCoprocessor, RetryPolicy,
     SimCoprocessor,
 };

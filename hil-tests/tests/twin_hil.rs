@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use sts_twin::rig::{expect_ack, Coprocessor, HilCoprocessor, SimCoprocessor};
+use sts_rig::{expect_ack, Coprocessor, HilCoprocessor, SimCoprocessor};
 use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::TickTerm;

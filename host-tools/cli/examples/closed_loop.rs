@@ -1,9 +1,9 @@
 //! Closed loop at one frequency, simulated co-processor, with and without a model:
 //! `cargo run --release -p sts-twin --example closed_loop -- MODEL FREQ_HZ AMP_UM`.
+use sts_analysis::sine::fit_sine;
 use sts_emulator::{Machine, PlantParams};
-use sts_twin::analysis::sine::fit_sine;
-use sts_twin::model::ModelFile;
-use sts_twin::rig::{expect_ack, run_loop, Coprocessor, SimCoprocessor, Sinusoid};
+use sts_model::ModelFile;
+use sts_rig::{expect_ack, run_loop, Coprocessor, SimCoprocessor, Sinusoid};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::Request;
 
@@ -34,7 +34,7 @@ fn main() -> anyhow::Result<()> {
         }
         let traj = Sinusoid { freq_hz, amp_um, duration_s: 10.0, sample_rate_hz: 8000.0 };
         let (mut t, mut de, mut pred) = (Vec::new(), Vec::new(), Vec::new());
-        run_loop(&mut machine, &mut cop, &traj, 0, 80_000, 10.0, true, |s| {
+        run_loop(&mut machine, &mut cop, &traj, 0..80_000, 10.0, true, |s| {
             if s.machine.time_s >= 9.0 {
                 t.push(s.machine.time_s);
                 de.push(s.machine.z_tcp_true_um - s.point.z_cmd_um);

@@ -1,18 +1,9 @@
 //! # sts-twin
 //!
-//! The library under the `sts-twin` command: every command is a thin layer over a function
-//! here, so that tests and other programs drive the same code the user runs.
+//! The `sts-twin` command over the library crates, which form the data flow: `sts-analysis`
+//! -> `sts-model` -> `sts-fit` / `sts-assess` -> `sts-hil` -> `sts-rig`. Here are only the
+//! commands (one module each) and the reports they write.
 #![deny(missing_docs)]
 
-pub mod analysis;
-pub mod calibrate;
 pub mod cmd;
-pub mod compare;
-pub mod diagnose;
-pub mod effects;
-pub mod fit;
-pub mod hil;
-pub mod model;
 pub mod report;
-pub mod rig;
-pub mod trial;

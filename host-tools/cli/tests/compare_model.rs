@@ -4,9 +4,10 @@
 use std::f64::consts::PI;
 use std::process::Command;
 
+use sts_assess::compare::compare;
 use sts_emulator::MeasureConfig;
-use sts_twin::compare::{compare, predict_group, program_output};
-use sts_twin::fit::{fit, FitConfig};
+use sts_fit::{fit, FitConfig};
+use sts_model::replay::{predict_group, program_output};
 
 fn small(seed: u64, effects: Vec<sts_emulator::EffectSpec>) -> sts_dataset::Dataset {
     let config = MeasureConfig {
@@ -35,8 +36,7 @@ fn compare_scores_the_firmware_prediction() {
         f
     };
     let samples =
-        sts_twin::analysis::group_samples_skipping(&data, &fc, model.training.as_ref().map_or(0.5, |t| t.skip_s))
-            .unwrap();
+        sts_analysis::group_samples_skipping(&data, &fc, model.training.as_ref().map_or(0.5, |t| t.skip_s)).unwrap();
     for s in &samples {
         let (out, ok) = program_output(&program, s);
         assert!(ok);

@@ -11,8 +11,9 @@ mod foreign;
 use foreign::{Foreign, Lugre};
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use sts_twin::model::ModelFile;
-use sts_twin::rig::{expect_ack, turns_u32, Coprocessor, SimCoprocessor};
+use sts_model::replay::turns_u32;
+use sts_model::ModelFile;
+use sts_rig::{expect_ack, Coprocessor, SimCoprocessor};
 use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
 use sts_twin_core::program::TickTerm;
 use sts_twin_core::wire::Request;
@@ -84,7 +85,7 @@ fn on_the_board(model: &Path, data: &Path, freq_hz: f64, amp_um: f64) -> OnTheBo
         let out = board
             .tick(&InputSlot {
                 tick: k as u32,
-                acc_code: sts_twin::analysis::features::acc_code(group.acc_mps2[row], scale),
+                acc_code: sts_analysis::features::acc_code(group.acc_mps2[row], scale),
                 flags: IN_FLAG_PHASE_VALID,
                 cmd_phase_turns: turns_u32(freq_hz * group.t_s[row]),
                 cmd_pos_nm: (group.z_cmd_um[row] * 1e3).round() as i32,

@@ -7,10 +7,10 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use sts_assess::compare::compare;
+use sts_assess::diagnose::diagnose;
 use sts_emulator::{EffectSpec, MeasureConfig};
-use sts_twin::compare::compare;
-use sts_twin::diagnose::diagnose;
-use sts_twin::fit::{fit, FitConfig};
+use sts_fit::{fit, FitConfig};
 use sts_twin::report::{render, ReportInput};
 
 fn chromium() -> Option<PathBuf> {

@@ -6,10 +6,10 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 
-use crate::calibrate::{calibrate, CalibrationConfig, HilBoard};
 use crate::cmd::machine::MachineArgs;
-use crate::hil::HilConfig;
-use crate::rig::SimCoprocessor;
+use sts_hil::HilConfig;
+use sts_rig::calibrate::{calibrate, CalibrationConfig, HilBoard};
+use sts_rig::SimCoprocessor;
 
 /// Arguments of `sts-twin calibrate-offset`.
 #[derive(Debug, clap::Args)]

@@ -4,9 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 
-use crate::compare::{compare, Comparison};
-use crate::model::ModelFile;
 use crate::report::{render, ReportInput};
+use sts_assess::compare::{compare, Comparison};
+use sts_model::ModelFile;
 
 /// Arguments of `sts-twin compare`.
 #[derive(Debug, clap::Args)]
@@ -67,7 +67,7 @@ fn print_text(label: &str, c: &Comparison) {
 
 /// Runs `sts-twin compare`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let dataset = crate::analysis::read_dataset(&args.data)?;
+    let dataset = sts_analysis::read_dataset(&args.data)?;
     let model = ModelFile::read(&args.model)?;
     let (c, waves) = compare(&dataset, &model).with_context(|| format!("comparing {}", args.model.display()))?;
     let baseline = match &args.baseline {
@@ -79,7 +79,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         None => None,
     };
     if let Some(path) = &args.html {
-        let diagnosis = crate::diagnose::diagnose(&dataset, &model)?;
+        let diagnosis = sts_assess::diagnose::diagnose(&dataset, &model)?;
         let input = ReportInput {
             dataset: args.data.display().to_string(),
             model: (&c, &waves),

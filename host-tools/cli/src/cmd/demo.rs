@@ -5,8 +5,9 @@ use std::path::PathBuf;
 
 use sts_emulator::{MeasureConfig, PlantParams};
 
-use crate::fit::{fit, FitConfig};
-use crate::trial::{machine_params, run_trial, with_measured_path, TrialConfig};
+use sts_fit::{fit, FitConfig};
+use sts_rig::machine_params;
+use sts_rig::trial::{run_trial, with_measured_path, TrialConfig};
 
 use super::machine::{coprocessor, print_path, print_report};
 
@@ -44,7 +45,7 @@ pub struct Args {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plant = PlantParams::default();
     let model = match &args.twin {
-        Some(path) => crate::model::ModelFile::read(path)?,
+        Some(path) => sts_model::ModelFile::read(path)?,
         None => measure_and_fit(args.seed, &args.out)?,
     };
     let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
@@ -80,7 +81,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 
 /// Measures the default emulated machine (the 99-group test), fits the twin, writes it to
 /// `out` and prints its formulas and held-out errors.
-pub fn measure_and_fit(seed: u64, out: &std::path::Path) -> anyhow::Result<crate::model::ModelFile> {
+pub fn measure_and_fit(seed: u64, out: &std::path::Path) -> anyhow::Result<sts_model::ModelFile> {
     eprintln!("measuring the emulated machine: 99 groups, 1-40 Hz x 1-11 um, 6 s each ...");
     let measure = MeasureConfig { seed, ..MeasureConfig::default() };
     let dataset = sts_emulator::measure::run(&measure, &|_| {})?;

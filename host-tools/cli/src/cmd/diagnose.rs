@@ -2,8 +2,8 @@
 
 use std::path::PathBuf;
 
-use crate::diagnose::diagnose;
-use crate::model::ModelFile;
+use sts_assess::diagnose::diagnose;
+use sts_model::ModelFile;
 
 /// Arguments of `sts-twin diagnose`.
 #[derive(Debug, clap::Args)]
@@ -20,7 +20,7 @@ pub struct Args {
 
 /// Runs `sts-twin diagnose`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let dataset = crate::analysis::read_dataset(&args.data)?;
+    let dataset = sts_analysis::read_dataset(&args.data)?;
     let model = ModelFile::read(&args.model)?;
     let d = diagnose(&dataset, &model)?;
     if args.json {

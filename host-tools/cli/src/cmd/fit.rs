@@ -8,9 +8,9 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sts_symreg::OperatorSet;
 use sts_twin_core::features::FEATURE_LABELS;
 
-use crate::analysis;
-use crate::fit::{fit_samples, FitConfig, FitProgress, Target, DEFAULT_OPERATORS};
-use crate::model::ModelFile;
+use sts_analysis as analysis;
+use sts_fit::{fit_samples, FitConfig, FitProgress, Target, DEFAULT_OPERATORS};
+use sts_model::ModelFile;
 
 /// Arguments of `sts-twin fit`.
 #[derive(Debug, clap::Args)]
@@ -98,9 +98,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         phase_goal_nmse: args.phase_goal,
         ..FitConfig::default()
     };
-    let dataset = crate::analysis::read_dataset(&args.data)?;
+    let dataset = sts_analysis::read_dataset(&args.data)?;
     let read_s = started.elapsed().as_secs_f64();
-    let prepared = if args.effect.is_empty() { None } else { Some(crate::effects::prepare(&dataset, &args.effect)?) };
+    let prepared = if args.effect.is_empty() { None } else { Some(sts_fit::effects::prepare(&dataset, &args.effect)?) };
     let dataset = prepared.as_ref().map_or(&dataset, |p| &p.dataset);
     let effects_s = started.elapsed().as_secs_f64();
     let feature_config = analysis::feature_config_for(dataset, args.acc_scale);

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use sts_twin_core::wire::{Request, Response};
 
-use crate::hil::{bench_instructions_prepared, bench_throughput, FirmwareVariant, HilConfig};
-use crate::rig::{request_on, Coprocessor, HilCoprocessor};
+use sts_hil::{bench_instructions_prepared, bench_throughput, FirmwareVariant, HilConfig};
+use sts_rig::{request_on, Coprocessor, HilCoprocessor};
 
 /// Arguments of `sts-twin hil`.
 #[derive(Debug, clap::Args)]
@@ -108,7 +108,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             Ok(())
         }
         Action::Bench { ticks, model } => {
-            let model = model.as_ref().map(|path| crate::model::ModelFile::read(path)).transpose()?;
+            let model = model.as_ref().map(|path| sts_model::ModelFile::read(path)).transpose()?;
             let requests = match &model {
                 Some(model) => {
                     let features =
@@ -125,7 +125,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 for (seq, request) in requests.into_iter().enumerate() {
                     match request_on(hil, seq as u16 + 1, request) {
                         Ok(Response::Ack) => {}
-                        other => return Err(crate::hil::HilError::Protocol(format!("preparing the bench: {other:?}"))),
+                        other => return Err(sts_hil::HilError::Protocol(format!("preparing the bench: {other:?}"))),
                     }
                 }
                 Ok(())

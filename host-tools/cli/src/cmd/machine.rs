@@ -5,11 +5,12 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use sts_emulator::{EffectSpec, PlantParams};
 
-use crate::calibrate::PathPoint;
-use crate::hil::HilConfig;
-use crate::model::ModelFile;
-use crate::rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
-use crate::trial::{machine_params, run_trial, stored_params, with_measured_path, TrialConfig, TrialReport};
+use sts_hil::HilConfig;
+use sts_model::ModelFile;
+use sts_rig::calibrate::PathPoint;
+use sts_rig::machine_params;
+use sts_rig::trial::{run_trial, stored_params, with_measured_path, TrialConfig, TrialReport};
+use sts_rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
 
 /// Arguments of `sts-twin machine`.
 #[derive(Debug, clap::Args)]
@@ -190,7 +191,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         }
     }
     if model.is_some() {
-        crate::rig::print_fault_report(cop.as_mut())?; // every fault the co-processor counted, on stderr
+        sts_rig::print_fault_report(cop.as_mut())?; // every fault the co-processor counted, on stderr
     }
     Ok(())
 }

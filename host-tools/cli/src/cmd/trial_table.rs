@@ -5,8 +5,9 @@ use std::path::PathBuf;
 
 use serde::Serialize;
 
-use crate::model::ModelFile;
-use crate::trial::{machine_params, run_trial, with_measured_path, TrialConfig, TrialReport};
+use sts_model::ModelFile;
+use sts_rig::machine_params;
+use sts_rig::trial::{run_trial, with_measured_path, TrialConfig, TrialReport};
 
 use super::machine::{coprocessor, MachineArgs};
 

@@ -8,9 +8,9 @@ pub mod trial;
 
 use std::fmt::Write as _;
 
-use crate::compare::{Comparison, GroupWaves};
-use crate::diagnose::Diagnosis;
-use svg::{bar_chart, esc, heat_map, line_chart, tick_label, Series};
+use sts_assess::compare::{Comparison, GroupWaves};
+use sts_assess::diagnose::Diagnosis;
+use svg::{bar_chart, esc, heat_map, line_chart, tick_label, GridAxis, Series};
 
 /// What goes into a report.
 pub struct ReportInput<'a> {
@@ -132,10 +132,8 @@ pub fn render(input: &ReportInput) -> String {
     h.push_str(&heat_map(
         "map-model",
         &format!("waveform RMS error, {}", input.model_label),
-        "command frequency (Hz)",
-        "command amplitude (um)",
-        &fs,
-        &amps,
+        GridAxis { label: "command frequency (Hz)", values: &fs },
+        GridAxis { label: "command amplitude (um)", values: &amps },
         &cells,
         "nm",
     ));
@@ -144,10 +142,8 @@ pub fn render(input: &ReportInput) -> String {
         h.push_str(&heat_map(
             "map-baseline",
             &format!("waveform RMS error, {label}"),
-            "command frequency (Hz)",
-            "command amplitude (um)",
-            &fs,
-            &amps,
+            GridAxis { label: "command frequency (Hz)", values: &fs },
+            GridAxis { label: "command amplitude (um)", values: &amps },
             &cells,
             "nm",
         ));

@@ -173,17 +173,17 @@ pub fn line_chart(id: &str, title: &str, x_label: &str, y_label: &str, series: &
     out
 }
 
-/// A heat map of `values[row][col]` (rows: y values, columns: x values), with a colour bar.
-pub fn heat_map(
-    id: &str,
-    title: &str,
-    x_label: &str,
-    y_label: &str,
-    xs: &[f64],
-    ys: &[f64],
-    values: &[Vec<Option<f64>>],
-    unit: &str,
-) -> String {
+/// One axis of a [`heat_map`]: its label and the value of each column (or row).
+pub struct GridAxis<'a> {
+    /// Axis label, with its unit.
+    pub label: &'a str,
+    /// The value of each cell along the axis.
+    pub values: &'a [f64],
+}
+
+/// A heat map of `values[row][col]` (rows: `y` values, columns: `x` values), with a colour bar.
+pub fn heat_map(id: &str, title: &str, x: GridAxis, y: GridAxis, values: &[Vec<Option<f64>>], unit: &str) -> String {
+    let (x_label, xs, y_label, ys) = (x.label, x.values, y.label, y.values);
     let vmax = values.iter().flatten().flatten().fold(0.0f64, |m, v| m.max(*v)).max(1e-12);
     let mut out = String::new();
     open_chart(&mut out, "chart heatmap", id, title, W, H);
@@ -339,7 +339,14 @@ mod tests {
         let svg = line_chart("c", "a < b", "x", "y", &[Series { name: "m&p".into(), x: &x, y: &y, markers: false }]);
         assert!(svg.starts_with("<svg") && svg.ends_with("</svg>"));
         assert!(svg.contains("a &lt; b") && svg.contains("m&amp;p"));
-        let hm = heat_map("h", "map", "f", "A", &[1.0, 2.0], &[1.0], &[vec![Some(0.5), None]], "um");
+        let hm = heat_map(
+            "h",
+            "map",
+            GridAxis { label: "f", values: &[1.0, 2.0] },
+            GridAxis { label: "A", values: &[1.0] },
+            &[vec![Some(0.5), None]],
+            "um",
+        );
         assert_eq!(hm.matches("class=\"cell\"").count(), 2);
         assert_eq!(colour_scale(0.0), "#ffffff");
         assert_eq!(nice_ticks(0.0, 1.0, 5).len(), 6);

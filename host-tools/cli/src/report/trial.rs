@@ -6,7 +6,7 @@ use std::f64::consts::PI;
 use std::fmt::Write as _;
 
 use super::svg::{colour_scale, esc, open_chart, tick_label};
-use crate::trial::{CutMaps, TrialReport};
+use sts_rig::trial::{CutMaps, TrialReport};
 
 const SIZE: f64 = 360.0;
 const PAD: f64 = 40.0;
@@ -149,9 +149,10 @@ pub fn render(title: &str, reports: &[TrialReport]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rig::SimCoprocessor;
-    use crate::trial::{machine_params, run_trial, TrialConfig, MAP_ANGULAR_BINS};
     use sts_emulator::PlantParams;
+    use sts_rig::machine_params;
+    use sts_rig::trial::{run_trial, TrialConfig, MAP_ANGULAR_BINS};
+    use sts_rig::SimCoprocessor;
 
     #[test]
     fn a_bare_cut_gives_both_maps_over_the_whole_disc() {

@@ -1,0 +1,20 @@
+//! Turning a dataset into what the twin learns from: per-group features (the firmware's own
+//! fixed-point code) and targets (the measured dynamic error's amplitude and phase), with the
+//! signal tools the later stages share: sine fits, resampling to the servo rate,
+//! repeatability, regression bases and least squares.
+#![deny(missing_docs)]
+
+pub mod bases;
+pub mod features;
+pub mod lsq;
+pub mod repeat;
+pub mod resample;
+pub mod samples;
+pub mod score;
+pub mod sine;
+pub mod targets;
+
+pub use samples::{
+    feature_config_for, feature_start, group_samples, group_samples_skipping, read_dataset, training_table_csv,
+    unwrap_phases, GroupSample, DEFAULT_SKIP_S, FEATURE_WINDOW_S,
+};

@@ -1,0 +1,544 @@
+//! The eight candidate effects: regressors of the residual, cross-validated by group.
+
+use std::f64::consts::PI;
+
+use rayon::prelude::*;
+
+use sts_analysis::bases::laguerre;
+use sts_analysis::lsq::{solve, Stats};
+use sts_analysis::sine::line_amp;
+use sts_model::EFFECTS;
+
+use super::GroupCtx;
+
+/// Pole of the Laguerre filters modelling the servo's response to a disturbance.
+pub const LAGUERRE_POLE: f64 = 0.93;
+/// Stages of those filters.
+pub const LAGUERRE_STAGES: usize = 8;
+/// Reference frequency normalising the frequency powers, Hz.
+const F_REF_HZ: f64 = 40.0;
+
+/// A candidate effect.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Candidate {
+    /// `coulomb-friction`.
+    Friction,
+    /// `presliding-hysteresis`.
+    Hysteresis,
+    /// `structural-mode`.
+    Mode,
+    /// `loop-delay`.
+    Delay,
+    /// `thermal-drift`.
+    Thermal,
+    /// `force-ripple`.
+    Ripple,
+    /// `axis-coupling`.
+    Coupling,
+    /// `sensor-gain`.
+    Gain,
+}
+
+/// All candidates.
+pub const ALL: [Candidate; 8] = [
+    Candidate::Friction,
+    Candidate::Hysteresis,
+    Candidate::Mode,
+    Candidate::Delay,
+    Candidate::Thermal,
+    Candidate::Ripple,
+    Candidate::Coupling,
+    Candidate::Gain,
+];
+
+/// A candidate's cross-validated result.
+pub struct Evaluated {
+    /// Per held-out group: `SS(r) - SS(r - explained)`.
+    pub improvements: Vec<f64>,
+    /// Parameters from the fit on all groups.
+    pub params: Vec<(String, f64)>,
+    /// Words.
+    pub evidence: String,
+    /// Whether the dataset has what the candidate needs.
+    pub testable: bool,
+}
+
+/// Slide velocity from the encoder, um/s (difference over +-4 samples).
+pub fn encoder_velocity(ctx: &GroupCtx) -> Vec<f64> {
+    let x = &ctx.data.z_enc_um;
+    let n = x.len();
+    let h = 4usize;
+    (0..n)
+        .map(|k| {
+            let a = k.saturating_sub(h);
+            let b = (k + h).min(n - 1);
+            (x[b] - x[a]) * ctx.sample_rate_hz / (b - a).max(1) as f64
+        })
+        .collect()
+}
+
+/// The Dahl state of a position signal with presliding distance `x0_um`.
+pub fn dahl(x: &[f64], x0_um: f64) -> Vec<f64> {
+    let mut u = 0.0f64;
+    let mut prev = x.first().copied().unwrap_or(0.0);
+    x.iter()
+        .map(|&xi| {
+            let dx = xi - prev;
+            prev = xi;
+            u = (u + dx / x0_um * (1.0 - u * dx.signum())).clamp(-1.0, 1.0);
+            u
+        })
+        .collect()
+}
+
+/// Cross-validation over grid variants: `stats[v][g]` for variant v, group g.
+/// Returns per-group held-out improvements, the variant chosen on all groups and its theta.
+fn cross_validate(stats: &[Vec<Stats>], folds: usize) -> (Vec<f64>, usize, Vec<f64>) {
+    let n = stats.first().map_or(0, |s| s.len());
+    let mut improvements = vec![0.0; n];
+    let best_variant = |groups: &[usize]| -> (usize, Vec<f64>) {
+        let mut best = (0usize, Vec::new(), f64::INFINITY);
+        for (v, st) in stats.iter().enumerate() {
+            let train: Vec<&Stats> = groups.iter().map(|&g| &st[g]).collect();
+            let theta = solve(&train);
+            let sse: f64 = train.iter().map(|s| s.sse(&theta)).sum();
+            if sse < best.2 {
+                best = (v, theta, sse);
+            }
+        }
+        (best.0, best.1)
+    };
+    for fold in 0..folds {
+        let train: Vec<usize> = (0..n).filter(|g| g % folds != fold).collect();
+        let (v, theta) = best_variant(&train);
+        for g in (0..n).filter(|g| g % folds == fold) {
+            let s = &stats[v][g];
+            improvements[g] = s.rr - s.sse(&theta);
+        }
+    }
+    let all: Vec<usize> = (0..n).collect();
+    let (v, theta) = best_variant(&all);
+    (improvements, v, theta)
+}
+
+/// Contribution (over the window) of columns `x` with coefficients `theta`.
+fn contribution(x: &[Vec<f64>], theta: &[f64]) -> Vec<f64> {
+    let n = x.first().map_or(0, |c| c.len());
+    (0..n).map(|k| x.iter().zip(theta).map(|(c, t)| c[k] * t).sum()).collect()
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+/// Odd-harmonic descriptor: mean residual at 3f and 5f for the smallest and largest
+/// command amplitudes, um.
+fn odd_harmonics_by_amplitude(ctx: &[GroupCtx]) -> (f64, f64) {
+    let amps: Vec<f64> = ctx.iter().map(|c| c.sample.info.amp_um).collect();
+    let lo = amps.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = amps.iter().copied().fold(0.0, f64::max);
+    let mean_at = |target: f64| {
+        let sel: Vec<&GroupCtx> = ctx.iter().filter(|c| (c.sample.info.amp_um - target).abs() < 1e-9).collect();
+        let sum: f64 = sel
+            .iter()
+            .map(|c| {
+                let t = &c.data.t_s[c.start..];
+                line_amp(t, &c.residual, 3.0 * c.sample.info.freq_hz)
+                    + line_amp(t, &c.residual, 5.0 * c.sample.info.freq_hz)
+            })
+            .sum();
+        sum / sel.len().max(1) as f64
+    };
+    (mean_at(lo), mean_at(hi))
+}
+
+fn cmd_amp(c: &GroupCtx) -> f64 {
+    c.sample.targets.cmd.amp
+}
+
+impl Candidate {
+    /// The canonical name.
+    pub fn name(self) -> &'static str {
+        EFFECTS[ALL.iter().position(|c| *c == self).unwrap_or(0)]
+    }
+
+    /// Cross-validated evaluation on the groups.
+    pub fn evaluate(self, ctx: &[GroupCtx], folds: usize) -> Evaluated {
+        match self {
+            Candidate::Friction => friction(ctx, folds),
+            Candidate::Hysteresis => hysteresis(ctx, folds),
+            Candidate::Mode => fundamental_shape(ctx, folds, self),
+            Candidate::Delay => fundamental_shape(ctx, folds, self),
+            Candidate::Thermal => thermal(ctx, folds),
+            Candidate::Ripple => ripple(ctx, folds),
+            Candidate::Coupling => coupling(ctx, folds),
+            Candidate::Gain => gain(ctx, folds),
+        }
+    }
+}
+
+fn friction(ctx: &[GroupCtx], folds: usize) -> Evaluated {
+    let smooth_grid = [3.0, 10.0, 30.0, 100.0];
+    let columns: Vec<Vec<Vec<Vec<f64>>>> = ctx
+        .par_iter()
+        .map(|c| {
+            let v = encoder_velocity(c);
+            smooth_grid
+                .iter()
+                .map(|vs| {
+                    let u: Vec<f64> = v.iter().map(|x| (x / vs).clamp(-1.0, 1.0)).collect();
+                    laguerre(&u, c.start, LAGUERRE_POLE, LAGUERRE_STAGES)
+                })
+                .collect()
+        })
+        .collect();
+    let stats: Vec<Vec<Stats>> = (0..smooth_grid.len())
+        .map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| Stats::from_columns(&cols[v], &c.residual)).collect())
+        .collect();
+    let (improvements, v, theta) = cross_validate(&stats, folds);
+    let contrib_rms = rms(&columns.iter().flat_map(|cols| contribution(&cols[v], &theta)).collect::<Vec<f64>>());
+    let (small, large) = odd_harmonics_by_amplitude(ctx);
+    Evaluated {
+        improvements,
+        params: vec![("smoothing_velocity_um_per_s".into(), smooth_grid[v]), ("reversal_error_rms_nm".into(), contrib_rms * 1e3)],
+        evidence: format!(
+            "error steps at every velocity reversal of the slide (a force that flips with the sign of the velocity, through the servo's disturbance response); odd harmonics 3f+5f of {:.0} nm at the smallest stroke and {:.0} nm at the largest: about the same size, so relative to the motion they fall with amplitude",
+            small * 1e3,
+            large * 1e3
+        ),
+        testable: true,
+    }
+}
+
+fn hysteresis(ctx: &[GroupCtx], folds: usize) -> Evaluated {
+    let x0_grid = [0.1, 0.3, 1.0, 3.0];
+    let columns: Vec<Vec<Vec<Vec<f64>>>> = ctx
+        .par_iter()
+        .map(|c| {
+            x0_grid
+                .iter()
+                .map(|x0| laguerre(&dahl(&c.data.z_enc_um, *x0), c.start, LAGUERRE_POLE, LAGUERRE_STAGES))
+                .collect()
+        })
+        .collect();
+    let stats: Vec<Vec<Stats>> = (0..x0_grid.len())
+        .map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| Stats::from_columns(&cols[v], &c.residual)).collect())
+        .collect();
+    let (improvements, v, theta) = cross_validate(&stats, folds);
+    let contrib_rms = rms(&columns.iter().flat_map(|cols| contribution(&cols[v], &theta)).collect::<Vec<f64>>());
+    let (small, large) = odd_harmonics_by_amplitude(ctx);
+    Evaluated {
+        improvements,
+        params: vec![("presliding_distance_um".into(), x0_grid[v]), ("hysteresis_error_rms_nm".into(), contrib_rms * 1e3)],
+        evidence: format!(
+            "a spring-like force that saturates after a presliding distance of about {} um (Dahl): small strokes change mainly the fundamental, large strokes saturate it into odd harmonics (3f+5f: {:.0} nm at the smallest stroke, {:.0} nm at the largest: they grow with amplitude)",
+            x0_grid[v],
+            small * 1e3,
+            large * 1e3
+        ),
+        testable: true,
+    }
+}
+
+/// Structural mode (in-phase and quadrature acceleration, frequency squared) or loop delay
+/// (jerk and snap: frequency cubed and to the fourth).
+fn fundamental_shape(ctx: &[GroupCtx], folds: usize, which: Candidate) -> Evaluated {
+    let columns: Vec<Vec<Vec<f64>>> = ctx
+        .iter()
+        .map(|c| {
+            let w = c.sample.info.freq_hz / F_REF_HZ;
+            let a = cmd_amp(c);
+            let s: Vec<f64> = c.theta.iter().map(|t| t.sin()).collect();
+            let co: Vec<f64> = c.theta.iter().map(|t| t.cos()).collect();
+            match which {
+                Candidate::Mode => {
+                    vec![s.iter().map(|v| a * w * w * v).collect(), co.iter().map(|v| a * w * w * v).collect()]
+                }
+                _ => {
+                    vec![co.iter().map(|v| a * w.powi(3) * v).collect(), s.iter().map(|v| a * w.powi(4) * v).collect()]
+                }
+            }
+        })
+        .collect();
+    let stats: Vec<Vec<Stats>> =
+        vec![ctx.iter().zip(&columns).map(|(c, cols)| Stats::from_columns(cols, &c.residual)).collect()];
+    let (improvements, _, theta) = cross_validate(&stats, folds);
+    // Transient line: the residual's strongest line above 100 Hz in each group's first 0.25 s.
+    let line_hz = transient_line_hz(ctx);
+    match which {
+        Candidate::Mode => {
+            let g = theta.first().copied().unwrap_or(0.0).hypot(theta.get(1).copied().unwrap_or(0.0));
+            Evaluated {
+                improvements,
+                params: vec![("extra_error_at_40hz_per_um".into(), g), ("ringing_line_hz".into(), line_hz)],
+                evidence: format!(
+                    "an extra error in phase with the acceleration, growing with the frequency squared ({:.2}% of the stroke at 40 Hz), and the start of each group rings at about {:.0} Hz: a structural mode between slide and tool",
+                    g * 100.0,
+                    line_hz
+                ),
+                testable: true,
+            }
+        }
+        _ => {
+            let lead = theta.first().copied().unwrap_or(0.0);
+            let phase_deg_at_40 = (lead.abs() / 1.0).atan().to_degrees();
+            Evaluated {
+                improvements,
+                params: vec![("jerk_coefficient_at_40hz_per_um".into(), lead), ("snap_coefficient_at_40hz_per_um".into(), theta.get(1).copied().unwrap_or(0.0))],
+                evidence: format!(
+                    "the phase of the error shifts increasingly towards the highest frequencies (about {:.2} deg per um of stroke at 40 Hz, as the frequency cubed) while low frequencies are untouched: less phase margin from an extra delay in the servo loop",
+                    phase_deg_at_40
+                ),
+                testable: true,
+            }
+        }
+    }
+}
+
+fn transient_line_hz(ctx: &[GroupCtx]) -> f64 {
+    let fs = ctx.first().map_or(8000.0, |c| c.sample_rate_hz);
+    let n = (0.25 * fs) as usize;
+    let mut spectrum = vec![0.0; 1000];
+    for c in ctx {
+        if c.data.len() < n {
+            continue;
+        }
+        let r: Vec<f64> = (0..n).map(|k| c.data.z_tcp_um[k] - c.data.z_cmd_um[k] - c.predicted_um[k]).collect();
+        let t = &c.data.t_s[..n];
+        for (i, s) in spectrum.iter_mut().enumerate().skip(120).step_by(4) {
+            *s += line_amp(t, &r, i as f64);
+        }
+    }
+    spectrum.iter().enumerate().skip(120).max_by(|a, b| a.1.total_cmp(b.1)).map_or(0.0, |(i, _)| i as f64)
+}
+
+fn thermal(ctx: &[GroupCtx], folds: usize) -> Evaluated {
+    let tau_grid = [100.0, 300.0, 1000.0, 3000.0, 10000.0];
+    let has_temp = ctx.iter().all(|c| c.data.temp_c.is_some());
+    let mut variants: Vec<Vec<Stats>> = tau_grid
+        .iter()
+        .map(|tau| {
+            ctx.iter()
+                .map(|c| {
+                    let t0 = c.sample.info.start_s;
+                    let e: Vec<f64> = c.data.t_s[c.start..].iter().map(|t| (-(t0 + t) / tau).exp()).collect();
+                    Stats::from_columns(&[vec![1.0; e.len()], e], &c.residual)
+                })
+                .collect()
+        })
+        .collect();
+    if has_temp {
+        let mean_t: f64 = ctx.iter().map(|c| c.data.temp_c.as_ref().map_or(0.0, |v| v[c.start])).sum::<f64>()
+            / ctx.len().max(1) as f64;
+        variants.push(
+            ctx.iter()
+                .map(|c| {
+                    let temp = c
+                        .data
+                        .temp_c
+                        .as_ref()
+                        .map(|v| v[c.start..].iter().map(|x| x - mean_t).collect::<Vec<f64>>())
+                        .unwrap_or_default();
+                    Stats::from_columns(&[vec![1.0; temp.len()], temp], &c.residual)
+                })
+                .collect(),
+        );
+    }
+    let (improvements, v, theta) = cross_validate(&variants, folds);
+    let means: Vec<(f64, f64)> = ctx
+        .iter()
+        .map(|c| (c.sample.info.start_s, c.residual.iter().sum::<f64>() / c.residual.len().max(1) as f64))
+        .collect();
+    let span = means.iter().map(|m| m.1).fold(f64::NEG_INFINITY, f64::max)
+        - means.iter().map(|m| m.1).fold(f64::INFINITY, f64::min);
+    let t_span = means.last().map_or(0.0, |m| m.0) - means.first().map_or(0.0, |m| m.0);
+    let mut params = vec![("drift_span_um".into(), span)];
+    let evidence = if v < tau_grid.len() {
+        params.push(("time_constant_s".into(), tau_grid[v]));
+        format!(
+            "the mean error drifts by {:.2} um over {:.0} min of machine time (first-order, time constant about {:.0} s) whatever the frequency and amplitude: thermal growth of the tool side",
+            span,
+            t_span / 60.0,
+            tau_grid[v]
+        )
+    } else {
+        params.push(("um_per_k".into(), theta.get(1).copied().unwrap_or(0.0)));
+        format!(
+            "the mean error follows the machine temperature ({:.2} um per K; {:.2} um over {:.0} min) whatever the frequency and amplitude: thermal growth of the tool side",
+            theta.get(1).copied().unwrap_or(0.0),
+            span,
+            t_span / 60.0
+        )
+    };
+    Evaluated { improvements, params, evidence, testable: true }
+}
+
+fn ripple(ctx: &[GroupCtx], folds: usize) -> Evaluated {
+    // Pitch search on the unfiltered position sine over the slowest groups, where the servo
+    // follows a position-periodic error without filtering (peak velocity at most 100 um/s, or
+    // the slowest fifth).
+    let pitches: Vec<f64> = (0..60).map(|i| 1.0 * 1.04f64.powi(i)).collect();
+    let vpeak = |c: &GroupCtx| 2.0 * PI * c.sample.info.freq_hz * cmd_amp(c);
+    let mut speeds: Vec<f64> = ctx.iter().map(vpeak).collect();
+    speeds.sort_by(f64::total_cmp);
+    let limit = speeds.get(speeds.len() / 5).copied().unwrap_or(0.0).max(100.0);
+    let slow: Vec<&GroupCtx> = ctx.iter().filter(|c| vpeak(c) <= limit).collect();
+    let raw: Vec<Vec<Stats>> = pitches
+        .par_iter()
+        .map(|p| {
+            slow.iter()
+                .map(|c| {
+                    let x = &c.data.z_enc_um[c.start..];
+                    let s: Vec<f64> = x.iter().map(|x| (2.0 * PI * x / p).sin()).collect();
+                    let co: Vec<f64> = x.iter().map(|x| (2.0 * PI * x / p).cos()).collect();
+                    Stats::from_columns(&[s, co], &c.residual)
+                })
+                .collect()
+        })
+        .collect();
+    let (_, best_p, theta_raw) = cross_validate(&raw, folds);
+    let pitch = pitches[best_p];
+    let amp_nm = theta_raw.first().copied().unwrap_or(0.0).hypot(theta_raw.get(1).copied().unwrap_or(0.0)) * 1e3;
+    // Filtered model at that pitch.
+    let columns: Vec<Vec<Vec<f64>>> = ctx
+        .par_iter()
+        .map(|c| {
+            let s: Vec<f64> = c.data.z_enc_um.iter().map(|x| (2.0 * PI * x / pitch).sin()).collect();
+            let co: Vec<f64> = c.data.z_enc_um.iter().map(|x| (2.0 * PI * x / pitch).cos()).collect();
+            let mut cols = laguerre(&s, c.start, LAGUERRE_POLE, 2 * LAGUERRE_STAGES);
+            cols.extend(laguerre(&co, c.start, LAGUERRE_POLE, 2 * LAGUERRE_STAGES));
+            cols
+        })
+        .collect();
+    let stats = vec![ctx.iter().zip(&columns).map(|(c, cols)| Stats::from_columns(cols, &c.residual)).collect()];
+    let (improvements, _, _) = cross_validate(&stats, folds);
+    Evaluated {
+        improvements,
+        params: vec![("pitch_um".into(), pitch), ("amplitude_nm".into(), amp_nm)],
+        evidence: format!(
+            "the error repeats with the slide's position every {:.2} um ({:.0} nm at slow speed), not with time: an encoder interpolation error or motor force ripple; at higher speeds the servo filters it (or its resonance amplifies it)",
+            pitch, amp_nm
+        ),
+        testable: true,
+    }
+}
+
+fn coupling(ctx: &[GroupCtx], folds: usize) -> Evaluated {
+    let has_x = ctx.iter().all(|c| c.data.x_acc_mps2.is_some() || c.data.x_mm.is_some());
+    let has_spindle = ctx.iter().all(|c| c.data.spindle_deg.is_some());
+    if !has_x && !has_spindle {
+        return Evaluated {
+            improvements: vec![0.0; ctx.len()],
+            params: Vec::new(),
+            evidence: "not testable: the dataset has no x_acc_mps2, x_mm or spindle_deg column".into(),
+            testable: false,
+        };
+    }
+    let columns: Vec<Vec<Vec<f64>>> = ctx
+        .iter()
+        .map(|c| {
+            let mut cols = Vec::new();
+            if has_x {
+                let xacc: Vec<f64> = match (&c.data.x_acc_mps2, &c.data.x_mm) {
+                    (Some(a), _) => a[c.start..].to_vec(),
+                    (None, Some(x)) => {
+                        let dt = 1.0 / c.sample_rate_hz;
+                        (c.start..x.len())
+                            .map(|k| {
+                                if k >= 1 && k + 1 < x.len() {
+                                    (x[k + 1] - 2.0 * x[k] + x[k - 1]) * 1e-3 / (dt * dt)
+                                } else {
+                                    0.0
+                                }
+                            })
+                            .collect()
+                    }
+                    _ => vec![0.0; c.residual.len()],
+                };
+                cols.push(xacc);
+            }
+            if has_spindle {
+                let sp = c.data.spindle_deg.as_ref().map(|v| &v[c.start..]).unwrap_or(&[]);
+                cols.push(sp.iter().map(|d| d.to_radians().sin()).collect());
+                cols.push(sp.iter().map(|d| d.to_radians().cos()).collect());
+            }
+            cols
+        })
+        .collect();
+    let stats = vec![ctx.iter().zip(&columns).map(|(c, cols)| Stats::from_columns(cols, &c.residual)).collect()];
+    let (improvements, _, theta) = cross_validate(&stats, folds);
+    let mut params = Vec::new();
+    let mut words = Vec::new();
+    let mut i = 0;
+    if has_x {
+        params.push(("x_um_per_mps2".into(), theta[0]));
+        words.push(format!("the error follows the X slide's acceleration ({:.2} um per m/s^2)", theta[0]));
+        i = 1;
+    }
+    if has_spindle {
+        let amp = theta[i].hypot(theta[i + 1]);
+        params.push(("spindle_um".into(), amp));
+        words.push(format!("a once-per-revolution component of the spindle of {:.0} nm", amp * 1e3));
+    }
+    Evaluated {
+        improvements,
+        params,
+        evidence: format!("{}: motion of another axis reaches the tool in Z", words.join(" and ")),
+        testable: true,
+    }
+}
+
+fn gain(ctx: &[GroupCtx], folds: usize) -> Evaluated {
+    let probe: Vec<Stats> =
+        ctx.iter().map(|c| Stats::from_columns(&[c.data.z_tcp_um[c.start..].to_vec()], &c.residual)).collect();
+    let acc: Vec<Stats> =
+        ctx.iter().map(|c| Stats::from_columns(&[c.predicted_um[c.start..].to_vec()], &c.residual)).collect();
+    let (improvements, v, theta) = cross_validate(&[probe, acc], folds);
+    let k = theta.first().copied().unwrap_or(0.0);
+    if v == 0 {
+        Evaluated {
+            improvements,
+            params: vec![("probe_gain".into(), 1.0 + k)],
+            evidence: format!(
+                "an error in phase with the motion, proportional to the stroke at every frequency down to the slowest: the capacitance probe reads {:.1}% {} (scale error)",
+                k.abs() * 100.0,
+                if k >= 0.0 { "too much" } else { "too little" }
+            ),
+            testable: true,
+        }
+    } else {
+        Evaluated {
+            improvements,
+            params: vec![("prediction_scale".into(), 1.0 + k)],
+            evidence: format!(
+                "the measured error is {:.1}% {} than the model predicts from the accelerometer at every frequency, in proportion to the prediction: the accelerometer's scale differs from the one the model was trained with",
+                k.abs() * 100.0,
+                if k >= 0.0 { "larger" } else { "smaller" }
+            ),
+            testable: true,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn laguerre_bank_has_unit_energy_impulse_responses() {
+        let mut u = vec![0.0; 4000];
+        u[0] = 1.0;
+        let out = laguerre(&u, 0, 0.9, 4);
+        for stage in &out {
+            let energy: f64 = stage.iter().map(|v| v * v).sum();
+            assert!((energy - 1.0).abs() < 1e-6, "{energy}");
+        }
+    }
+
+    #[test]
+    fn dahl_saturates() {
+        let x: Vec<f64> = (0..1000).map(|k| k as f64 * 0.01).collect();
+        let u = dahl(&x, 0.5);
+        assert!(u[999] > 0.99 && u[10] < 0.3);
+    }
+}

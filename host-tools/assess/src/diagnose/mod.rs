@@ -1,0 +1,324 @@
+//! `diagnose`: which physical effect is missing from a model?
+//!
+//! The residual (measured minus predicted dynamic error, the model's firmware program as
+//! `compare` computes it, over each group's last second) is explained in turn by each of the
+//! eight candidate effects of the library, each a small physical model that is linear in its
+//! coefficients given a few shape parameters (chosen from a grid):
+//!
+//! | effect | what explains the residual |
+//! |---|---|
+//! | `coulomb-friction` | a saturated sign of the slide's velocity (encoder), through a Laguerre model of the servo's disturbance response |
+//! | `presliding-hysteresis` | a Dahl force of the slide's position (presliding distance `x0`), through the same filter |
+//! | `structural-mode` | an extra compliance in phase with the acceleration (`A w^2`), growing with the frequency squared |
+//! | `loop-delay` | a change of the closed loop with the jerk and snap of the command (`A w^3`, `A w^4`) |
+//! | `thermal-drift` | a first-order drift over machine time (or the `temp_c` column) |
+//! | `force-ripple` | sine and cosine of the encoder position over a pitch `p`, through the filter |
+//! | `axis-coupling` | the `x_acc_mps2` column and the spindle angle's once-per-revolution sine |
+//! | `sensor-gain` | the probe reading itself (probe scale), or the model's own prediction (accelerometer scale) |
+//!
+//! Coefficients are fitted on training groups and scored on held-out groups (k folds by
+//! group, round robin): the explained fraction is `1 - SS(residual - explained) / SS(residual)`
+//! summed over held-out groups. It uses only the dataset's columns (optional ones when
+//! present), never anything of the emulator.
+//!
+//! **The test for `none`.** The best candidate is the verdict only if (1) it explains at least
+//! [`MIN_EXPLAINED`] of the held-out residual, (2) its per-group reductions of the held-out
+//! residual add up to more than chance allows: a one-sided sign-flip test over groups
+//! (`sum / sqrt(sum of squares)`, normal approximation) of two statistics, the reductions of
+//! each group's sum of squares and the same relative to it, at `p < ALPHA / 16` (Bonferroni
+//! over the eight candidates and the two statistics), and (3) what it explains is more than the model's
+//! own cross-validated error (its RMS exceeds the model's held-out waveform RMS), so that the
+//! ordinary imprecision of a well-fitted model is not mistaken for a missing effect.
+
+mod candidates;
+
+use std::f64::consts::PI;
+
+use rayon::prelude::*;
+use serde::Serialize;
+use sts_dataset::Dataset;
+
+use sts_analysis::repeat::{group_non_repeating_um, Repeatability};
+use sts_analysis::{self as analysis, GroupSample};
+use sts_model::replay::predict_group;
+use sts_model::ModelFile;
+
+pub use sts_model::EFFECTS;
+
+/// Smallest held-out explained fraction of a verdict.
+pub const MIN_EXPLAINED: f64 = 0.25;
+/// Family-wise significance level of the sign tests (eight candidates, two statistics).
+pub const ALPHA: f64 = 0.02;
+/// Statistics the sign test is run with per candidate.
+const STATISTICS: usize = 2;
+/// Cross-validation folds.
+pub const FOLDS: usize = 5;
+
+/// One candidate's result.
+#[derive(Clone, Debug, Serialize)]
+pub struct Ranked {
+    /// Canonical effect name.
+    pub effect: String,
+    /// Explained fraction of the residual on held-out groups (can be negative).
+    pub explained_fraction: f64,
+    /// One-sided sign-flip test p-value of the held-out groups' improvements: the smaller of
+    /// the two statistics' (absolute and relative to each group's residual).
+    pub p_value: f64,
+    /// Held-out groups where the candidate lowered the residual.
+    pub groups_improved: usize,
+    /// Estimated parameters (name with unit, value).
+    pub params: Vec<(String, f64)>,
+    /// The evidence in words.
+    pub evidence: String,
+    /// Whether it passes the test.
+    pub significant: bool,
+}
+
+/// The diagnosis.
+#[derive(Clone, Debug, Serialize)]
+pub struct Diagnosis {
+    /// The best significant candidate, or `none`.
+    pub verdict: String,
+    /// Candidates, best first.
+    pub ranking: Vec<Ranked>,
+    /// RMS of the residual over every group's last second, um.
+    pub residual_rms_um: f64,
+    /// The model's own held-out waveform RMS, um (from its model file).
+    pub model_cv_rms_um: f64,
+    /// One sentence.
+    pub summary: String,
+    /// The statistical test, stated.
+    pub test: String,
+    /// The part of the measured error that does not repeat from one period to the next
+    /// (positions of the diagnosed groups); see [`Diagnosis::not_repeating`].
+    pub repeatability: Repeatability,
+    /// When some groups do not repeat: which, and why no effect's term can explain that part.
+    pub not_repeating: Option<String>,
+}
+
+/// Everything a candidate may use about one group (last-second window plus whole-group
+/// signals for filters that need the motion's history).
+pub struct GroupCtx<'a> {
+    /// The group's sample (features, targets).
+    pub sample: &'a GroupSample,
+    /// The group's data.
+    pub data: &'a sts_dataset::GroupData,
+    /// The model's predicted dynamic error over the whole group, um.
+    pub predicted_um: Vec<f64>,
+    /// First sample of the scored window.
+    pub start: usize,
+    /// Residual over the window, um.
+    pub residual: Vec<f64>,
+    /// Command phase (radians) over the window.
+    pub theta: Vec<f64>,
+    /// Sample rate, Hz.
+    pub sample_rate_hz: f64,
+}
+
+/// One-sided sign-flip (randomisation) test of `sum(d) > 0`: under the null hypothesis each
+/// group's improvement is as likely negative as positive, so `sum(d) / sqrt(sum(d^2))` is
+/// approximately standard normal; the p-value of the observed sum. Unlike a rank test it
+/// weighs groups by how much they gain, so an effect confined to a few groups (the fastest,
+/// say) is not outvoted by many groups with nothing to explain.
+pub fn sign_flip_p(d: &[f64]) -> f64 {
+    let sum: f64 = d.iter().filter(|x| x.is_finite()).sum();
+    let sq: f64 = d.iter().filter(|x| x.is_finite()).map(|x| x * x).sum();
+    if sq <= 0.0 {
+        return 1.0;
+    }
+    0.5 * libm_erfc(sum / sq.sqrt() / std::f64::consts::SQRT_2)
+}
+
+/// The p-value a candidate must be below: Bonferroni over the candidates and statistics.
+pub fn significance_threshold() -> f64 {
+    ALPHA / (candidates::ALL.len() * STATISTICS) as f64
+}
+
+/// A group's held-out reduction `d` of its residual's sum of squares `ss`, relative to that
+/// sum (the group's explained fraction; 0 for a group without residual).
+fn relative_improvement(d: f64, ss: f64) -> f64 {
+    if ss > 0.0 {
+        d / ss
+    } else {
+        0.0
+    }
+}
+
+/// Complementary error function (Numerical Recipes' erfcc, relative error < 1.2e-7).
+fn libm_erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let r = t
+        * (-z * z - 1.26551223
+            + t * (1.00002368
+                + t * (0.37409196
+                    + t * (0.09678418
+                        + t * (-0.18628806
+                            + t * (0.27886807
+                                + t * (-1.13520398 + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277)))))))))
+            .exp();
+    if x >= 0.0 {
+        r
+    } else {
+        2.0 - r
+    }
+}
+
+/// P(Binomial(n, 1/2) >= k).
+pub fn sign_test_p(k: usize, n: usize) -> f64 {
+    if n == 0 {
+        return 1.0;
+    }
+    // Sum in log space.
+    let ln_choose = |n: usize, k: usize| -> f64 { (1..=k).map(|i| ((n - k + i) as f64).ln() - (i as f64).ln()).sum() };
+    let mut p = 0.0;
+    for j in k..=n {
+        p += (ln_choose(n, j) - n as f64 * std::f64::consts::LN_2).exp();
+    }
+    p.min(1.0)
+}
+
+/// Builds each group's context: the model's predictions and the residual over the last second.
+pub fn contexts<'a>(
+    dataset: &'a Dataset,
+    samples: &'a [GroupSample],
+    model: &ModelFile,
+) -> anyhow::Result<Vec<GroupCtx<'a>>> {
+    let program = model.firmware_program()?;
+    let fs = dataset.manifest.sample_rate_hz;
+    Ok(samples
+        .par_iter()
+        .map(|s| {
+            let data = &dataset.groups[s.index];
+            let (predicted_um, _) = predict_group(&program, s, data, fs);
+            let start = s.targets.window_start;
+            let residual = (start..data.len()).map(|k| data.z_tcp_um[k] - data.z_cmd_um[k] - predicted_um[k]).collect();
+            let theta = (start..data.len())
+                .map(|k| 2.0 * PI * s.targets.freq_hz * data.t_s[k] + s.targets.cmd.phase_rad)
+                .collect();
+            GroupCtx { sample: s, data, predicted_um, start, residual, theta, sample_rate_hz: fs }
+        })
+        .collect())
+}
+
+/// Diagnoses `model` on `dataset`.
+pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<Diagnosis> {
+    let corrected = model.probe_corrected(dataset);
+    let dataset: &Dataset = &corrected;
+    let mut feature_config = model.feature_config;
+    feature_config.sample_rate_hz = dataset.manifest.sample_rate_hz as f32;
+    let skip_s = model.training.as_ref().map_or(analysis::DEFAULT_SKIP_S, |t| t.skip_s);
+    let samples = analysis::group_samples_skipping(dataset, &feature_config, skip_s)?;
+    let ctx = contexts(dataset, &samples, model)?;
+    Ok(diagnose_contexts(&ctx, model.validation.waveform_rms_um))
+}
+
+/// Diagnoses prepared group contexts; `model_cv_rms_um` is the model's own held-out error.
+pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
+    let n = ctx.len();
+    // Each group's residual sum of squares, once for all candidates.
+    let group_ss: Vec<f64> = ctx.iter().map(|c| c.residual.iter().map(|r| r * r).sum::<f64>()).collect();
+    let total_ss: f64 = group_ss.iter().sum();
+    let total_n: usize = ctx.iter().map(|c| c.residual.len()).sum();
+    let residual_rms_um = (total_ss / total_n.max(1) as f64).sqrt();
+    let folds = FOLDS.min(n).max(2);
+    let results: Vec<Ranked> = candidates::ALL
+        .par_iter()
+        .map(|cand| {
+            let evaluated = cand.evaluate(ctx, folds);
+            let improved = evaluated.improvements.iter().filter(|d| **d > 0.0).count();
+            // Absolute reductions weigh the groups with the most residual, which finds an
+            // effect confined to the slow, small groups (friction); relative ones weigh every
+            // group alike, which finds one spread over all the fast groups of a small grid
+            // (a delay, on 35 groups) where a few large ones would outvote the rest.
+            let relative: Vec<f64> =
+                evaluated.improvements.iter().zip(&group_ss).map(|(d, ss)| relative_improvement(*d, *ss)).collect();
+            let p_value = sign_flip_p(&evaluated.improvements).min(sign_flip_p(&relative));
+            let explained_fraction =
+                if total_ss > 0.0 { evaluated.improvements.iter().sum::<f64>() / total_ss } else { 0.0 };
+            let explained_rms = (explained_fraction.max(0.0) * total_ss / total_n.max(1) as f64).sqrt();
+            let significant = evaluated.testable
+                && explained_fraction >= MIN_EXPLAINED
+                && p_value < significance_threshold()
+                && explained_rms > model_cv_rms_um;
+            Ranked {
+                effect: cand.name().to_string(),
+                explained_fraction,
+                p_value,
+                groups_improved: improved,
+                params: evaluated.params,
+                evidence: evaluated.evidence,
+                significant,
+            }
+        })
+        .collect();
+    let mut ranking = results;
+    ranking.sort_by(|a, b| b.explained_fraction.total_cmp(&a.explained_fraction).then(a.effect.cmp(&b.effect)));
+    let verdict = match ranking.first() {
+        Some(best) if best.significant => best.effect.clone(),
+        _ => "none".to_string(),
+    };
+    let summary = match ranking.first() {
+        Some(best) if best.significant => format!(
+            "{} explains {:.0}% of the held-out residual (RMS {:.1} nm; the model's own held-out error is {:.1} nm): {}",
+            best.effect,
+            best.explained_fraction * 100.0,
+            residual_rms_um * 1e3,
+            model_cv_rms_um * 1e3,
+            best.evidence
+        ),
+        Some(best) => format!(
+            "no candidate explains a significant part of the residual (RMS {:.1} nm, the model's own held-out error {:.1} nm); the best, {}, explains {:.0}% (p = {:.1e})",
+            residual_rms_um * 1e3,
+            model_cv_rms_um * 1e3,
+            best.effect,
+            best.explained_fraction * 100.0,
+            best.p_value
+        ),
+        None => "no groups".to_string(),
+    };
+    let test = format!(
+        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold. A candidate is significant when it explains at least {:.0}% of the held-out residual, its per-group reductions of the held-out residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, of the reductions and of the reductions relative to each group's residual, p < {ALPHA}/16 = {:.2e}, Bonferroni over the 8 candidates and the 2 statistics), and the residual RMS it explains exceeds the model's own cross-validated waveform RMS ({:.1} nm). The verdict is the best candidate if significant, else none.",
+        MIN_EXPLAINED * 100.0,
+        significance_threshold(),
+        model_cv_rms_um * 1e3
+    );
+    let repeatability = Repeatability::from_groups(
+        ctx.par_iter().map(|c| group_non_repeating_um(c.data, c.sample, c.sample_rate_hz)).collect(),
+    );
+    let not_repeating = repeatability.describe(|i| (ctx[i].sample.info.freq_hz, ctx[i].sample.info.amp_um));
+    Diagnosis { verdict, ranking, residual_rms_um, model_cv_rms_um, summary, test, repeatability, not_repeating }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sign_test_probabilities() {
+        assert!((sign_test_p(0, 10) - 1.0).abs() < 1e-12);
+        assert!((sign_test_p(10, 10) - 1.0 / 1024.0).abs() < 1e-12);
+        assert!((sign_test_p(9, 10) - 11.0 / 1024.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_relative_statistic_finds_an_effect_the_largest_groups_outvote() {
+        // Ten fast groups, 80% of each explained; two large groups where the candidate gains
+        // and loses about as much as the ten have in all.
+        let residual_ss: Vec<f64> = [[1.0; 10].as_slice(), &[100.0, 100.0]].concat();
+        let d = [[0.8; 10].as_slice(), &[-30.0, 35.0]].concat();
+        let relative: Vec<f64> = d.iter().zip(&residual_ss).map(|(d, ss)| relative_improvement(*d, *ss)).collect();
+        assert!(sign_flip_p(&d) > 0.3, "absolute: {}", sign_flip_p(&d));
+        assert!(sign_flip_p(&relative) < significance_threshold(), "relative: {}", sign_flip_p(&relative));
+        assert_eq!(relative_improvement(1.0, 0.0), 0.0);
+    }
+
+    #[test]
+    fn sign_flip_test() {
+        let mut d = vec![-1e-6; 16];
+        d.extend([5.0, 4.0, 6.0, 5.5, 4.5, 5.0, 6.0, 5.0]);
+        assert!(sign_flip_p(&d) < 1e-2);
+        assert!(sign_flip_p(&[1.0, -1.0, 1.0, -1.0]) > 0.4);
+        assert_eq!(sign_flip_p(&[0.0, 0.0]), 1.0);
+    }
+}

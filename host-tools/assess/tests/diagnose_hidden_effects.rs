@@ -1,0 +1,271 @@
+//! The hidden-effect suite: emulator data with one randomly drawn effect (effect and
+//! parameters from a seed; the tools are never told which), diagnosed against the twin of the
+//! machine as it was (a model fitted on clean data), then refitted with `--effect <verdict>`.
+//!
+//! Measured per case: the verdict (confusion matrix), the waveform RMS of the reference model
+//! on the new data (every group is held out for it), and the held-out RMS of the model fitted
+//! with the verdict's terms, against the reference model's own held-out RMS on clean data.
+//!
+//! CI runs a reduced suite (`ci_suite`: one seed per effect on 5.5 s groups, a few minutes).
+//! The full run is
+//!
+//! ```text
+//! STS_SUITE_SEEDS=20 STS_SUITE_FIT_SEEDS=3 STS_SUITE_GRID=paper \
+//!   cargo test --release -p sts-twin --test diagnose_hidden_effects -- --ignored --nocapture
+//! ```
+//!
+//! `STS_SUITE_EFFECTS=coulomb-friction,force-ripple` runs only those hidden effects (`none`
+//! for the clean cases), e.g. to refit many seeds of the slow ones; `STS_SUITE_FIRST_SEED=10`
+//! starts at seed 10 (to split a run over several processes).
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use sts_assess::compare::compare;
+use sts_assess::diagnose::diagnose;
+use sts_dataset::Dataset;
+use sts_emulator::{EffectSpec, MeasureConfig, EFFECT_NAMES};
+use sts_fit::effects::prepare;
+use sts_fit::{fit, FitConfig};
+use sts_model::ModelFile;
+
+struct Suite {
+    /// The hidden effects run (`none`: clean data); all when empty.
+    only: Vec<String>,
+    /// The first seed; `seeds` seeds from it run.
+    first_seed: u64,
+    seeds: u64,
+    fit_seeds: u64,
+    paper_grid: bool,
+    epochs: usize,
+}
+
+fn env_u64(name: &str, default: u64) -> u64 {
+    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+fn measure(suite: &Suite, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
+    let mut config = MeasureConfig { effects, seed, ..MeasureConfig::default() };
+    if !suite.paper_grid {
+        // CI: the paper's 99 groups, each only as long as the feature window needs.
+        config.duration_s = 5.5;
+    }
+    sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
+}
+
+fn fit_config(suite: &Suite) -> FitConfig {
+    FitConfig { max_epochs: suite.epochs, ..FitConfig::default() }
+}
+
+struct Outcome {
+    verdict: String,
+    reference_rms_um: f64,
+    refit_rms_um: Option<f64>,
+    /// How much the measurement itself depends on the emulator's integration step, nm.
+    step_dependence_nm: f64,
+    /// Groups `diagnose` found not repeating from one period to the next.
+    not_repeating: usize,
+}
+
+/// The RMS change of the encoder reading when the emulator integrates with 16 sub-steps per
+/// tick instead of its 4, over the slow groups (1 and 5 Hz, 3 s), nm. Large only where the
+/// machine hunts: where a friction's Stribeck zone takes more damping than the servo gives,
+/// the slide oscillates by itself, and the oscillation's phase depends on everything down to
+/// the integration step, so no twin driven by the command can predict it.
+fn step_dependence_nm(effects: &[EffectSpec], seed: u64) -> f64 {
+    let config = MeasureConfig {
+        effects: effects.to_vec(),
+        seed,
+        freqs_hz: vec![1.0, 5.0],
+        duration_s: 3.0,
+        ..MeasureConfig::default()
+    };
+    let mut fine = config.clone();
+    fine.plant.servo.substeps = 16;
+    let a = sts_emulator::measure::run(&config, &|_| {}).expect("measurement");
+    let b = sts_emulator::measure::run(&fine, &|_| {}).expect("measurement");
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (ga, gb) in a.groups.iter().zip(&b.groups) {
+        for (x, y) in ga.z_enc_um.iter().zip(&gb.z_enc_um) {
+            sum += (x - y).powi(2);
+            n += 1;
+        }
+    }
+    (sum / n.max(1) as f64).sqrt() * 1e3
+}
+
+fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u64, refit: bool) -> Outcome {
+    let effects = match effect {
+        Some(name) => {
+            let mut rng = ChaCha8Rng::seed_from_u64(0x5eed_0000 + seed);
+            vec![EffectSpec::random(name, &mut rng).expect("known effect")]
+        }
+        None => Vec::new(),
+    };
+    let data = measure(suite, effects.clone(), 100 + seed);
+    let d = diagnose(&data, reference).expect("diagnose");
+    let (c, _) = compare(&data, reference).expect("compare");
+    let refit_rms_um = if refit && d.verdict != "none" {
+        let prepared = prepare(&data, std::slice::from_ref(&d.verdict)).expect("prepare");
+        let model = fit(&prepared.dataset, "suite", &fit_config(suite), &mut |_| {}).expect("fit");
+        let model = prepared.attach(model).expect("attach");
+        Some(model.validation.waveform_rms_um)
+    } else {
+        None
+    };
+    if effect.is_some_and(|e| e != d.verdict) {
+        for r in d.ranking.iter().take(3) {
+            println!(
+                "    missed: {} explains {:.1}% (p = {:.1e}, significant {})",
+                r.effect,
+                r.explained_fraction * 100.0,
+                r.p_value,
+                r.significant
+            );
+        }
+    }
+    let step_dependence_nm = if refit { step_dependence_nm(&effects, 100 + seed) } else { 0.0 };
+    Outcome {
+        verdict: d.verdict,
+        reference_rms_um: c.waveform_rms_um,
+        refit_rms_um,
+        step_dependence_nm,
+        not_repeating: d.repeatability.not_repeating.len(),
+    }
+}
+
+fn run_suite(suite: &Suite) {
+    let reference_data = measure(suite, Vec::new(), 1);
+    let reference =
+        fit(&reference_data, "reference (clean machine)", &fit_config(suite), &mut |_| {}).expect("reference fit");
+    let clean_rms = reference.validation.waveform_rms_um;
+    println!("reference model: held-out waveform RMS on clean data {:.2} nm", clean_rms * 1e3);
+
+    let mut labels: Vec<&str> = EFFECT_NAMES.to_vec();
+    labels.push("none");
+    let mut confusion = vec![vec![0usize; labels.len()]; labels.len()];
+    let mut falls: Vec<(String, u64, f64, f64, f64, f64, usize)> = Vec::new();
+    // Seeds outermost, so that a partial run still covers every effect.
+    for seed in suite.first_seed..suite.first_seed + suite.seeds {
+        for (row, truth) in labels.iter().enumerate() {
+            if !suite.only.is_empty() && !suite.only.iter().any(|o| o == truth) {
+                continue;
+            }
+            let effect = if *truth == "none" { None } else { Some(*truth) };
+            let refit = effect.is_some() && seed - suite.first_seed < suite.fit_seeds;
+            let o = run_case(suite, &reference, effect, seed, refit);
+            let col = labels.iter().position(|l| *l == o.verdict).unwrap_or(labels.len() - 1);
+            confusion[row][col] += 1;
+            if let Some(after) = o.refit_rms_um {
+                falls.push((
+                    truth.to_string(),
+                    seed,
+                    o.reference_rms_um,
+                    after,
+                    clean_rms,
+                    o.step_dependence_nm,
+                    o.not_repeating,
+                ));
+            }
+            println!(
+                "{truth:<22} seed {seed:>2}: verdict {:<22} reference RMS {:.1} nm{}",
+                o.verdict,
+                o.reference_rms_um * 1e3,
+                o.refit_rms_um.map_or(String::new(), |r| format!(", refit held-out RMS {:.1} nm", r * 1e3))
+            );
+        }
+    }
+
+    println!("\nconfusion matrix (rows: hidden effect, columns: verdict; {} seeds each)", suite.seeds);
+    let short: Vec<String> = labels.iter().map(|l| l.chars().take(8).collect()).collect();
+    println!("{:<22} {}", "", short.iter().map(|s| format!("{s:>9}")).collect::<String>());
+    for (i, l) in labels.iter().enumerate() {
+        println!("{l:<22} {}", confusion[i].iter().map(|n| format!("{n:>9}")).collect::<String>());
+    }
+    let mut all_ok = true;
+    let run = |l: &str| suite.only.is_empty() || suite.only.iter().any(|o| o == l);
+    for (i, l) in labels.iter().enumerate() {
+        if !run(l) {
+            continue;
+        }
+        let rate = confusion[i][i] as f64 / suite.seeds as f64;
+        let need = if *l == "none" { 0.95 } else { 0.90 };
+        println!("{l:<22} correct {:>5.1}% (target {:.0}%)", rate * 100.0, need * 100.0);
+        all_ok &= rate >= need;
+    }
+    println!("\nrefit with --effect <verdict>: reference RMS -> held-out RMS (fall; ratio to the clean held-out RMS {:.1} nm)", clean_rms * 1e3);
+    // Every effect's error falls by half at least and ends within 1.5x the clean twin's
+    // error, except where the measurement itself is not determined that finely: where it
+    // changes by more than the probe's noise (5 nm) with the emulator's integration step
+    // (a hunting axis), the 1.5x is printed, not asserted, and `diagnose` must have told the
+    // user which groups do not repeat.
+    let mut fall_ok = true;
+    let mut unpredictable = 0;
+    for (effect, seed, before, after, clean, step_nm, not_repeating) in &falls {
+        let fall = 1.0 - after / before;
+        let within = after / clean <= 1.5;
+        let determined = *step_nm <= 5.0;
+        unpredictable += usize::from(!determined);
+        // The user is told: `diagnose` finds the groups whose error does not repeat.
+        let told = determined || *not_repeating > 0;
+        let met = fall >= 0.5 && (within || !determined) && told;
+        println!(
+            "  {effect:<22} seed {seed}: {:.1} -> {:.1} nm, fall {:.0}%, {:.2}x clean{}",
+            before * 1e3,
+            after * 1e3,
+            fall * 100.0,
+            after / clean,
+            if !met {
+                format!("  FAILS{}", if told { "" } else { " (diagnose did not find the groups that do not repeat)" })
+            } else if !within {
+                format!("  (the machine hunts: its reading changes by {step_nm:.1} nm with the emulator's integration step; diagnose finds {not_repeating} groups not repeating)")
+            } else {
+                String::new()
+            }
+        );
+        fall_ok &= met;
+    }
+    let total: usize = (0..labels.len()).map(|i| confusion[i][i]).sum();
+    let cases = labels.iter().filter(|l| run(l)).count() as u64 * suite.seeds;
+    println!("\noverall: {total}/{cases} correct; every refit's error fell by at least 50% and ended within 1.5x clean ({unpredictable} of {} hunting, 1.5x not asserted): {fall_ok}", falls.len());
+    if suite.seeds >= 20 {
+        assert!(all_ok, "a per-effect rate is below its target");
+    } else {
+        // Few seeds: the overall rate must still reach 90% and every clean case must be `none`.
+        assert!(total as f64 >= 0.9 * cases as f64, "only {total} of {cases} verdicts right");
+        if run("none") {
+            assert_eq!(
+                confusion[labels.len() - 1][labels.len() - 1],
+                suite.seeds as usize,
+                "clean data must give `none`"
+            );
+        }
+    }
+    assert!(fall_ok, "a refit did not halve the error, or ended above 1.5x clean on a determined measurement");
+}
+
+/// CI's share: the 99 groups shortened to 5.5 s, one seed per effect (and clean), each refitted.
+#[test]
+fn ci_suite() {
+    run_suite(&Suite {
+        only: Vec::new(),
+        first_seed: 0,
+        seeds: env_u64("STS_SUITE_CI_SEEDS", 1),
+        fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1),
+        paper_grid: false,
+        epochs: 10,
+    });
+}
+
+/// The full run (see the module docs for the command).
+#[test]
+#[ignore]
+fn full_suite() {
+    run_suite(&Suite {
+        only: std::env::var("STS_SUITE_EFFECTS").map_or(Vec::new(), |e| e.split(',').map(str::to_string).collect()),
+        first_seed: env_u64("STS_SUITE_FIRST_SEED", 0),
+        seeds: env_u64("STS_SUITE_SEEDS", 20),
+        fit_seeds: env_u64("STS_SUITE_FIT_SEEDS", 3),
+        paper_grid: std::env::var("STS_SUITE_GRID").map_or(true, |g| g == "paper"),
+        epochs: env_u64("STS_SUITE_EPOCHS", 40) as usize,
+    });
+}

@@ -1,0 +1,560 @@
+//! Identifies the servo-axis twin ([`sts_twin_core::axis`]) from a measurement: the
+//! controller, slide, current loop, structural mode and the nonlinear effect's parameters,
+//! all per kg of moving mass, by Levenberg-Marquardt on the encoder and probe readings
+//! (output error: the whole axis simulated from the command).
+//!
+//! The fit is local, so it starts from a grid: command delays of 1-3 ticks times servo
+//! bandwidths of 30, 100 and 300 Hz (controller gains of a well-damped PID at that
+//! bandwidth), the servo and the effect fitted together on the encoder, the best start
+//! kept; then the mode from a grid of frequencies on the probe; then everything on both.
+//! The encoder ripple's phase and amplitudes enter each stage by linear least squares
+//! ([`ripple_linear`]): over a travel of several pitches a local fit of the phase has a
+//! minimum every turn.
+//! The simulation here is f64 (the firmware's is f32); both simulate the whole axis with the
+//! same laws and share the discretisation ([`zoh`]).
+
+use std::f64::consts::PI;
+
+use rayon::prelude::*;
+use sts_dataset::Dataset;
+use sts_twin_core::axis::discretise::{zoh, Continuous, STATES};
+use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
+
+use sts_analysis::lsq::solve_ridge;
+use sts_analysis::lsq::{solve, Stats};
+
+/// Servo tick, s (the dataset's rate is checked to be 8 kHz by the caller).
+const TICK_S: f64 = 1.0 / 8000.0;
+/// Implicitness of the friction step, as in the firmware.
+const THETA: f64 = 0.5;
+
+/// Which nonlinear effects the axis carries.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AxisEffects {
+    /// Coulomb friction with a Stribeck peak.
+    pub friction: bool,
+    /// Dahl presliding hysteresis.
+    pub hysteresis: bool,
+    /// Encoder interpolation error, with a first estimate of its pitch, um.
+    pub ripple_pitch_um: Option<f64>,
+}
+
+/// Parameter slots of the fit. Positive quantities are fitted on a log scale, signed ones
+/// additively on a typical scale.
+#[derive(Clone, Copy)]
+enum Slot {
+    Kp,
+    Ki,
+    Kd,
+    Vff,
+    Aff,
+    Viscous,
+    Tau,
+    ModeHz,
+    Zeta,
+    Gain,
+    Coulomb,
+    Static,
+    Stribeck,
+    Smooth,
+    DahlForce,
+    DahlStiffness,
+    RippleAmp,
+    RipplePhase,
+    Ripple2,
+    RipplePitch,
+}
+const SLOTS: usize = 20;
+
+impl Slot {
+    /// The range the firmware accepts (`AxisParams::check`), kept inside by the fit.
+    fn bounds(self) -> (f64, f64) {
+        match self {
+            Slot::Kp => (1.0, 1e9),
+            Slot::Ki => (1e-6, 1e12),
+            Slot::Kd => (1e-6, 1e6),
+            Slot::Vff => (-1e6, 1e6),
+            Slot::Aff => (-10.0, 10.0),
+            Slot::Viscous => (1e-6, 1e6),
+            Slot::Tau => (1e-6, 0.1),
+            Slot::ModeHz => (1.0, 3000.0),
+            Slot::Zeta => (0.001, 10.0),
+            Slot::Gain => (-100.0, 100.0),
+            Slot::Coulomb | Slot::Static | Slot::DahlForce => (1e-6, 1e3),
+            Slot::Stribeck => (1e-7, 1.0),
+            Slot::Smooth => (1e-8, 1.0),
+            Slot::DahlStiffness => (1.0, 1e10),
+            Slot::RippleAmp | Slot::Ripple2 => (-1e4, 1e4),
+            Slot::RipplePhase => (-1e3, 1e3),
+            Slot::RipplePitch => (0.01, 1e6),
+        }
+    }
+
+    /// `Some(scale)` for an additive parameter, `None` for a log-scale one.
+    fn additive(self) -> Option<f64> {
+        match self {
+            Slot::Vff => Some(10.0),
+            Slot::Aff => Some(0.3),
+            Slot::Gain => Some(1.0),
+            Slot::RippleAmp | Slot::Ripple2 => Some(20.0),
+            Slot::RipplePhase => Some(1.0),
+            _ => None,
+        }
+    }
+}
+
+/// A candidate axis: the parameter vector and the command delay.
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    v: [f64; SLOTS],
+    delay: usize,
+    effects: AxisEffects,
+}
+
+impl Candidate {
+    fn get(&self, s: Slot) -> f64 {
+        self.v[s as usize]
+    }
+
+    /// The firmware's parameters.
+    fn params(&self) -> AxisParams {
+        let g = |s| self.get(s) as f32;
+        let mut p = AxisParams {
+            cmd_delay_ticks: self.delay as u8,
+            kp_per_s2: g(Slot::Kp),
+            ki_per_s3: g(Slot::Ki),
+            kd_per_s: g(Slot::Kd),
+            vff_per_s: g(Slot::Vff),
+            aff: g(Slot::Aff),
+            viscous_per_s: g(Slot::Viscous),
+            current_tau_s: g(Slot::Tau),
+            mode_freq_hz: g(Slot::ModeHz),
+            mode_damping: g(Slot::Zeta),
+            mode_tcp_gain: g(Slot::Gain),
+            friction: None,
+            hysteresis: None,
+            ripple: None,
+        };
+        if self.effects.friction {
+            p.friction = Some(Friction {
+                coulomb_mps2: g(Slot::Coulomb),
+                static_mps2: g(Slot::Static),
+                stribeck_mps: g(Slot::Stribeck),
+                smooth_mps: g(Slot::Smooth),
+            });
+        }
+        if self.effects.hysteresis {
+            p.hysteresis =
+                Some(Hysteresis { force_mps2: g(Slot::DahlForce), stiffness_per_s2: g(Slot::DahlStiffness) });
+        }
+        if self.effects.ripple_pitch_um.is_some() {
+            // Negative amplitude: the same sine half a turn on.
+            let (mut amp, mut phase) = (self.get(Slot::RippleAmp), self.get(Slot::RipplePhase));
+            if amp < 0.0 {
+                amp = -amp;
+                phase += PI;
+            }
+            p.ripple = Some(Ripple {
+                amp_nm: amp as f32,
+                harmonic2_nm: g(Slot::Ripple2),
+                turns_per_nm: (4_294_967_296.0 / (self.get(Slot::RipplePitch) * 1000.0)).round() as u32,
+                phase_turns: ((phase / (2.0 * PI)).rem_euclid(1.0) * 4_294_967_296.0) as u64 as u32,
+            });
+        }
+        p
+    }
+
+    /// The slots of the effects that show in the encoder reading (friction and hysteresis
+    /// move the slide against the loop) and those fitted on the probe (the loop follows
+    /// the encoder's error, so at low speed it moves the slide, not the reading; the start
+    /// search adds the ripple's shape on the encoder too, where fast groups show it).
+    fn effect_slots(&self) -> (Vec<Slot>, Vec<Slot>) {
+        let mut encoder = Vec::new();
+        if self.effects.friction {
+            encoder.extend([Slot::Coulomb, Slot::Static, Slot::Stribeck, Slot::Smooth]);
+        }
+        if self.effects.hysteresis {
+            encoder.extend([Slot::DahlForce, Slot::DahlStiffness]);
+        }
+        let probe = if self.effects.ripple_pitch_um.is_some() {
+            vec![Slot::RippleAmp, Slot::RipplePhase, Slot::Ripple2, Slot::RipplePitch]
+        } else {
+            Vec::new()
+        };
+        (encoder, probe)
+    }
+}
+
+const SERVO: [Slot; 7] = [Slot::Kp, Slot::Ki, Slot::Kd, Slot::Vff, Slot::Aff, Slot::Viscous, Slot::Tau];
+const MODE: [Slot; 3] = [Slot::ModeHz, Slot::Zeta, Slot::Gain];
+/// The ripple's amplitudes and phase (its pitch comes from a search, refined last).
+const RIPPLE_SHAPE: [Slot; 3] = [Slot::RippleAmp, Slot::RipplePhase, Slot::Ripple2];
+
+/// The transition and input matrices of the tick (`phi`, `gamma` of [`zoh`]).
+type Discrete = ([[f64; STATES]; STATES], [[f64; 2]; STATES]);
+
+/// A candidate's linear part over one tick.
+fn discretise(c: &Candidate) -> Discrete {
+    let continuous = Continuous {
+        viscous_per_s: c.get(Slot::Viscous),
+        current_tau_s: c.get(Slot::Tau),
+        mode_rad_per_s: 2.0 * PI * c.get(Slot::ModeHz),
+        mode_damping: c.get(Slot::Zeta),
+        mode_tcp_gain: c.get(Slot::Gain),
+    };
+    zoh(&continuous, TICK_S)
+}
+
+/// The whole axis over a command (um), its linear part `discrete`: encoder reading and TCP, um.
+fn simulate(c: &Candidate, discrete: &Discrete, cmd_um: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let (phi, gamma) = discrete;
+    let (kp, ki_t, kd_t) = (c.get(Slot::Kp), c.get(Slot::Ki) * TICK_S, c.get(Slot::Kd) / TICK_S);
+    let (vff_t, aff_t2) = (c.get(Slot::Vff) / TICK_S, c.get(Slot::Aff) / (TICK_S * TICK_S));
+    let friction = c.effects.friction;
+    let (fc, fs, vs, sm) = (c.get(Slot::Coulomb), c.get(Slot::Static), c.get(Slot::Stribeck), c.get(Slot::Smooth));
+    let hysteresis = c.effects.hysteresis;
+    let (hf, hs) = (c.get(Slot::DahlForce), c.get(Slot::DahlStiffness));
+    let ripple = c.effects.ripple_pitch_um.is_some();
+    let (ra, rph, r2, pitch_m) = (
+        c.get(Slot::RippleAmp) * 1e-9,
+        c.get(Slot::RipplePhase),
+        c.get(Slot::Ripple2) * 1e-9,
+        c.get(Slot::RipplePitch) * 1e-6,
+    );
+    let n = cmd_um.len();
+    let mut s = [0.0f64; STATES];
+    let (mut integral, mut e_prev, mut u_prev, mut dahl) = (0.0, 0.0, 0.0, 0.0);
+    // Relative to the first command, where the slide rests at the start.
+    let r0 = cmd_um.first().copied().unwrap_or(0.0) * 1e-6;
+    let mut r_prev = [0.0f64; 2];
+    let (mut enc, mut tcp) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for k in 0..n {
+        let mut reading = s[0];
+        if ripple {
+            let theta = 2.0 * PI * (s[0] + r0) / pitch_m + rph;
+            reading += ra * theta.sin() + r2 * (2.0 * theta).sin();
+        }
+        enc.push((reading + r0) * 1e6);
+        tcp.push((s[0] + s[3] + r0) * 1e6);
+        let r = if k >= c.delay { cmd_um[k - c.delay] * 1e-6 - r0 } else { 0.0 };
+        let dr = r - r_prev[0];
+        let ddr = dr - (r_prev[0] - r_prev[1]);
+        r_prev = [r, r_prev[0]];
+        let e = r - reading;
+        integral += ki_t * e;
+        let u = kp * e + integral + kd_t * (e - e_prev) + vff_t * dr + aff_t2 * ddr;
+        e_prev = e;
+        let mut free = [0.0; STATES];
+        for (i, out) in free.iter_mut().enumerate() {
+            let mut acc = gamma[i][0] * u_prev;
+            for j in 0..STATES {
+                acc += phi[i][j] * s[j];
+            }
+            *out = acc;
+        }
+        u_prev = u;
+        let mut force = -dahl;
+        if friction {
+            let v = s[1];
+            let z = v / vs;
+            // The firmware's table (linear interpolation of exp(-x), 0 from x = 16 on).
+            let ex = f64::from(sts_twin_core::axis::math::exp_neg((z * z) as f32));
+            let level = fc + (fs - fc) * ex;
+            // The firmware's smoothed sign (a Pade form of tanh, saturating at |y| = 3).
+            let y = v / sm;
+            let (th, th_slope) = if y.abs() >= 3.0 {
+                (y.signum(), 0.0)
+            } else {
+                (y * (27.0 + y * y) / (27.0 + 9.0 * y * y), ((9.0 - y * y) / (9.0 + 3.0 * y * y)).powi(2))
+            };
+            let f0 = -level * th;
+            let slope = -((fs - fc) * ex * (-2.0 * z / vs) * th + level * th_slope / sm);
+            let g = gamma[1][1];
+            let v_next = (free[1] + g * (f0 - slope * THETA * v)) / (1.0 - g * slope * THETA);
+            force += f0 + slope * THETA * (v_next - v);
+        }
+        let x_before = s[0];
+        for i in 0..STATES {
+            s[i] = free[i] + gamma[i][1] * force;
+        }
+        if hysteresis {
+            let moved = s[0] - x_before;
+            dahl += hs * moved * (1.0 - dahl / hf * moved.signum());
+            dahl = dahl.clamp(-hf, hf);
+        }
+    }
+    (enc, tcp)
+}
+
+/// What the fit compares.
+#[derive(Clone, Copy, PartialEq)]
+enum Fit {
+    Encoder,
+    Tcp,
+    Both,
+}
+
+/// Groups and samples the fit reads (every `group_step`-th group from its 1/12th on, every
+/// `stride`-th sample).
+struct Sample<'a> {
+    dataset: &'a Dataset,
+    groups: Vec<usize>,
+    stride: usize,
+}
+
+impl Sample<'_> {
+    fn residuals(&self, c: &Candidate, what: Fit) -> Vec<f64> {
+        let discrete = discretise(c);
+        let parts: Vec<Vec<f64>> = self
+            .groups
+            .par_iter()
+            .map(|&gi| {
+                let g = &self.dataset.groups[gi];
+                let (enc, tcp) = simulate(c, &discrete, &g.z_cmd_um);
+                let mut out = Vec::new();
+                for k in (g.len() / 12..g.len()).step_by(self.stride) {
+                    if what != Fit::Tcp {
+                        out.push(g.z_enc_um[k] - enc[k]);
+                    }
+                    if what != Fit::Encoder {
+                        out.push(g.z_tcp_um[k] - tcp[k]);
+                    }
+                }
+                out
+            })
+            .collect();
+        parts.concat()
+    }
+}
+
+fn rms(r: &[f64]) -> f64 {
+    let s: f64 = r.iter().map(|x| x * x).sum();
+    let v = (s / r.len().max(1) as f64).sqrt();
+    if v.is_finite() {
+        v
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Levenberg-Marquardt over `free` slots, at most `iterations`.
+fn levenberg_marquardt(
+    start: Candidate,
+    free: &[Slot],
+    sample: &Sample,
+    what: Fit,
+    iterations: usize,
+) -> (Candidate, f64) {
+    let mut c = start;
+    let mut r = sample.residuals(&c, what);
+    let mut cost = rms(&r);
+    let mut lambda = 1e-2;
+    let moved = |c: &Candidate, slot: Slot, step: f64| -> Candidate {
+        let mut out = *c;
+        let x = &mut out.v[slot as usize];
+        match slot.additive() {
+            Some(scale) => *x += step * scale,
+            None => *x *= step.clamp(-0.7, 0.7).exp(),
+        }
+        let (lo, hi) = slot.bounds();
+        *x = x.clamp(lo, hi);
+        out
+    };
+    for _ in 0..iterations {
+        if !cost.is_finite() {
+            break;
+        }
+        let h = 1e-5;
+        let jac: Vec<Vec<f64>> = free
+            .iter()
+            .map(|&slot| {
+                let rs = sample.residuals(&moved(&c, slot, h), what);
+                rs.iter().zip(&r).map(|(a, b)| (a - b) / h).collect()
+            })
+            .collect();
+        // J'J and -J'r: the normal equations of the step.
+        let Stats { xtx: jtj, xtr, .. } = Stats::from_columns(&jac, &r);
+        let jtr: Vec<f64> = xtr.iter().map(|v| -v).collect();
+        let mut improved = false;
+        for _ in 0..8 {
+            let mut a = jtj.clone();
+            for (i, row) in a.iter_mut().enumerate() {
+                row[i] *= 1.0 + lambda;
+            }
+            let step = solve_ridge(a, jtr.clone());
+            let mut trial = c;
+            for (&slot, &s) in free.iter().zip(&step) {
+                trial = moved(&trial, slot, s);
+            }
+            let rt = sample.residuals(&trial, what);
+            let ct = rms(&rt);
+            if ct < cost {
+                improved = (cost - ct) > 1e-4 * cost;
+                c = trial;
+                r = rt;
+                cost = ct;
+                lambda = (lambda * 0.3).max(1e-7);
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    (c, cost)
+}
+
+/// The ripple's amplitudes and phase for the candidate's servo, by linear least squares:
+/// the interpolation error moves the readings nearly linearly in `a cos(phase)`,
+/// `a sin(phase)` and the second harmonic's two parts (the position it is read at differs
+/// from the command by nanometres), so four unit-ripple simulations give the regressors.
+/// The phase of a ripple over many pitches has a minimum every turn; this lands in the right
+/// one, which a local fit from a guessed phase often does not.
+fn ripple_linear(c: &Candidate, sample: &Sample, what: Fit) -> Candidate {
+    let with = |amp: f64, phase: f64, second: f64| {
+        let mut out = *c;
+        out.v[Slot::RippleAmp as usize] = amp;
+        out.v[Slot::RipplePhase as usize] = phase;
+        out.v[Slot::Ripple2 as usize] = second;
+        out
+    };
+    let unit_nm = 10.0;
+    let r0 = sample.residuals(&with(0.0, 0.0, 0.0), what);
+    let columns: Vec<Vec<f64>> =
+        [(unit_nm, 0.0, 0.0), (unit_nm, PI / 2.0, 0.0), (0.0, 0.0, unit_nm), (0.0, PI / 4.0, unit_nm)]
+            .par_iter()
+            .map(|&(a, ph, a2)| {
+                sample.residuals(&with(a, ph, a2), what).iter().zip(&r0).map(|(r, r0)| (r0 - r) / unit_nm).collect()
+            })
+            .collect();
+    let b = solve(&[&Stats::from_columns(&columns, &r0)]);
+    if b.iter().any(|x| !x.is_finite()) {
+        return *c;
+    }
+    let phase = b[1].atan2(b[0]);
+    // The model's second harmonic keeps twice the first's phase: its part along that.
+    with(b[0].hypot(b[1]), phase, b[2] * (2.0 * phase).cos() + b[3] * (2.0 * phase).sin())
+}
+
+/// The identified axis and how well it reproduces the measurement.
+#[derive(Clone, Debug)]
+pub struct AxisFit {
+    /// The firmware's parameters.
+    pub params: AxisParams,
+    /// RMS of the encoder reading minus the simulated one, over the fit's samples, nm.
+    pub encoder_rms_nm: f64,
+    /// RMS of the probe reading minus the simulated TCP, nm.
+    pub tcp_rms_nm: f64,
+}
+
+/// Identifies the axis with `effects` from `dataset` (8 kHz samples, with encoder and probe).
+pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisFit> {
+    if (dataset.manifest.sample_rate_hz - 1.0 / TICK_S).abs() > 1e-6 {
+        anyhow::bail!(
+            "the axis twin needs samples at the 8 kHz servo rate, the dataset has {} Hz",
+            dataset.manifest.sample_rate_hz
+        );
+    }
+    let n = dataset.groups.len();
+    if n == 0 {
+        anyhow::bail!("the dataset has no groups");
+    }
+    // About a dozen groups over the whole grid for the searches, more for the final fit.
+    let coarse = Sample { dataset, groups: (0..n).step_by(n.div_ceil(12).max(1)).collect(), stride: 4 };
+    let fine = Sample { dataset, groups: (0..n).step_by(n.div_ceil(32).max(1)).collect(), stride: 2 };
+
+    let mut base = [0.0; SLOTS];
+    let set = |v: &mut [f64; SLOTS], s: Slot, x: f64| v[s as usize] = x;
+    set(&mut base, Slot::Tau, 1e-4);
+    set(&mut base, Slot::Viscous, 1.0);
+    set(&mut base, Slot::Gain, 1.0);
+    set(&mut base, Slot::RippleAmp, 10.0);
+    set(&mut base, Slot::ModeHz, 100.0);
+    set(&mut base, Slot::Zeta, 0.2);
+    set(&mut base, Slot::Coulomb, 0.05);
+    set(&mut base, Slot::Static, 0.08);
+    set(&mut base, Slot::Stribeck, 1e-3);
+    set(&mut base, Slot::Smooth, 1e-5);
+    set(&mut base, Slot::DahlForce, 0.05);
+    set(&mut base, Slot::DahlStiffness, 1e5);
+    set(&mut base, Slot::RipplePitch, effects.ripple_pitch_um.unwrap_or(1.0));
+    let ripple = effects.ripple_pitch_um.is_some();
+
+    // Servo and effect from a grid of starts, on the encoder (the probe's mode comes later).
+    let mut starts = Vec::new();
+    for delay in 1..=3 {
+        for bandwidth_hz in [30.0, 100.0, 300.0] {
+            let w: f64 = 2.0 * PI * bandwidth_hz;
+            let mut v = base;
+            set(&mut v, Slot::Kp, w * w);
+            set(&mut v, Slot::Ki, w * w * w / 10.0);
+            set(&mut v, Slot::Kd, 1.4 * w);
+            starts.push(Candidate { v, delay, effects });
+        }
+    }
+    let (encoder_slots, probe_slots) = starts[0].effect_slots();
+    // Servo and effect together: the servo alone, fitted first, bends to the effect's part of
+    // the encoder error and ends in another minimum (kp twice the true one on a weak friction).
+    let servo_and_effect: Vec<Slot> = SERVO.iter().chain(&encoder_slots).copied().collect();
+    let searched: Vec<(Candidate, f64)> = starts
+        .iter()
+        .map(|&start| {
+            if !ripple {
+                return levenberg_marquardt(start, &servo_and_effect, &coarse, Fit::Encoder, 45);
+            }
+            // The ripple shows in the reading where the loop cannot follow it (fast groups):
+            // its phase and amplitudes for the start's servo, then both.
+            let free: Vec<Slot> = servo_and_effect.iter().chain(&RIPPLE_SHAPE).copied().collect();
+            let lin = ripple_linear(&start, &coarse, Fit::Encoder);
+            levenberg_marquardt(lin, &free, &coarse, Fit::Encoder, 45)
+        })
+        .collect();
+    let mut best =
+        searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or_else(|| anyhow::anyhow!("no start"))?;
+    if effects.friction {
+        // The Stribeck velocity from a grid too, from the best servo: a local fit from one
+        // guess can trade the Stribeck peak for a friction that rises with velocity (static
+        // below Coulomb, Stribeck velocity 18x the true one on a suite draw), which fits
+        // the encoder almost as well and the fast groups' probe reading 2x worse.
+        let restarts = [3e-5, 1e-4, 3e-4, 3e-3].map(|stribeck_mps| {
+            let mut c = best.0;
+            let coulomb = c.v[Slot::Coulomb as usize];
+            c.v[Slot::Static as usize] = c.v[Slot::Static as usize].max(1.5 * coulomb);
+            c.v[Slot::Stribeck as usize] = stribeck_mps;
+            levenberg_marquardt(c, &servo_and_effect, &coarse, Fit::Encoder, 45)
+        });
+        // The first of equals is kept: the grid's best wins a tie.
+        best = std::iter::once(best).chain(restarts).min_by(|a, b| a.1.total_cmp(&b.1)).unwrap_or(best);
+    }
+    let (best, _) = best;
+
+    // The mode (and the ripple) on the probe, from a grid of frequencies.
+    let mut tcp_free: Vec<Slot> = MODE.to_vec();
+    tcp_free.extend(&probe_slots);
+    let mut mode_best: Option<(Candidate, f64)> = None;
+    for mode_hz in [40.0, 90.0, 200.0, 500.0] {
+        let mut c = best;
+        c.v[Slot::ModeHz as usize] = mode_hz;
+        let (mut m, _) = levenberg_marquardt(c, &MODE, &coarse, Fit::Tcp, 15);
+        if ripple {
+            // On the probe, where the slow groups carry the ripple whole.
+            m = ripple_linear(&m, &coarse, Fit::Tcp);
+        }
+        let fitted = levenberg_marquardt(m, &tcp_free, &coarse, Fit::Tcp, 20);
+        if mode_best.as_ref().is_none_or(|b| fitted.1 < b.1) {
+            mode_best = Some(fitted);
+        }
+    }
+    let (c, _) = mode_best.ok_or_else(|| anyhow::anyhow!("no mode start"))?;
+
+    // Everything on both readings.
+    let mut all: Vec<Slot> = SERVO.iter().chain(&MODE).copied().collect();
+    all.extend(encoder_slots.iter().chain(&probe_slots));
+    let (c, _) = levenberg_marquardt(c, &all, &fine, Fit::Both, 30);
+    let encoder_rms_nm = rms(&fine.residuals(&c, Fit::Encoder)) * 1e3;
+    let tcp_rms_nm = rms(&fine.residuals(&c, Fit::Tcp)) * 1e3;
+    let params = c.params();
+    params.check().map_err(|e| anyhow::anyhow!("the identified axis is not usable: {e:?} ({params:?})"))?;
+    Ok(AxisFit { params, encoder_rms_nm, tcp_rms_nm })
+}

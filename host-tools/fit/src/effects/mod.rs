@@ -1,0 +1,636 @@
+//! `fit --effect NAME[,NAME...]`: the twin gains physical-effect terms.
+//!
+//! Each effect becomes per-tick terms of the firmware program ([`TickTerm`]) whose
+//! coefficients are estimated from the data, from inputs the firmware has every tick (the
+//! command position, machine time, and the X acceleration and spindle angle where the machine
+//! provides them):
+//!
+//! | effect | term(s) |
+//! |---|---|
+//! | `coulomb-friction`, `presliding-hysteresis`, `force-ripple` | one servo-axis twin ([`axis`], [`sts_twin_core::axis`]): the controller, slide, mode and the effects simulated from the command, identified on the encoder and probe readings |
+//! | `thermal-drift` | `offset + decay exp(-t / tau)` over machine time |
+//! | `axis-coupling` | X acceleration gain and the spindle's once-per-revolution sine |
+//! | `structural-mode`, `loop-delay` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
+//! | `sensor-gain` | a probe gain (estimated on the slowest groups) is taken out of the readings and recorded in the model file, so that `compare` and `diagnose` read data as the fit did; an accelerometer gain is carried by the refitted formulas |
+//!
+//! How: the terms are fitted first: drift and coupling on what the formulas can never explain
+//! (each group's dynamic error minus its own sine at the command frequency, regressors likewise
+//! made orthogonal to that sine per group), the axis twin on the whole encoder and probe
+//! readings (it simulates the whole axis; its term is the axis's whole dynamic error, and the
+//! formulas are fitted on what it leaves). The dataset's `z_tcp_um` is then reduced by the terms'
+//! full output (their share at the command frequency included), and the usual fit trains
+//! the amplitude and phase formulas on that, so that formulas plus terms reproduce the
+//! measurement without counting anything twice. Held-out figures of the fit then score
+//! formulas and terms together. The model file gains an `effects` field recording each
+//! effect's estimated parameters; the terms are in the program itself.
+
+pub mod axis;
+
+use std::f64::consts::PI;
+use std::path::Path;
+
+use anyhow::Context as _;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use sts_dataset::{Dataset, GroupData};
+use sts_twin_core::program::{TermInput, TickTerm};
+
+use sts_analysis::lsq::{solve, Stats};
+use sts_analysis::targets;
+use sts_model::EFFECTS;
+use sts_model::{hex_encode, ModelFile};
+
+/// Laguerre pole of the effect terms (the same as the diagnosis's).
+pub const POLE: f64 = 0.93;
+
+/// One effect added to a model.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct EffectRecord {
+    /// Canonical name.
+    pub effect: String,
+    /// Estimated parameters (name with unit, value).
+    pub params: Vec<(String, f64)>,
+    /// Number of per-tick terms it added to the program.
+    pub terms: usize,
+    /// How the effect is represented.
+    pub note: String,
+}
+
+/// A dataset prepared for `fit --effect`: `z_tcp_um` reduced by the effect terms' output.
+pub struct Prepared {
+    /// The dataset the formulas are fitted on.
+    pub dataset: Dataset,
+    /// The terms to append to the program.
+    pub terms: Vec<TickTerm>,
+    /// What was added.
+    pub records: Vec<EffectRecord>,
+    /// The probe's gain, when `sensor-gain` found it off one (the dataset is corrected).
+    pub probe_gain: Option<f64>,
+}
+
+/// A probe gain closer to one than this is not corrected.
+const PROBE_GAIN_TOLERANCE: f64 = 0.005;
+
+/// The probe's gain: the in-phase ratio of the probe reading to the command on the slowest
+/// groups (the lowest command frequency), over their second half, where the servo follows
+/// the command to a small fraction of a percent.
+fn probe_gain(dataset: &Dataset) -> f64 {
+    let slowest = dataset.manifest.groups.iter().map(|g| g.freq_hz).fold(f64::INFINITY, f64::min);
+    let (mut num, mut den) = (0.0, 0.0);
+    for (g, info) in dataset.groups.iter().zip(&dataset.manifest.groups) {
+        if info.freq_hz > slowest {
+            continue;
+        }
+        let half = &g.z_cmd_um[g.len() / 2..];
+        let mean = half.iter().sum::<f64>() / half.len().max(1) as f64;
+        for (c, t) in half.iter().zip(&g.z_tcp_um[g.len() / 2..]) {
+            num += (c - mean) * t;
+            den += (c - mean) * (c - mean);
+        }
+    }
+    if den > 0.0 && (num / den).is_finite() {
+        num / den
+    } else {
+        1.0
+    }
+}
+
+/// Per-group inputs of the term regressors (what the firmware sees), whole group.
+struct GroupInputs {
+    /// Command position, integer nanometres (as on the bus).
+    pos_nm: Vec<i32>,
+    /// Command phase, radians.
+    theta: Vec<f64>,
+    /// First sample of the scored window.
+    start: usize,
+    /// Dynamic error minus its own sine at the command frequency, over the window.
+    target: Vec<f64>,
+}
+
+fn group_inputs(group: &GroupData, fs: f64, freq_hz: f64) -> anyhow::Result<GroupInputs> {
+    let t = targets::group_targets(group, fs, freq_hz)?;
+    let start = skip_start(group.len(), fs);
+    let theta: Vec<f64> = group.t_s.iter().map(|ts| 2.0 * PI * freq_hz * ts + t.cmd.phase_rad).collect();
+    let de: Vec<f64> = (start..group.len()).map(|k| group.z_tcp_um[k] - group.z_cmd_um[k]).collect();
+    let target = project_out_fundamental(&de, &theta[start..]);
+    Ok(GroupInputs {
+        pos_nm: group.z_cmd_um.iter().map(|z| (z * 1000.0).round() as i32).collect(),
+        theta,
+        start,
+        target,
+    })
+}
+
+/// The window the terms are fitted on: after the start transient (0.5 s) to the end.
+fn skip_start(len: usize, fs: f64) -> usize {
+    ((0.5 * fs) as usize).min(len.saturating_sub(1))
+}
+
+/// `y` minus its least-squares sine and cosine at phase `theta` and its mean.
+fn project_out_fundamental(y: &[f64], theta: &[f64]) -> Vec<f64> {
+    let s: Vec<f64> = theta.iter().map(|t| t.sin()).collect();
+    let c: Vec<f64> = theta.iter().map(|t| t.cos()).collect();
+    let one = vec![1.0; y.len()];
+    let st = Stats::from_columns(&[s.clone(), c.clone(), one], y);
+    let th = solve(&[&st]);
+    y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k] - th[2]).collect()
+}
+
+/// The inputs of a term kind, as the firmware computes them from the command position.
+fn term_input(kind: &TermInput, pos: &[i32]) -> Vec<f64> {
+    match *kind {
+        TermInput::VelocitySign { smooth_nm_per_4_ticks } => (0..pos.len())
+            .map(|k| {
+                let dv = f64::from(pos[k]) - f64::from(pos[k.saturating_sub(4)]);
+                (dv / f64::from(smooth_nm_per_4_ticks.max(1))).clamp(-1.0, 1.0)
+            })
+            .collect(),
+        TermInput::Dahl { inv_x0_q30 } => {
+            let inv = f64::from(inv_x0_q30) / (1u64 << 30) as f64;
+            let mut u = 0.0f64;
+            (0..pos.len())
+                .map(|k| {
+                    let dx = if k == 0 { 0.0 } else { f64::from(pos[k]) - f64::from(pos[k - 1]) };
+                    u = (u + (dx * inv).clamp(-2.0, 2.0) * (1.0 - dx.signum() * u)).clamp(-1.0, 1.0);
+                    u
+                })
+                .collect()
+        }
+        TermInput::PositionSine { turns_per_nm, phase_turns } => pos
+            .iter()
+            .map(|&p| {
+                let turns = (p as u32).wrapping_mul(turns_per_nm).wrapping_add(phase_turns);
+                (2.0 * PI * f64::from(turns) / 4_294_967_296.0).sin()
+            })
+            .collect(),
+    }
+}
+
+/// The ripple's pitch, um: the position sine (unfiltered) that best explains the slowest groups,
+/// where the servo follows a position-periodic error without filtering (peak command velocity
+/// at most 100 um/s, or the slowest fifth of the groups).
+fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
+    let vpeak: Vec<f64> = dataset.manifest.groups.iter().map(|g| 2.0 * PI * g.freq_hz * g.amp_um).collect();
+    let mut sorted = vpeak.clone();
+    sorted.sort_by(f64::total_cmp);
+    let limit = sorted.get(sorted.len() / 5).copied().unwrap_or(0.0).max(100.0);
+    let slow: Vec<&GroupInputs> = inputs.iter().zip(&vpeak).filter(|(_, v)| **v <= limit).map(|(g, _)| g).collect();
+    let sse_of = |turns_per_nm: u32| -> f64 {
+        let kinds = [
+            TermInput::PositionSine { turns_per_nm, phase_turns: 0 },
+            TermInput::PositionSine { turns_per_nm, phase_turns: 1 << 30 },
+        ];
+        let stats: Vec<Stats> = slow
+            .iter()
+            .map(|g| {
+                let cols: Vec<Vec<f64>> = kinds
+                    .iter()
+                    .map(|k| project_out_fundamental(&term_input(k, &g.pos_nm)[g.start..], &g.theta[g.start..]))
+                    .collect();
+                Stats::from_columns(&cols, &g.target)
+            })
+            .collect();
+        let refs: Vec<&Stats> = stats.iter().collect();
+        let theta = solve(&refs);
+        stats.iter().map(|s| s.sse(&theta)).sum()
+    };
+    let best_of = |pitches_um: Vec<f64>| -> f64 {
+        let sse: Vec<f64> =
+            pitches_um.par_iter().map(|&p| sse_of((4_294_967_296.0 / (1000.0 * p)).round() as u32)).collect();
+        let best = (0..pitches_um.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
+        pitches_um[best]
+    };
+    // 1-10 um in 4% steps, then the best step's neighbourhood in 0.1% steps: the phase over
+    // the groups' travel (a few pitches) must be right to a few degrees for the axis fit.
+    let coarse_um = best_of((0..60).map(|i| 1.04f64.powi(i)).collect());
+    best_of((-40..=40).map(|i| coarse_um * 1.001f64.powi(i)).collect())
+}
+
+/// Prepares `fit --effect` for the named effects: fits their terms and returns the dataset
+/// whose `z_tcp_um` excludes the terms' output.
+pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> {
+    for n in names {
+        if !EFFECTS.contains(&n.as_str()) {
+            anyhow::bail!("--effect: unknown effect {n:?} (known: {})", EFFECTS.join(", "));
+        }
+    }
+    if names.iter().any(|n| n == "sensor-gain") {
+        // A probe gain is taken out of the readings first (the twin models the tool, not the
+        // probe); an accelerometer gain is carried by the refitted formulas.
+        let gain = probe_gain(dataset);
+        let significant = (gain - 1.0).abs() >= PROBE_GAIN_TOLERANCE;
+        let others: Vec<String> = names.iter().filter(|n| *n != "sensor-gain").cloned().collect();
+        let corrected = if significant {
+            std::borrow::Cow::Owned(sts_model::replay::with_probe_gain(dataset, gain))
+        } else {
+            std::borrow::Cow::Borrowed(dataset)
+        };
+        let mut prepared = prepare(&corrected, &others)?;
+        let note = if significant {
+            format!("the probe reads {:+.2}%: its readings are divided by {gain:.5} here and, from the model file, in compare and diagnose", (gain - 1.0) * 100.0)
+        } else {
+            "probe gain within 0.5% of one: a changed accelerometer gain, carried by the refitted amplitude and phase formulas".to_string()
+        };
+        prepared.records.insert(
+            0,
+            EffectRecord { effect: "sensor-gain".into(), params: vec![("probe_gain".into(), gain)], terms: 0, note },
+        );
+        prepared.probe_gain = significant.then_some(gain);
+        return Ok(prepared);
+    }
+    let fs = dataset.manifest.sample_rate_hz;
+    let inputs: Vec<GroupInputs> = dataset
+        .manifest
+        .groups
+        .par_iter()
+        .zip(dataset.groups.par_iter())
+        .map(|(info, g)| group_inputs(g, fs, info.freq_hz).with_context(|| info.file.clone()))
+        .collect::<anyhow::Result<_>>()?;
+    let mut terms = Vec::new();
+    let mut records = Vec::new();
+    let mut axis_names: Vec<String> = Vec::new();
+    for name in names {
+        let (new_terms, params, note) = match name.as_str() {
+            "coulomb-friction" | "presliding-hysteresis" | "force-ripple" => {
+                // One servo-axis twin carries all three (identified together below).
+                axis_names.push(name.clone());
+                continue;
+            }
+            "thermal-drift" => {
+                let (term, params) = fit_drift(dataset, &inputs, fs);
+                (vec![term], params, "offset + decay * exp(-t / tau) over machine time".to_string())
+            }
+            "axis-coupling" => {
+                let (term, params) = fit_coupling(dataset, &inputs)?;
+                (vec![term], params, "X acceleration gain and spindle once-per-revolution sine (the bus carries both; a machine without them sends zero)".to_string())
+            }
+            _ => (Vec::new(), Vec::new(), "linear change of the response at the command frequency: carried by the refitted amplitude and phase formulas".to_string()),
+        };
+        records.push(EffectRecord { effect: name.clone(), params, terms: new_terms.len(), note });
+        terms.extend(new_terms);
+    }
+    if !axis_names.is_empty() {
+        let (term, axis_records) = fit_axis(dataset, &inputs, &axis_names)?;
+        terms.push(term);
+        records.extend(axis_records);
+    }
+    if terms.len() > sts_twin_core::program::MAX_TERMS {
+        anyhow::bail!(
+            "--effect: {} per-tick terms needed, the program holds at most {}",
+            terms.len(),
+            sts_twin_core::program::MAX_TERMS
+        );
+    }
+    // The dataset without the terms' output, through the firmware's own synthesiser.
+    let mut reduced = dataset.clone();
+    let program = sts_twin_core::program::Program {
+        terms: terms.iter().copied().collect(),
+        ..sts_twin_core::program::Program::empty(0)
+    };
+    let diverged: Vec<Option<String>> = reduced
+        .groups
+        .par_iter_mut()
+        .zip(dataset.manifest.groups.par_iter())
+        .map(|(g, info)| {
+            let (out, axis_resets) = terms_output_counted(&program.terms, g, info.start_s, fs);
+            for (z, o) in g.z_tcp_um.iter_mut().zip(out) {
+                *z -= o;
+            }
+            // The firmware resets a diverging axis twin (counted, but its output swings to the
+            // bound first): one that diverges on the measurement's own motions is refused.
+            (axis_resets > 0).then(|| info.file.clone())
+        })
+        .collect();
+    if let Some(file) = diverged.into_iter().flatten().next() {
+        let axis = terms.iter().find_map(|t| if let TickTerm::Axis(p) = t { Some(p) } else { None });
+        anyhow::bail!("the identified servo axis diverges on the motion of {file} (its loop is unstable there: {axis:?}); the measurement may not show enough of the axis to identify it");
+    }
+    Ok(Prepared { dataset: reduced, terms, records, probe_gain: None })
+}
+
+/// The terms' output over a group, um, computed by the firmware's synthesiser.
+pub fn terms_output(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64) -> Vec<f64> {
+    terms_output_counted(terms, group, start_s, fs).0
+}
+
+/// [`terms_output`] and the resets of a diverging axis twin over the group.
+fn terms_output_counted(terms: &[TickTerm], group: &GroupData, start_s: f64, fs: f64) -> (Vec<f64>, u32) {
+    use sts_twin_core::synth::Synth;
+    let mut synth = Synth::new(0);
+    synth.set_time_ticks((start_s.max(0.0) * fs).round() as u64);
+    synth.update(&sts_twin_core::program::ModelOutput::default(), terms);
+    synth.restart_kernels();
+    let out = (0..group.len())
+        .map(|k| f64::from(synth.next_input(&sts_model::replay::tick_input_with_phase(group, k, 0))) * 1e-6)
+        .collect();
+    (out, synth.axis_resets())
+}
+
+/// The servo-axis twin for friction, hysteresis and encoder error (any of them): one term,
+/// and a record per effect with its parameters (per kg of moving mass) and the axis's fit.
+fn fit_axis(
+    dataset: &Dataset,
+    inputs: &[GroupInputs],
+    names: &[String],
+) -> anyhow::Result<(TickTerm, Vec<EffectRecord>)> {
+    let has = |n: &str| names.iter().any(|x| x == n);
+    let ripple_pitch_um = has("force-ripple").then(|| ripple_pitch_um(dataset, inputs));
+    let effects = axis::AxisEffects {
+        friction: has("coulomb-friction"),
+        hysteresis: has("presliding-hysteresis"),
+        ripple_pitch_um,
+    };
+    let fit = axis::identify(dataset, effects).context("identifying the servo axis")?;
+    let p = fit.params;
+    let shared = |params: &mut Vec<(String, f64)>| {
+        params.extend([
+            ("servo_kp_per_s2".to_string(), f64::from(p.kp_per_s2)),
+            ("servo_ki_per_s3".to_string(), f64::from(p.ki_per_s3)),
+            ("servo_kd_per_s".to_string(), f64::from(p.kd_per_s)),
+            ("command_delay_ticks".to_string(), f64::from(p.cmd_delay_ticks)),
+            ("mode_freq_hz".to_string(), f64::from(p.mode_freq_hz)),
+            ("mode_damping".to_string(), f64::from(p.mode_damping)),
+            ("axis_encoder_rms_nm".to_string(), fit.encoder_rms_nm),
+            ("axis_tcp_rms_nm".to_string(), fit.tcp_rms_nm),
+        ])
+    };
+    let mut records = Vec::new();
+    for name in names {
+        let mut params: Vec<(String, f64)> = match name.as_str() {
+            "coulomb-friction" => p.friction.map_or_else(Vec::new, |f| {
+                // The Stribeck zone's steepest fall of friction with velocity (at vs / sqrt 2)
+                // is negative damping; near the servo's own damping the axis hunts there
+                // (oscillates by itself, in a phase no twin can predict from the command).
+                let negative_damping =
+                    (f64::from(f.static_mps2) - f64::from(f.coulomb_mps2)) * 2f64.sqrt() * (-0.5f64).exp()
+                        / f64::from(f.stribeck_mps);
+                vec![
+                    ("coulomb_mps2".to_string(), f64::from(f.coulomb_mps2)),
+                    ("static_mps2".to_string(), f64::from(f.static_mps2)),
+                    ("stribeck_velocity_um_per_s".to_string(), f64::from(f.stribeck_mps) * 1e6),
+                    ("smoothing_velocity_um_per_s".to_string(), f64::from(f.smooth_mps) * 1e6),
+                    ("stribeck_damping_ratio".to_string(), negative_damping / f64::from(p.kd_per_s + p.viscous_per_s)),
+                ]
+            }),
+            "presliding-hysteresis" => p.hysteresis.map_or_else(Vec::new, |h| {
+                vec![
+                    ("force_mps2".to_string(), f64::from(h.force_mps2)),
+                    ("presliding_distance_um".to_string(), f64::from(h.force_mps2 / h.stiffness_per_s2) * 1e6),
+                ]
+            }),
+            _ => p.ripple.map_or_else(Vec::new, |r| {
+                vec![
+                    ("amp_nm".to_string(), f64::from(r.amp_nm)),
+                    ("harmonic2_nm".to_string(), f64::from(r.harmonic2_nm)),
+                    ("pitch_um".to_string(), 4_294_967_296.0 / f64::from(r.turns_per_nm) / 1000.0),
+                    ("phase_deg".to_string(), f64::from(r.phase_turns) / 4_294_967_296.0 * 360.0),
+                ]
+            }),
+        };
+        shared(&mut params);
+        let first = records.is_empty();
+        records.push(EffectRecord {
+            effect: name.clone(),
+            params,
+            terms: usize::from(first),
+            note: format!("servo-axis twin (controller, slide, mode and the effect, simulated from the command; forces per kg; the firmware compensates through it){}", if first { "" } else { ": the term above" }),
+        });
+    }
+    Ok((TickTerm::Axis(p), records))
+}
+
+fn fit_drift(dataset: &Dataset, inputs: &[GroupInputs], fs: f64) -> (TickTerm, Vec<(String, f64)>) {
+    // The drift is what the sine removal leaves as each group's mean; fit on the DE directly.
+    // Offset and decay are linear given the time constant: least squares at each of a grid
+    // of time constants, then a golden-section search of log(tau) between the best one's
+    // neighbours (a tau off by a grid step leaves the early drift, where it is steepest).
+    let targets: Vec<Vec<f64>> = dataset
+        .groups
+        .par_iter()
+        .zip(inputs.par_iter())
+        .map(|(g, gi)| {
+            let de: Vec<f64> = (gi.start..g.len()).map(|k| g.z_tcp_um[k] - g.z_cmd_um[k]).collect();
+            project_out_fundamental_keep_mean(&de, &gi.theta[gi.start..])
+        })
+        .collect();
+    let fit_at = |tau: f64| -> (Vec<f64>, f64) {
+        let stats: Vec<Stats> = dataset
+            .groups
+            .par_iter()
+            .zip(dataset.manifest.groups.par_iter())
+            .zip(inputs.par_iter().zip(targets.par_iter()))
+            .map(|((g, info), (gi, y))| {
+                let e: Vec<f64> = g.t_s[gi.start..].iter().map(|t| (-(info.start_s + t) / tau).exp()).collect();
+                Stats::from_columns(&[vec![1.0; e.len()], e], y)
+            })
+            .collect();
+        let refs: Vec<&Stats> = stats.iter().collect();
+        let theta = solve(&refs);
+        let sse = stats.iter().map(|s| s.sse(&theta)).sum();
+        (theta, sse)
+    };
+    const GRID_S: [f64; 9] = [100.0, 200.0, 400.0, 700.0, 1000.0, 1500.0, 2500.0, 4000.0, 8000.0];
+    let sse: Vec<f64> = GRID_S.iter().map(|&tau| fit_at(tau).1).collect();
+    let best = (0..GRID_S.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(4);
+    let (mut lo, mut hi) = (GRID_S[best.saturating_sub(1)].ln(), GRID_S[(best + 1).min(GRID_S.len() - 1)].ln());
+    let ratio = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut a, mut b) = (hi - ratio * (hi - lo), lo + ratio * (hi - lo));
+    let (mut fa, mut fb) = (fit_at(a.exp()).1, fit_at(b.exp()).1);
+    for _ in 0..20 {
+        if fa <= fb {
+            (hi, b, fb) = (b, a, fa);
+            a = hi - ratio * (hi - lo);
+            fa = fit_at(a.exp()).1;
+        } else {
+            (lo, a, fa) = (a, b, fb);
+            b = lo + ratio * (hi - lo);
+            fb = fit_at(b.exp()).1;
+        }
+    }
+    // The best of the search and the grid point (the search cannot do worse than either end).
+    let searched = if fa <= fb { a.exp() } else { b.exp() };
+    let tau = if fa.min(fb) < sse[best] { searched } else { GRID_S[best] };
+    let (theta, _) = fit_at(tau);
+    let term = TickTerm::Drift {
+        offset_pm: (theta[0] * 1e6).round() as i32,
+        decay_pm: (theta[1] * 1e6).round() as i32,
+        tau_ticks: (tau * fs).round() as u32,
+    };
+    (term, vec![("offset_um".into(), theta[0]), ("decay_um".into(), theta[1]), ("time_constant_s".into(), tau)])
+}
+
+/// `y` minus its sine and cosine at `theta` (the mean kept).
+fn project_out_fundamental_keep_mean(y: &[f64], theta: &[f64]) -> Vec<f64> {
+    let s: Vec<f64> = theta.iter().map(|t| t.sin()).collect();
+    let c: Vec<f64> = theta.iter().map(|t| t.cos()).collect();
+    let st = Stats::from_columns(&[s.clone(), c.clone(), vec![1.0; y.len()]], y);
+    let th = solve(&[&st]);
+    y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k]).collect()
+}
+
+fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> anyhow::Result<(TickTerm, Vec<(String, f64)>)> {
+    let has_x = dataset.groups.iter().all(|g| g.x_acc_mps2.is_some());
+    let has_s = dataset.groups.iter().all(|g| g.spindle_deg.is_some());
+    if !has_x && !has_s {
+        anyhow::bail!("--effect axis-coupling: the dataset has no x_acc_mps2 or spindle_deg column");
+    }
+    let stats: Vec<Stats> = dataset
+        .groups
+        .iter()
+        .zip(inputs)
+        .map(|(g, gi)| {
+            let w = gi.start..g.len();
+            let x: Vec<f64> = g.x_acc_mps2.as_ref().map_or(vec![0.0; w.len()], |v| v[w.clone()].to_vec());
+            let sp: Vec<f64> = g.spindle_deg.as_ref().map_or(vec![0.0; w.len()], |v| v[w.clone()].to_vec());
+            let cols = [
+                x,
+                sp.iter().map(|d| d.to_radians().sin()).collect(),
+                sp.iter().map(|d| d.to_radians().cos()).collect(),
+            ];
+            let cols: Vec<Vec<f64>> = cols.iter().map(|c| project_out_fundamental(c, &gi.theta[gi.start..])).collect();
+            Stats::from_columns(&cols, &gi.target)
+        })
+        .collect();
+    let refs: Vec<&Stats> = stats.iter().collect();
+    let theta = solve(&refs);
+    // a sin(s) + b cos(s) = amp sin(s + phase)
+    let amp = theta[1].hypot(theta[2]);
+    let phase = theta[2].atan2(theta[1]);
+    let term = TickTerm::AxisCoupling {
+        x_gain_pm_per_mps2: (theta[0] * 1e6).round() as i32,
+        spindle_amp_pm: (amp * 1e6).round() as i32,
+        spindle_phase_turns: ((phase / (2.0 * PI)).rem_euclid(1.0) * 4_294_967_296.0) as u64 as u32,
+    };
+    Ok((
+        term,
+        vec![
+            ("x_um_per_mps2".into(), theta[0]),
+            ("spindle_um".into(), amp),
+            ("spindle_phase_deg".into(), phase.to_degrees()),
+        ],
+    ))
+}
+
+impl Prepared {
+    /// Appends the terms to a model fitted on [`Prepared::dataset`] (program, listing, id).
+    pub fn attach(&self, mut model: ModelFile) -> anyhow::Result<ModelFile> {
+        model.probe_gain = self.probe_gain;
+        if self.terms.is_empty() {
+            return Ok(model);
+        }
+        let mut program = model.firmware_program()?;
+        for t in &self.terms {
+            program.terms.push(*t).map_err(|_| anyhow::anyhow!("too many per-tick terms"))?;
+        }
+        program.id = 0;
+        program.validate().map_err(|e| anyhow::anyhow!("program with effect terms: {e}"))?;
+        let mut buf = [0u8; 2048];
+        let bytes =
+            postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+        program.id = sts_twin_core::wire::frame_crc32(bytes);
+        let bytes =
+            postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+        model.program_postcard_hex = hex_encode(bytes);
+        model.program.id = program.id;
+        model.program.terms = program.terms.len();
+        Ok(model)
+    }
+
+    /// Adds the `effects` field to a written model file.
+    pub fn write_record(&self, path: &Path) -> anyhow::Result<()> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        let mut value: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+        value["effects"] = serde_json::to_value(&self.records)?;
+        std::fs::write(path, serde_json::to_string_pretty(&value)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))
+    }
+}
+
+/// The `effects` field of a model file, if any.
+pub fn read_records(path: &Path) -> anyhow::Result<Vec<EffectRecord>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    match value.get("effects") {
+        Some(v) => serde_json::from_value(v.clone()).with_context(|| format!("{}: field `effects`", path.display())),
+        None => Ok(Vec::new()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_probe_gain_is_found_on_the_slowest_groups_and_taken_out() {
+        use sts_emulator::{measure::MeasureConfig, EffectSpec};
+        let measure = |spec: &str| {
+            let effects = vec![spec.parse::<EffectSpec>().expect("effect")];
+            let config = MeasureConfig {
+                effects,
+                freqs_hz: vec![1.0, 20.0, 40.0],
+                amps_um: vec![4.0, 8.0],
+                duration_s: 3.0,
+                seed: 3,
+                ..MeasureConfig::default()
+            };
+            sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
+        };
+        let short = measure("sensor-gain:probe_gain=0.94,acc_gain=1");
+        let prepared = prepare(&short, &["sensor-gain".to_string()]).expect("prepare");
+        let gain = prepared.probe_gain.expect("a probe gain 6% short is corrected");
+        assert!((gain - 0.94).abs() < 5e-4, "gain {gain}");
+        // The corrected readings are the probe's divided by the gain.
+        let (raw, fixed) = (&short.groups[3].z_tcp_um, &prepared.dataset.groups[3].z_tcp_um);
+        assert!(raw.iter().zip(fixed).all(|(r, f)| (r / gain - f).abs() < 1e-12));
+        // An accelerometer gain leaves the probe alone.
+        let acc = measure("sensor-gain:probe_gain=1,acc_gain=1.08");
+        let prepared = prepare(&acc, &["sensor-gain".to_string()]).expect("prepare");
+        assert_eq!(prepared.probe_gain, None);
+        assert_eq!(prepared.dataset.groups[3].z_tcp_um, acc.groups[3].z_tcp_um);
+    }
+
+    fn sine_group(freq_hz: f64, amp_um: f64, n: usize) -> GroupData {
+        let mut g = GroupData::with_len(n);
+        for k in 0..n {
+            let t = k as f64 / 8000.0;
+            g.t_s[k] = t;
+            g.z_cmd_um[k] = amp_um * (2.0 * PI * freq_hz * t).sin();
+        }
+        g
+    }
+
+    /// The firmware kernels (fixed point) reproduce the f64 regressors the fit uses.
+    #[test]
+    fn kernels_match_the_fitted_model() {
+        let g = sine_group(5.0, 6.0, 16000);
+        let pos: Vec<i32> = g.z_cmd_um.iter().map(|z| (z * 1000.0).round() as i32).collect();
+        let gains = [0.3, -0.2, 0.1, 0.05, -0.04, 0.02, 0.01, -0.01];
+        for kind in [
+            TermInput::VelocitySign { smooth_nm_per_4_ticks: 8 },
+            TermInput::Dahl { inv_x0_q30: ((1u64 << 30) as f64 / 700.0) as i32 },
+            TermInput::PositionSine { turns_per_nm: (4_294_967_296.0f64 / 3000.0) as u32, phase_turns: 1 << 30 },
+        ] {
+            let gains_pm = gains.map(|w| (w * 1e6) as i32);
+            let terms =
+                [TickTerm::Laguerre { input: kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm }];
+            let kernel = terms_output(&terms, &g, 0.0, 8000.0);
+            let stages = sts_analysis::bases::laguerre(
+                &term_input(&kind, &pos),
+                0,
+                POLE,
+                sts_twin_core::program::LAGUERRE_STAGES,
+            );
+            let worst = (0..g.len())
+                .map(|k| (kernel[k] - stages.iter().zip(&gains).map(|(s, w)| s[k] * w).sum::<f64>()).abs())
+                .fold(0.0, f64::max);
+            assert!(worst < 2e-4, "{kind:?}: kernel differs from the model by {worst} um");
+        }
+        let drift = TickTerm::Drift { offset_pm: 300_000, decay_pm: -300_000, tau_ticks: 8000 * 600 };
+        let out = terms_output(&[drift], &g, 900.0, 8000.0);
+        let want = |t: f64| 0.3 - 0.3 * (-t / 600.0).exp();
+        assert!((out[0] - want(900.0)).abs() < 1e-3, "{} vs {}", out[0], want(900.0));
+        assert!((out[15999] - want(902.0)).abs() < 1e-3);
+    }
+}

@@ -1,0 +1,24 @@
+//! Calibrating the co-processor against the machine before a cut: the analogue interface's
+//! offset, `K_dv`, the analogue path's phase, stored in the firmware's persistent config and
+//! verified after a reboot (`sts-twin calibrate-offset`, [`calibrate`]).
+
+pub mod board;
+pub mod enable;
+pub mod kdv;
+
+pub mod offset;
+pub mod path;
+pub mod procedure;
+pub mod rest;
+
+pub use board::{Board, HilBoard};
+pub use enable::{enable_check, EnableCheck, EnableConfig};
+pub use kdv::{measure_kdv, KdvConfig, KdvPoint, KdvReport};
+pub use offset::{measure_offset, OffsetConfig, OffsetPoint, OffsetReport};
+pub use path::{measure_path, path_table, PathConfig, PathPoint};
+pub use procedure::{calibrate, describe_config_source, BootState, CalibrationConfig, CalibrationReport, StoreCheck};
+pub use rest::{RestAverage, RestRig};
+
+/// The emulated machine's types the calibration takes, for callers without the emulator
+/// crate (the HIL tests).
+pub use sts_emulator::{EffectSpec, Machine, PlantParams};

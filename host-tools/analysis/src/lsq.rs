@@ -1,114 +1,128 @@
-//! Linear least squares for the host's fits: per-group sufficient statistics that folds of
-//! groups add up (diagnose, effect identification), and small dense fits (calibration).
+//! Linear least squares for every fit of the host, on `nalgebra`'s Householder QR (never the
+//! normal equations, whose squared condition number costs half the digits):
+//!
+//! - [`Stats`]: one group's regression reduced to the triangular factor of `[X | r]`, which
+//!   folds of groups stack and reduce again ([`solve`]), so cross-validation by group never
+//!   goes back to the samples (diagnose's candidates, the effects' terms);
+//! - [`ridge_solve`]: damped and ridge-regularised solves on whole columns (the axis
+//!   identification's Levenberg-Marquardt steps);
+//! - [`least_squares`]: a small fit with its residuals, refusing dependent columns
+//!   (calibration, sine fits).
+//!
+//! Collinear regressors are common (a candidate's columns can nearly coincide on a short
+//! window), so [`solve`] adds a ridge of [`RIDGE`] relative to each column's norm: a finite,
+//! nearly minimal answer instead of a blow-up.
 
-// Small dense systems read clearest with indices.
-#![allow(clippy::needless_range_loop)]
+use nalgebra::{DMatrix, DVector};
 
-/// Sufficient statistics of one group for a linear candidate: `X'X`, `X'r`, `r'r`.
+/// The ridge of [`solve`] and [`ridge_solve`], relative to each column's squared norm.
+pub const RIDGE: f64 = 1e-9;
+
+/// A column whose diagonal in the triangular factor is below this fraction of the largest
+/// counts as dependent in [`least_squares`].
+const RANK_TOLERANCE: f64 = 1e-9;
+
+/// One group's regression `r ~ X theta` reduced to the upper-triangular factor `R` of the QR
+/// decomposition of `[X | r]`: `||r - X theta||^2 = ||R [-theta; 1]||^2` for every `theta`,
+/// and stacking the factors of several groups is the QR of their stacked samples.
 #[derive(Clone, Debug)]
 pub struct Stats {
-    /// `X'X`.
-    pub xtx: Vec<Vec<f64>>,
-    /// `X'r`.
-    pub xtr: Vec<f64>,
-    /// `r'r`.
-    pub rr: f64,
+    /// `(p + 1) x (p + 1)` upper-triangular factor; the last column belongs to `r`.
+    r_factor: DMatrix<f64>,
 }
 
 impl Stats {
-    /// Accumulates stats of regressor columns `x` (each over the window) and residual `r`.
+    /// The factor of regressor columns `x` (each over the window) and residual `r`.
     pub fn from_columns(x: &[Vec<f64>], r: &[f64]) -> Self {
         let p = x.len();
-        let mut xtx = vec![vec![0.0; p]; p];
-        let mut xtr = vec![0.0; p];
-        for i in 0..p {
-            xtr[i] = x[i].iter().zip(r).map(|(a, b)| a * b).sum();
-            for j in 0..=i {
-                let v: f64 = x[i].iter().zip(&x[j]).map(|(a, b)| a * b).sum();
-                xtx[i][j] = v;
-                xtx[j][i] = v;
-            }
-        }
-        Self { xtx, xtr, rr: r.iter().map(|v| v * v).sum() }
+        let n = r.len();
+        let augmented = DMatrix::from_fn(n, p + 1, |i, j| if j < p { x[j][i] } else { r[i] });
+        Self { r_factor: triangular_factor(augmented) }
+    }
+
+    /// Number of regressors.
+    pub fn columns(&self) -> usize {
+        self.r_factor.ncols() - 1
+    }
+
+    /// Sum of squares of `r` (the residual before any regressor).
+    pub fn residual_ss(&self) -> f64 {
+        self.r_factor.column(self.columns()).norm_squared()
     }
 
     /// Residual sum of squares after subtracting `X theta`.
     pub fn sse(&self, theta: &[f64]) -> f64 {
-        let p = theta.len();
-        let mut quad = 0.0;
-        for i in 0..p {
-            for j in 0..p {
-                quad += theta[i] * self.xtx[i][j] * theta[j];
-            }
-        }
-        let lin: f64 = theta.iter().zip(&self.xtr).map(|(a, b)| a * b).sum();
-        (self.rr - 2.0 * lin + quad).max(0.0)
+        let p = self.columns();
+        let v = DVector::from_fn(p + 1, |i, _| if i < p { -theta.get(i).copied().unwrap_or(0.0) } else { 1.0 });
+        (&self.r_factor * v).norm_squared()
     }
 }
 
-/// Least-squares coefficients over a set of groups' stats.
+/// The QR decomposition's `R` of `m`, padded with zero rows to square when `m` has fewer rows
+/// than columns.
+fn triangular_factor(m: DMatrix<f64>) -> DMatrix<f64> {
+    let cols = m.ncols();
+    let r = m.qr().r();
+    if r.nrows() == cols {
+        return r;
+    }
+    let mut square = DMatrix::zeros(cols, cols);
+    square.rows_mut(0, r.nrows()).copy_from(&r);
+    square
+}
+
+/// Ridge least-squares coefficients over a set of groups' stats: the groups' factors stacked
+/// and reduced again, each column scaled to unit norm with a ridge of [`RIDGE`].
 pub fn solve(stats: &[&Stats]) -> Vec<f64> {
-    let p = stats.first().map_or(0, |s| s.xtr.len());
-    let mut a = vec![vec![0.0; p]; p];
-    let mut b = vec![0.0; p];
-    for s in stats {
-        for i in 0..p {
-            b[i] += s.xtr[i];
-            for j in 0..p {
-                a[i][j] += s.xtx[i][j];
-            }
-        }
-    }
-    solve_ridge(a, b)
-}
-
-/// Solves `a x = b` (`a` symmetric positive semi-definite) by Cholesky with a tiny ridge
-/// relative to the diagonal, so collinear regressors give a finite, minimal-ish answer.
-pub fn solve_ridge(mut a: Vec<Vec<f64>>, b: Vec<f64>) -> Vec<f64> {
-    let n = b.len();
-    if n == 0 {
+    let Some(first) = stats.first() else { return Vec::new() };
+    let p = first.columns();
+    if p == 0 {
         return Vec::new();
     }
-    let scale: Vec<f64> = (0..n).map(|i| a[i][i].abs().sqrt().max(1e-300)).collect();
-    // Normalise to unit diagonal (conditioning), add the ridge.
-    for i in 0..n {
-        for j in 0..n {
-            a[i][j] /= scale[i] * scale[j];
-        }
-        a[i][i] += 1e-9;
+    let rows = p + 1;
+    let mut stacked = DMatrix::zeros(rows * stats.len(), rows);
+    for (k, s) in stats.iter().enumerate() {
+        stacked.rows_mut(k * rows, rows).copy_from(&s.r_factor);
     }
-    let bs: Vec<f64> = (0..n).map(|i| b[i] / scale[i]).collect();
-    let mut l = vec![vec![0.0; n]; n];
-    for i in 0..n {
-        for j in 0..=i {
-            let mut s = a[i][j];
-            for k in 0..j {
-                s -= l[i][k] * l[j][k];
-            }
-            if i == j {
-                l[i][i] = s.max(1e-12).sqrt();
+    let reduced = triangular_factor(stacked);
+    let x = reduced.columns(0, p).into_owned();
+    let y = reduced.column(p).into_owned();
+    ridge_solve_matrix(x, y, 0.0)
+}
+
+/// Solves `min ||y - X b||^2 + (damping + RIDGE) ||D b||^2` where `D` holds the columns' norms
+/// (Marquardt's scaling), by QR of the augmented system. `x` holds the columns.
+pub fn ridge_solve(x: &[Vec<f64>], y: &[f64], damping: f64) -> Vec<f64> {
+    let p = x.len();
+    if p == 0 {
+        return Vec::new();
+    }
+    let n = y.len();
+    let xm = DMatrix::from_fn(n, p, |i, j| x[j][i]);
+    ridge_solve_matrix(xm, DVector::from_column_slice(y), damping)
+}
+
+fn ridge_solve_matrix(x: DMatrix<f64>, y: DVector<f64>, damping: f64) -> Vec<f64> {
+    let (n, p) = x.shape();
+    let scale: Vec<f64> = (0..p).map(|j| x.column(j).norm().max(1e-300)).collect();
+    let root = (damping + RIDGE).sqrt();
+    let augmented = DMatrix::from_fn(n + p, p + 1, |i, j| match (i < n, j < p) {
+        (true, true) => x[(i, j)] / scale[j],
+        (true, false) => y[i],
+        (false, true) => {
+            if i - n == j {
+                root
             } else {
-                l[i][j] = s / l[j][j];
+                0.0
             }
         }
-    }
-    let mut y = vec![0.0; n];
-    for i in 0..n {
-        let mut s = bs[i];
-        for k in 0..i {
-            s -= l[i][k] * y[k];
-        }
-        y[i] = s / l[i][i];
-    }
-    let mut x = vec![0.0; n];
-    for i in (0..n).rev() {
-        let mut s = y[i];
-        for k in i + 1..n {
-            s -= l[k][i] * x[k];
-        }
-        x[i] = s / l[i][i];
-    }
-    (0..n).map(|i| x[i] / scale[i]).collect()
+        (false, false) => 0.0,
+    });
+    let r = triangular_factor(augmented);
+    let rxx = r.view((0, 0), (p, p));
+    let rhs = r.view((0, p), (p, 1)).into_owned();
+    let w = rxx.solve_upper_triangular(&rhs).unwrap_or_else(|| DMatrix::zeros(p, 1));
+    (0..p).map(|j| w[(j, 0)] / scale[j]).collect()
 }
 
 /// A least-squares fit: the coefficients and the RMS of the residuals.
@@ -122,59 +136,37 @@ pub struct LinearFit {
     pub residual_max: f64,
 }
 
-/// Fits `y ~ X b` by the normal equations (Gaussian elimination with partial pivoting).
-/// `None` when there are fewer rows than columns or the columns are linearly dependent.
+/// Fits `y ~ X b` by QR. `None` when there are fewer rows than columns, the columns are
+/// linearly dependent or a value is not finite.
 ///
 /// ```
 /// use sts_analysis::lsq::least_squares;
 /// let rows = [[1.0, 0.0], [1.0, 1.0], [1.0, 2.0]];
-/// let fit = least_squares(&rows, &[1.0, 3.0, 5.0]).unwrap();
+/// let fit = least_squares(&rows, &[1.0, 3.0, 5.0]).expect("independent columns");
 /// assert!((fit.coefficients[0] - 1.0).abs() < 1e-12 && (fit.coefficients[1] - 2.0).abs() < 1e-12);
 /// ```
 pub fn least_squares<const N: usize>(rows: &[[f64; N]], y: &[f64]) -> Option<LinearFit> {
     if rows.len() < N || rows.len() != y.len() || N == 0 {
         return None;
     }
-    let mut m = [[0.0f64; N]; N];
-    let mut v = [0.0f64; N];
-    for (row, &yi) in rows.iter().zip(y) {
-        for i in 0..N {
-            v[i] += row[i] * yi;
-            for j in 0..N {
-                m[i][j] += row[i] * row[j];
-            }
-        }
+    let x = DMatrix::from_fn(rows.len(), N, |i, j| rows[i][j]);
+    let qr = x.qr();
+    let r = qr.r();
+    let largest = (0..N).map(|i| r[(i, i)].abs()).fold(0.0, f64::max);
+    if (0..N).any(|i| !(r[(i, i)].abs() > RANK_TOLERANCE * largest)) {
+        return None;
     }
-    let scale = (0..N).map(|i| m[i][i].abs()).fold(0.0, f64::max);
-    for col in 0..N {
-        let pivot = (col..N).max_by(|&a, &b| m[a][col].abs().total_cmp(&m[b][col].abs()))?;
-        let size = m[pivot][col].abs();
-        if size.is_nan() || size <= 1e-12 * scale {
-            return None;
-        }
-        m.swap(col, pivot);
-        v.swap(col, pivot);
-        for r in col + 1..N {
-            let factor = m[r][col] / m[col][col];
-            for c in col..N {
-                m[r][c] -= factor * m[col][c];
-            }
-            v[r] -= factor * v[col];
-        }
-    }
-    let mut b = [0.0f64; N];
-    for r in (0..N).rev() {
-        let tail: f64 = (r + 1..N).map(|c| m[r][c] * b[c]).sum();
-        b[r] = (v[r] - tail) / m[r][r];
-    }
-    let residuals: Vec<f64> =
-        rows.iter().zip(y).map(|(row, &yi)| yi - row.iter().zip(&b).map(|(x, c)| x * c).sum::<f64>()).collect();
-    let residual_rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
-    let residual_max = residuals.iter().fold(0.0f64, |m, r| m.max(r.abs()));
+    let mut qty = DVector::from_column_slice(y);
+    qr.q_tr_mul(&mut qty);
+    let b = r.solve_upper_triangular(&qty.rows(0, N).into_owned())?;
     if !b.iter().all(|c| c.is_finite()) {
         return None;
     }
-    Some(LinearFit { coefficients: b.to_vec(), residual_rms, residual_max })
+    let residuals: Vec<f64> =
+        rows.iter().zip(y).map(|(row, &yi)| yi - row.iter().zip(b.iter()).map(|(x, c)| x * c).sum::<f64>()).collect();
+    let residual_rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
+    let residual_max = residuals.iter().fold(0.0f64, |m, r| m.max(r.abs()));
+    Some(LinearFit { coefficients: b.iter().copied().collect(), residual_rms, residual_max })
 }
 
 #[cfg(test)]
@@ -182,9 +174,41 @@ mod tests {
     use super::*;
 
     #[test]
-    fn solves_a_small_system() {
-        let x = solve_ridge(vec![vec![4.0, 1.0], vec![1.0, 3.0]], vec![1.0, 2.0]);
-        assert!((x[0] - 1.0 / 11.0).abs() < 1e-6 && (x[1] - 7.0 / 11.0).abs() < 1e-6);
+    fn ridge_solve_matches_the_exact_solution_of_a_well_posed_system() {
+        let x = vec![vec![1.0, 2.0, 3.0, 4.0], vec![1.0, -1.0, 1.0, -1.0]];
+        let y: Vec<f64> = (0..4).map(|i| 0.5 * x[0][i] - 2.0 * x[1][i]).collect();
+        let b = ridge_solve(&x, &y, 0.0);
+        assert!((b[0] - 0.5).abs() < 1e-6 && (b[1] + 2.0).abs() < 1e-6, "{b:?}");
+        // Damping shrinks the step.
+        let damped = ridge_solve(&x, &y, 1.0);
+        assert!(damped[0].abs() < 0.5 && damped[1].abs() < 2.0, "{damped:?}");
+    }
+
+    #[test]
+    fn collinear_columns_give_a_finite_answer() {
+        let x = vec![vec![1.0, 2.0, 3.0], vec![1.0, 2.0, 3.0]];
+        let b = solve(&[&Stats::from_columns(&x, &[2.0, 4.0, 6.0])]);
+        assert!(b.iter().all(|v| v.is_finite()) && (b[0] + b[1] - 2.0).abs() < 1e-6, "{b:?}");
+    }
+
+    #[test]
+    fn stacked_groups_solve_as_the_pooled_samples() {
+        let x = [vec![vec![1.0, 2.0, 3.0], vec![1.0, 1.0, 1.0]], vec![vec![4.0, 5.0], vec![1.0, 1.0]]];
+        let r = [vec![2.1, 3.9, 6.2], vec![8.1, 9.8]];
+        let a = Stats::from_columns(&x[0], &r[0]);
+        let b = Stats::from_columns(&x[1], &r[1]);
+        let pooled = Stats::from_columns(
+            &[[&x[0][0][..], &x[1][0][..]].concat(), [&x[0][1][..], &x[1][1][..]].concat()],
+            &[&r[0][..], &r[1][..]].concat(),
+        );
+        let (theta, theta_pooled) = (solve(&[&a, &b]), solve(&[&pooled]));
+        for (u, v) in theta.iter().zip(&theta_pooled) {
+            assert!((u - v).abs() < 1e-9, "{theta:?} {theta_pooled:?}");
+        }
+        assert!((a.sse(&theta) + b.sse(&theta) - pooled.sse(&theta)).abs() < 1e-9);
+        // A group with fewer samples than columns still reduces.
+        let short = Stats::from_columns(&[vec![1.0], vec![2.0], vec![3.0]], &[1.0]);
+        assert!((short.residual_ss() - 1.0).abs() < 1e-12);
     }
 
     #[test]
@@ -195,7 +219,7 @@ mod tests {
             .enumerate()
             .map(|(k, r)| 0.5 + 2.0 * r[1] - 3.0 * r[2] + if k % 2 == 0 { 0.01 } else { -0.01 })
             .collect();
-        let fit = least_squares(&rows, &y).unwrap();
+        let fit = least_squares(&rows, &y).expect("independent columns");
         assert!((fit.coefficients[1] - 2.0).abs() < 1e-3, "{fit:?}");
         assert!((fit.coefficients[2] + 3.0).abs() < 1e-2, "{fit:?}");
         assert!((fit.residual_rms - 0.01).abs() < 2e-3, "{fit:?}");
@@ -218,5 +242,6 @@ mod tests {
         let direct: f64 = (0..3).map(|k| (r[k] - theta[0] * x[0][k] - theta[1] * x[1][k]).powi(2)).sum();
         assert!((s.sse(&theta) - direct).abs() < 1e-9);
         assert!((theta[0] - 2.0).abs() < 0.1);
+        assert!((s.residual_ss() - r.iter().map(|v| v * v).sum::<f64>()).abs() < 1e-9);
     }
 }

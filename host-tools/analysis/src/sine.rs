@@ -3,6 +3,8 @@
 
 use std::f64::consts::PI;
 
+use crate::lsq::least_squares;
+
 /// A sinusoid `amp * sin(2 pi f t + phase_rad) + offset` fitted to samples.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SineFit {
@@ -16,7 +18,7 @@ pub struct SineFit {
     pub residual_rms: f64,
 }
 
-/// Fits `y(t) ~ a sin(wt) + b cos(wt) + c` by linear least squares (3x3 normal equations).
+/// Fits `y(t) ~ a sin(wt) + b cos(wt) + c` by linear least squares ([`least_squares`]).
 /// Returns `None` for fewer than three samples or a singular system (e.g. `freq_hz = 0`).
 pub fn fit_sine(t_s: &[f64], y: &[f64], freq_hz: f64) -> Option<SineFit> {
     let n = t_s.len().min(y.len());
@@ -24,51 +26,17 @@ pub fn fit_sine(t_s: &[f64], y: &[f64], freq_hz: f64) -> Option<SineFit> {
         return None;
     }
     let w = 2.0 * PI * freq_hz;
-    // Normal equations of the basis (s, c, 1).
-    let (mut ss, mut sc, mut s1, mut cc, mut c1) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    let (mut ys, mut yc, mut y1) = (0.0, 0.0, 0.0);
-    for i in 0..n {
-        let (s, c) = (w * t_s[i]).sin_cos();
-        ss += s * s;
-        sc += s * c;
-        s1 += s;
-        cc += c * c;
-        c1 += c;
-        ys += y[i] * s;
-        yc += y[i] * c;
-        y1 += y[i];
-    }
-    let m = [[ss, sc, s1], [sc, cc, c1], [s1, c1, n as f64]];
-    let [a, b, c] = solve3(m, [ys, yc, y1])?;
-    let mut sq = 0.0;
-    for i in 0..n {
-        let (s, co) = (w * t_s[i]).sin_cos();
-        let r = y[i] - (a * s + b * co + c);
-        sq += r * r;
-    }
+    let rows: Vec<[f64; 3]> = t_s[..n]
+        .iter()
+        .map(|&t| {
+            let (s, c) = (w * t).sin_cos();
+            [s, c, 1.0]
+        })
+        .collect();
+    let fit = least_squares(&rows, &y[..n])?;
+    let [a, b, c] = [fit.coefficients[0], fit.coefficients[1], fit.coefficients[2]];
     // a sin + b cos = amp sin(wt + phase) with amp cos(phase) = a, amp sin(phase) = b.
-    Some(SineFit { amp: a.hypot(b), phase_rad: b.atan2(a), offset: c, residual_rms: (sq / n as f64).sqrt() })
-}
-
-/// Solves a 3x3 system by Cramer's rule; `None` if singular.
-fn solve3(m: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
-    let det = |m: [[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det(m);
-    if !d.is_finite() || d.abs() < 1e-12 * (m[0][0] * m[1][1] * m[2][2]).abs().max(1e-300) {
-        return None;
-    }
-    let mut out = [0.0; 3];
-    for (k, value) in out.iter_mut().enumerate() {
-        let mut mk = m;
-        for row in 0..3 {
-            mk[row][k] = r[row];
-        }
-        *value = det(mk) / d;
-    }
-    Some(out)
+    Some(SineFit { amp: a.hypot(b), phase_rad: b.atan2(a), offset: c, residual_rms: fit.residual_rms })
 }
 
 /// Amplitude of the component at `freq_hz` of `y` sampled at `t_s` (least squares on whole data).

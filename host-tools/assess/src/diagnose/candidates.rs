@@ -113,7 +113,7 @@ fn cross_validate(stats: &[Vec<Stats>], folds: usize) -> (Vec<f64>, usize, Vec<f
         let (v, theta) = best_variant(&train);
         for g in (0..n).filter(|g| g % folds == fold) {
             let s = &stats[v][g];
-            improvements[g] = s.rr - s.sse(&theta);
+            improvements[g] = s.residual_ss() - s.sse(&theta);
         }
     }
     let all: Vec<usize> = (0..n).collect();

@@ -126,7 +126,7 @@ pub fn sign_flip_p(d: &[f64]) -> f64 {
     if sq <= 0.0 {
         return 1.0;
     }
-    0.5 * libm_erfc(sum / sq.sqrt() / std::f64::consts::SQRT_2)
+    0.5 * libm::erfc(sum / sq.sqrt() / std::f64::consts::SQRT_2)
 }
 
 /// The p-value a candidate must be below: Bonferroni over the candidates and statistics.
@@ -141,26 +141,6 @@ fn relative_improvement(d: f64, ss: f64) -> f64 {
         d / ss
     } else {
         0.0
-    }
-}
-
-/// Complementary error function (Numerical Recipes' erfcc, relative error < 1.2e-7).
-fn libm_erfc(x: f64) -> f64 {
-    let z = x.abs();
-    let t = 1.0 / (1.0 + 0.5 * z);
-    let r = t
-        * (-z * z - 1.26551223
-            + t * (1.00002368
-                + t * (0.37409196
-                    + t * (0.09678418
-                        + t * (-0.18628806
-                            + t * (0.27886807
-                                + t * (-1.13520398 + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277)))))))))
-            .exp();
-    if x >= 0.0 {
-        r
-    } else {
-        2.0 - r
     }
 }
 

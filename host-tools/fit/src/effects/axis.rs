@@ -20,8 +20,7 @@ use sts_dataset::Dataset;
 use sts_twin_core::axis::discretise::{zoh, Continuous, STATES};
 use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
 
-use sts_analysis::lsq::solve_ridge;
-use sts_analysis::lsq::{solve, Stats};
+use sts_analysis::lsq::{ridge_solve, solve, Stats};
 
 /// Servo tick, s (the dataset's rate is checked to be 8 kHz by the caller).
 const TICK_S: f64 = 1.0 / 8000.0;
@@ -372,16 +371,11 @@ fn levenberg_marquardt(
                 rs.iter().zip(&r).map(|(a, b)| (a - b) / h).collect()
             })
             .collect();
-        // J'J and -J'r: the normal equations of the step.
-        let Stats { xtx: jtj, xtr, .. } = Stats::from_columns(&jac, &r);
-        let jtr: Vec<f64> = xtr.iter().map(|v| -v).collect();
+        // The step makes J step ~ -r, damped by lambda in Marquardt's scaling.
+        let minus_r: Vec<f64> = r.iter().map(|v| -v).collect();
         let mut improved = false;
         for _ in 0..8 {
-            let mut a = jtj.clone();
-            for (i, row) in a.iter_mut().enumerate() {
-                row[i] *= 1.0 + lambda;
-            }
-            let step = solve_ridge(a, jtr.clone());
+            let step = ridge_solve(&jac, &minus_r, lambda);
             let mut trial = c;
             for (&slot, &s) in free.iter().zip(&step) {
                 trial = moved(&trial, slot, s);

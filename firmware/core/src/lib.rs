@@ -10,6 +10,8 @@
 //! - [`axis`]: a servo-axis twin simulated tick by tick, for friction, hysteresis and encoder
 //!   error, and the compensator that learns the correction through it at low priority.
 //! - [`synth`]: per-tick synthesis of the predicted dynamic error (Eq. 4), phase-continuous.
+//! - [`math`]: the table sine and exponential, the fixed-point helpers and the unit
+//!   conversions the tick and the axis twin share.
 //! - [`feedforward`]: predicted error to a DAC code (Eq. 5) with offset, slew limit and
 //!   saturation counting.
 //! - [`wire`]: the host <-> firmware control messages, COBS framing with a CRC.
@@ -31,6 +33,7 @@ pub mod control;
 pub mod counters;
 pub mod features;
 pub mod feedforward;
+pub mod math;
 pub mod program;
 pub mod servo;
 pub mod synth;

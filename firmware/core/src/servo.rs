@@ -31,8 +31,9 @@ use crate::features::{
     DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features,
 };
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
+use crate::math::{deg_to_turns, um_to_pm};
 use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_AMP_UM, REG_PHASE_DEG};
-use crate::synth::{deg_to_turns, um_to_pm, Synth, SynthTargets};
+use crate::synth::{Synth, SynthTargets};
 
 pub use crate::counters::Counters;
 

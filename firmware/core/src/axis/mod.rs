@@ -116,10 +116,21 @@ pub struct Ripple {
 /// Why an [`AxisParams`] is refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum AxisError {
     /// A value is not finite or out of its documented range (the field's name).
     OutOfRange(&'static str),
 }
+
+impl core::fmt::Display for AxisError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::OutOfRange(field) => write!(f, "axis parameter {field} is not finite or out of its range"),
+        }
+    }
+}
+
+impl core::error::Error for AxisError {}
 
 /// `lo <= x <= hi`, false for NaN.
 fn within(x: f32, lo: f32, hi: f32) -> bool {

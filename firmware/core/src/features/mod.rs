@@ -284,6 +284,7 @@ impl Default for FeatureConfig {
 /// Why a configuration was rejected or a read failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum FeatureError {
     /// `window_samples` is 0.
     WindowZero,

@@ -94,12 +94,25 @@ impl Default for ServoConfig {
 /// Why the servo started on defaults.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum InitError {
     /// The feedforward parameters were invalid.
     Params(ParamError),
     /// The feature settings were invalid.
     Features(FeatureError),
 }
+
+// The inner error is part of the message, so it is not also given as the source.
+impl core::fmt::Display for InitError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Params(err) => write!(f, "invalid feedforward parameters, started on the defaults: {err}"),
+            Self::Features(err) => write!(f, "invalid feature settings, started on the defaults: {err}"),
+        }
+    }
+}
+
+impl core::error::Error for InitError {}
 
 /// Where [`Servo::tick`] leaves a model request: written in place, field by field (block
 /// moves rather than a library `memcpy` of the ~110 bytes), and taken out at low priority.

@@ -45,6 +45,7 @@ impl ModelRequest {
 /// Why a model update produced no output.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ModelFault {
     /// No program is active.
     NoProgram,
@@ -53,6 +54,19 @@ pub enum ModelFault {
     /// The program's evaluation failed.
     Eval(EvalError),
 }
+
+// The inner error is part of the message, so it is not also given as the source.
+impl core::fmt::Display for ModelFault {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::NoProgram => write!(f, "no program is active"),
+            Self::Features(err) => write!(f, "the features could not be computed: {err}"),
+            Self::Eval(err) => write!(f, "the program's evaluation failed: {err}"),
+        }
+    }
+}
+
+impl core::error::Error for ModelFault {}
 
 /// What a model update computed.
 #[derive(Clone, Debug)]
@@ -317,6 +331,14 @@ mod tests {
 
     /// 40 Hz at 8 kHz as the command's phase step.
     const STEP_40HZ: i32 = (4_294_967_296.0f64 * 40.0 / 8000.0) as i64 as i32;
+
+    #[test]
+    fn a_model_fault_says_why_with_the_inner_error() {
+        let fault = ModelFault::Eval(EvalError::NonFiniteFeature { index: 3 });
+        assert_eq!(fault.to_string(), "the program's evaluation failed: input feature 3 is not finite");
+        let fault: &dyn core::error::Error = &ModelFault::Features(FeatureError::Torn);
+        assert!(fault.to_string().ends_with(&FeatureError::Torn.to_string()));
+    }
 
     #[test]
     fn the_path_phase_is_taken_off_the_fundamental_and_each_harmonic_once() {

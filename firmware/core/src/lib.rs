@@ -18,8 +18,6 @@
 //! - [`bus`]: the per-tick virtual analogue bus shared with the host in lockstep.
 //! - [`commands`]: the recent ticks' commands, from the servo tick to the low-priority side.
 //! - [`servo`]: the whole per-tick pipeline the firmware runs and the host simulates.
-//!
-//! With the `std` feature, [`reference`] adds f64 reference implementations for tests.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
@@ -39,6 +37,3 @@ pub mod servo;
 pub mod synth;
 pub mod twin;
 pub mod wire;
-
-#[cfg(feature = "std")]
-pub mod reference;

@@ -1,18 +1,20 @@
-//! f64 reference implementations (host only, `std`), written independently of the
-//! fixed-point code from the definitions in [`features`](crate::features): two-pass central
-//! moments, a plain complex radix-2 FFT of the full zero-padded length with exact twiddles,
-//! and natural logarithms. Tests compare the fixed-point features against these.
+//! f64 reference implementations of the features, a test oracle (included by the feature
+//! tests and the accuracy bench with `#[path]`), written independently of the fixed-point
+//! code from the definitions in `sts_twin_core::features`: two-pass central moments, a
+//! plain complex radix-2 FFT of the full zero-padded length with exact twiddles, and natural
+//! logarithms. Tests compare the fixed-point features against these.
+#![allow(dead_code)]
 
-use crate::features::{
+use std::f64::consts::PI;
+use sts_twin_core::features::{
     FeatureConfig, FeatureError, BLOCK_SAMPLES, DISTINCT_POWER_GAIN, FEATURE_COUNT, MAX_WINDOW_SAMPLES,
     NOISE_FLOOR_FACTOR,
 };
-use std::f64::consts::PI;
 
 /// The reference features plus the intermediate spectrum, for diagnosing differences.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReferenceFeatures {
-    /// f1..f12 by index, as in [`Features::as_array`](crate::features::Features::as_array).
+    /// f1..f12 by index, as in `Features::as_array`.
     pub values: [f64; FEATURE_COUNT],
     /// Power `|X_k|^2` for `k = 0 ..= M/2` of the windowed decimated signal (empty if the
     /// spectrum was not computed); arbitrary common scale.

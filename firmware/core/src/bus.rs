@@ -199,10 +199,10 @@ mod tests {
 
     #[test]
     fn rings_do_not_overlap_and_fit_the_psram() {
-        assert!(WORD_INPUT_RING > WORD_HOST_STOP);
+        const { assert!(WORD_INPUT_RING > WORD_HOST_STOP) };
         assert_eq!(output_slot_word(0), input_slot_word(RING_SLOTS as u32 - 1) + INPUT_SLOT_WORDS);
         assert!(InputSlot::WORDS <= INPUT_SLOT_WORDS && INPUT_SLOT_WORDS.is_power_of_two());
-        assert!(BUS_BYTES <= 16 * 1024 * 1024);
+        const { assert!(BUS_BYTES <= 16 * 1024 * 1024) };
         assert!(RING_SLOTS.is_power_of_two());
     }
 }

@@ -17,6 +17,9 @@ pub struct Envelope<T> {
 }
 
 /// Host to firmware.
+// A message is decoded into a stack buffer in the firmware (no heap to box the large
+// program upload into), so the variants' sizes differ by design.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Request {
     /// Answered by [`Response::Pong`] with the same nonce.
@@ -52,6 +55,7 @@ pub enum Request {
 }
 
 /// Firmware to host.
+#[allow(clippy::large_enum_variant)] // as `Request`: no heap in the firmware
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Response {
     /// Answer to [`Request::Ping`].

@@ -32,6 +32,7 @@ pub use sts_twin_core::bus::{InputSlot, OutputSlot};
 /// Why an [`AdcSource`] has no input for a tick.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum SampleError {
     /// The input did not arrive within the bounded wait: an underrun. The tick is retried.
     Late,
@@ -41,6 +42,18 @@ pub enum SampleError {
     /// The converter or interface reported a fault (board-specific code).
     Fault(u32),
 }
+
+impl core::fmt::Display for SampleError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Late => write!(f, "the input did not arrive in time (underrun)"),
+            Self::Paused => write!(f, "the input source is paused"),
+            Self::Fault(code) => write!(f, "the converter or interface reported fault {code:#x}"),
+        }
+    }
+}
+
+impl core::error::Error for SampleError {}
 
 /// The inputs of the servo: one accelerometer sample and the motion-controller interface
 /// values per tick.
@@ -80,6 +93,7 @@ pub trait TickSource {
 /// Errors of a [`ConfigStore`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ConfigError {
     /// Nothing is stored (fresh or erased storage).
     Empty,
@@ -94,6 +108,19 @@ pub enum ConfigError {
     /// The storage hardware reported an error (board-specific code).
     Hardware(u32),
 }
+
+impl core::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Empty => write!(f, "nothing is stored"),
+            Self::Corrupt => write!(f, "no intact copy of the stored blob"),
+            Self::TooLarge { needed } => write!(f, "the blob needs {needed} bytes, more than there is room for"),
+            Self::Hardware(code) => write!(f, "the storage hardware reported error {code:#x}"),
+        }
+    }
+}
+
+impl core::error::Error for ConfigError {}
 
 /// Small persistent storage for one blob of bytes (settings and the active twin program).
 /// A write replaces the whole blob; a write cut short (power loss, reset) leaves the
@@ -115,4 +142,22 @@ pub trait ControlLink {
     /// Queues `bytes` for sending, returning how many were accepted (fewer when the
     /// transmit buffer is full; the caller retries the rest later).
     fn write(&mut self, bytes: &[u8]) -> usize;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_say_what_went_wrong() {
+        let errors: [(&dyn core::error::Error, &str); 3] = [
+            (&SampleError::Fault(0x2a), "fault 0x2a"),
+            (&ConfigError::TooLarge { needed: 300 }, "300 bytes"),
+            (&ConfigError::Hardware(7), "error 0x7"),
+        ];
+        for (err, detail) in errors {
+            assert!(err.to_string().contains(detail), "{err}");
+            assert!(err.source().is_none());
+        }
+    }
 }

@@ -4,11 +4,13 @@
 //!
 //! `cargo bench -p sts-twin-core --bench features_accuracy` (about a minute).
 
+#[path = "../tests/support/reference.rs"]
+mod reference;
 #[path = "../tests/features_util.rs"]
 mod util;
 
+use reference::features_f64_detail;
 use sts_twin_core::features::{FeatureConfig, FEATURE_COUNT, FEATURE_NAMES, MEAN_FREQ_HZ, SIGNAL_FREQ_HZ};
-use sts_twin_core::reference::features_f64_detail;
 use util::{run, Rng, Signal, Tone};
 
 fn frequency_survey() {

@@ -47,6 +47,7 @@ pub struct AnaloguePath {
 /// Why an analogue-path table was rejected.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum PathError {
     /// More than [`PATH_POINTS`] points.
     TooManyPoints,
@@ -65,6 +66,8 @@ impl core::fmt::Display for PathError {
         })
     }
 }
+
+impl core::error::Error for PathError {}
 
 impl AnaloguePath {
     /// No correction.

@@ -28,6 +28,7 @@ pub struct PersistentConfig {
 /// Why a stored record was not used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ConfigError {
     /// The store is blank (erased or all zero): not an error, just no config.
     Blank,
@@ -46,6 +47,23 @@ pub enum ConfigError {
     /// The record does not fit the buffer (encoding only).
     BufferTooSmall,
 }
+
+impl core::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Blank => write!(f, "the config store is blank"),
+            Self::Magic => write!(f, "config record has the wrong magic bytes"),
+            Self::Version => write!(f, "config record format is not version {CONFIG_VERSION}"),
+            Self::Length => write!(f, "config record length is impossible"),
+            Self::Crc => write!(f, "config record CRC mismatch"),
+            Self::Decode => write!(f, "config record payload does not decode"),
+            Self::Invalid => write!(f, "config record parameters are invalid"),
+            Self::BufferTooSmall => write!(f, "config record does not fit the buffer"),
+        }
+    }
+}
+
+impl core::error::Error for ConfigError {}
 
 impl PersistentConfig {
     /// Writes the record into `out`; returns its length.

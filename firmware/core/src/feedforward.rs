@@ -57,6 +57,7 @@ impl Default for FeedforwardParams {
 /// Why feedforward parameters were rejected.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ParamError {
     /// `K_dv` is zero, not finite, outside 1e-4..1e4 um/V in magnitude, or so small that a
     /// DAC code is less than 2 pm of correction.
@@ -90,6 +91,9 @@ impl core::fmt::Display for ParamError {
         })
     }
 }
+
+// The analogue-path error is part of the message, so it is not also given as the source.
+impl core::error::Error for ParamError {}
 
 impl FeedforwardParams {
     /// Checks the parameters; only valid parameters are ever used.

@@ -10,14 +10,14 @@
 //! - [`axis`]: a servo-axis twin simulated tick by tick, for friction, hysteresis and encoder
 //!   error, and the compensator that learns the correction through it at low priority.
 //! - [`synth`]: per-tick synthesis of the predicted dynamic error (Eq. 4), phase-continuous.
+//! - [`math`]: the table sine and exponential, the fixed-point helpers and the unit
+//!   conversions the tick and the axis twin share.
 //! - [`feedforward`]: predicted error to a DAC code (Eq. 5) with offset, slew limit and
 //!   saturation counting.
 //! - [`wire`]: the host <-> firmware control messages, COBS framing with a CRC.
 //! - [`bus`]: the per-tick virtual analogue bus shared with the host in lockstep.
 //! - [`commands`]: the recent ticks' commands, from the servo tick to the low-priority side.
 //! - [`servo`]: the whole per-tick pipeline the firmware runs and the host simulates.
-//!
-//! With the `std` feature, [`reference`] adds f64 reference implementations for tests.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
@@ -31,11 +31,9 @@ pub mod control;
 pub mod counters;
 pub mod features;
 pub mod feedforward;
+pub mod math;
 pub mod program;
 pub mod servo;
 pub mod synth;
 pub mod twin;
 pub mod wire;
-
-#[cfg(feature = "std")]
-pub mod reference;

@@ -8,12 +8,14 @@
 //! - f1: 2e-3 bins (7e-5 bins), unless the reference spectrum has a near-tie: then the
 //!   fixed-point peak must lie on a bin whose reference power is within 0.1% of the peak.
 
+#[path = "support/reference.rs"]
+mod reference;
 #[path = "features_util.rs"]
 mod util;
 
 use proptest::prelude::*;
+use reference::{features_f64_detail, ReferenceFeatures};
 use sts_twin_core::features::*;
-use sts_twin_core::reference::{features_f64_detail, ReferenceFeatures};
 use util::{close, run, table, Signal, Tone};
 
 const REL_TIME_DOMAIN: f64 = 2e-6;

@@ -2,12 +2,14 @@
 //! golden values. Run in debug too: integer overflow then panics, so these tests also show
 //! that no arithmetic overflows.
 
+#[path = "support/reference.rs"]
+mod reference;
 #[path = "features_util.rs"]
 mod util;
 
+use reference::features_f64_detail;
 use std::sync::{Arc, Mutex};
 use sts_twin_core::features::*;
-use sts_twin_core::reference::features_f64_detail;
 use util::{close, table, MaxExtractor};
 
 /// Fixed-point vs reference, loosely (the tight comparison is in features_prop.rs); and

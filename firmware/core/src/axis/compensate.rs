@@ -26,8 +26,8 @@
 //! Everything here is `f32` with `+ - * /` and the table sine, so host and target compute it
 //! bit for bit alike; it runs at low priority (see [`crate::servo::Models`]).
 
-use super::math::sin_turns;
 use super::{AxisError, AxisModel, AxisParams, AxisState};
+use crate::math::sin_turns;
 
 /// Harmonic orders of the correction, of the command frequency (the fundamental first).
 pub const ORDERS: [u32; 2] = [1, 3];

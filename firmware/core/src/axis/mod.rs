@@ -26,10 +26,13 @@
 
 pub mod compensate;
 pub mod discretise;
-pub mod math;
 mod model;
 
 pub use model::{AxisModel, AxisState};
+
+/// The table `exp(-x)`, smoothed sign and table sine of the axis twin, which live with the
+/// rest of the core's arithmetic in [`crate::math`] (re-exported at their former path).
+pub use crate::math;
 
 use serde::{Deserialize, Serialize};
 
@@ -71,7 +74,7 @@ pub struct AxisParams {
 }
 
 /// Coulomb friction with a Stribeck peak: `F(v) = -(Fc + (Fs - Fc) exp(-(v/vs)^2)) s(v/v_smooth)`,
-/// `s(y)` a smoothed sign close to `tanh` ([`math::smooth_sign`]).
+/// `s(y)` a smoothed sign close to `tanh` ([`crate::math::smooth_sign`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Friction {
@@ -113,10 +116,21 @@ pub struct Ripple {
 /// Why an [`AxisParams`] is refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum AxisError {
     /// A value is not finite or out of its documented range (the field's name).
     OutOfRange(&'static str),
 }
+
+impl core::fmt::Display for AxisError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::OutOfRange(field) => write!(f, "axis parameter {field} is not finite or out of its range"),
+        }
+    }
+}
+
+impl core::error::Error for AxisError {}
 
 /// `lo <= x <= hi`, false for NaN.
 fn within(x: f32, lo: f32, hi: f32) -> bool {

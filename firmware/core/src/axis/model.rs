@@ -1,8 +1,8 @@
 //! The coefficients of an activated axis twin and its per-tick state.
 
 use super::discretise::{zoh, Continuous};
-use super::math::{exp_neg, sin_turns, smooth_sign};
 use super::{AxisError, AxisParams, MAX_CMD_DELAY_TICKS};
+use crate::math::{exp_neg, sin_turns, smooth_sign};
 
 /// Servo tick, s.
 const TICK_S: f64 = 1.0 / 8000.0;

@@ -88,7 +88,7 @@
 //! to f32 once; the remaining f32 operations are IEEE `+ - * /` and [`sqrt_f32`], a
 //! correctly rounded square root in integer arithmetic, so results are bit-identical on the
 //! host and on Cortex-M4F. The spectrum uses a block-floating-point integer FFT with Q30
-//! twiddles. Against the f64 reference (`reference::features_f64`), f2..f10 and f12 agree
+//! twiddles. Against the f64 reference (the tests' `support/reference.rs`), f2..f10 and f12 agree
 //! to 2.3e-7 relative, f11 to 6e-6 and f1 to 1e-4 bins; for sinusoids of 1-100 Hz f1 is
 //! within 0.005 Hz and f11 within 0.05 Hz down to 1e-4 m/s^2 under 5e-5 m/s^2 noise at
 //! 1e-4 m/s^2 per LSB (see `docs/features.md`).
@@ -284,6 +284,7 @@ impl Default for FeatureConfig {
 /// Why a configuration was rejected or a read failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum FeatureError {
     /// `window_samples` is 0.
     WindowZero,

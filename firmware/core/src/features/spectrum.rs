@@ -1,11 +1,14 @@
 //! Read-time spectral features: integer block-floating-point FFT, Hann window, dominant
 //! frequency and noise-floor-subtracted spectral centroid.
 //!
-//! The FFT is written here rather than taken from a crate because no maintained `no_std`
-//! fixed-point FFT with bit-exact, documented scaling exists (`microfft` is f32 only and its
-//! results depend on the compiler's float code generation; CMSIS-DSP's q31 FFT is C and
-//! halves at every stage, losing 11 bits). It is a textbook radix-2 decimation-in-time FFT
-//! with per-stage block scaling, plus the standard split step for a real input.
+//! The FFT is written here rather than taken from a crate because the features must come out
+//! bit for bit the same on the firmware and on the host, in `no_std` fixed point, and no
+//! maintained `no_std` fixed-point FFT with bit-exact, documented scaling exists (`microfft`
+//! is f32 only and its results depend on the compiler's float code generation; CMSIS-DSP's
+//! q31 FFT is C and halves at every stage, losing 11 bits). It is a textbook radix-2
+//! decimation-in-time FFT with per-stage block scaling, plus the standard split step for a
+//! real input. The tests check the features against an f64 reference whose spectrum comes
+//! from `rustfft` (`tests/support/reference.rs`), so the oracle shares no code with this one.
 
 #[cfg(test)]
 use fixed::types::I2F30;

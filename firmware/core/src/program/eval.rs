@@ -38,6 +38,7 @@ impl ModelOutput {
 /// Why an evaluation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum EvalError {
     /// An intermediate value was NaN or infinite.
     NonFinite {
@@ -50,6 +51,17 @@ pub enum EvalError {
         index: u8,
     },
 }
+
+impl core::fmt::Display for EvalError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            Self::NonFinite { at } => write!(f, "the value computed at byte {at} is not finite"),
+            Self::NonFiniteFeature { index } => write!(f, "input feature {index} is not finite"),
+        }
+    }
+}
+
+impl core::error::Error for EvalError {}
 
 impl Program {
     /// Evaluates the program on `features`. The program must have passed

@@ -9,6 +9,7 @@ use super::{
 /// Why a program was rejected. Byte positions are offsets into [`Program::code`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ProgramError {
     /// The version is not [`PROGRAM_VERSION`].
     BadVersion {
@@ -131,6 +132,8 @@ impl core::fmt::Display for ProgramError {
         }
     }
 }
+
+impl core::error::Error for ProgramError {}
 
 impl Program {
     /// Checks everything the evaluator relies on. A program that passes can be evaluated on

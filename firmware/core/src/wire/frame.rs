@@ -23,6 +23,7 @@ pub fn frame_crc32(bytes: &[u8]) -> u32 {
 /// Why a frame was dropped (or could not be encoded).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum FrameError {
     /// More bytes than [`MAX_ENCODED_FRAME`] arrived before a delimiter.
     TooLong,
@@ -50,6 +51,8 @@ impl core::fmt::Display for FrameError {
         })
     }
 }
+
+impl core::error::Error for FrameError {}
 
 /// Encodes `body` with sequence number `seq` into `out` as one complete frame including the
 /// trailing 0x00; returns the number of bytes written.

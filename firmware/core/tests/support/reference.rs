@@ -1,18 +1,23 @@
-//! f64 reference implementations (host only, `std`), written independently of the
-//! fixed-point code from the definitions in [`features`](crate::features): two-pass central
-//! moments, a plain complex radix-2 FFT of the full zero-padded length with exact twiddles,
-//! and natural logarithms. Tests compare the fixed-point features against these.
+//! f64 reference implementations of the features, a test oracle (included by the feature
+//! tests and the accuracy bench with `#[path]`), written independently of the fixed-point
+//! code from the definitions in `sts_twin_core::features`: two-pass central moments, the
+//! spectrum by `rustfft` (a complex FFT of the full zero-padded length, in f64, independent
+//! of the firmware's own fixed-point FFT) and natural logarithms. Tests compare the
+//! fixed-point features against these.
+#![allow(dead_code)]
 
-use crate::features::{
+use rustfft::num_complex::Complex;
+use rustfft::FftPlanner;
+use std::f64::consts::PI;
+use sts_twin_core::features::{
     FeatureConfig, FeatureError, BLOCK_SAMPLES, DISTINCT_POWER_GAIN, FEATURE_COUNT, MAX_WINDOW_SAMPLES,
     NOISE_FLOOR_FACTOR,
 };
-use std::f64::consts::PI;
 
 /// The reference features plus the intermediate spectrum, for diagnosing differences.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReferenceFeatures {
-    /// f1..f12 by index, as in [`Features::as_array`](crate::features::Features::as_array).
+    /// f1..f12 by index, as in `Features::as_array`.
     pub values: [f64; FEATURE_COUNT],
     /// Power `|X_k|^2` for `k = 0 ..= M/2` of the windowed decimated signal (empty if the
     /// spectrum was not computed); arbitrary common scale.
@@ -76,14 +81,14 @@ pub fn features_f64_detail(codes: &[i16], cfg: &FeatureConfig) -> Result<Referen
         let var_y = y.iter().map(|v| (v - mean_y).powi(2)).sum::<f64>() / nd as f64;
         values[11] = var_y / 256.0 * scale * scale;
         if nd >= 4 && var_y > 0.0 {
-            let mut re = vec![0.0; m];
-            let mut im = vec![0.0; m];
+            let mut x = vec![Complex::new(0.0, 0.0); m];
             for (j, v) in y.iter().enumerate() {
                 let w = 0.5 * (1.0 - (2.0 * PI * j as f64 / nd as f64).cos());
-                re[j] = (v - mean_y) * w;
+                x[j].re = (v - mean_y) * w;
             }
-            fft_f64(&mut re, &mut im);
-            power = (0..=m / 2).map(|k| re[k] * re[k] + im[k] * im[k]).collect();
+            // Forward (`e^{-i...}`), unnormalised: the power's scale is arbitrary anyway.
+            FftPlanner::new().plan_fft_forward(m).process(&mut x);
+            power = x[..=m / 2].iter().map(|c| c.norm_sqr()).collect();
             let (f1, k) = dominant_bins(&power);
             peak_bin = k;
             values[0] = f1 * bin_hz;
@@ -161,39 +166,4 @@ fn centroid_bins(power: &[f64]) -> f64 {
     let distinct = if den_e > 0.0 { num_e / den_e } else { 0.0 };
     let alpha = (den_e / den_p * DISTINCT_POWER_GAIN as f64).min(1.0);
     alpha * distinct + (1.0 - alpha) * num_p / den_p
-}
-
-/// In-place forward complex FFT (`e^{-i...}`), length a power of two.
-pub fn fft_f64(re: &mut [f64], im: &mut [f64]) {
-    let n = re.len();
-    assert_eq!(n, im.len());
-    assert!(n.is_power_of_two());
-    let bits = n.trailing_zeros();
-    if n < 2 {
-        return;
-    }
-    for i in 0..n {
-        let j = i.reverse_bits() >> (usize::BITS - bits);
-        if j > i {
-            re.swap(i, j);
-            im.swap(i, j);
-        }
-    }
-    let mut half = 1;
-    while half < n {
-        for k in 0..half {
-            let angle = -PI * k as f64 / half as f64;
-            let (s, c) = angle.sin_cos();
-            for start in (0..n).step_by(2 * half) {
-                let (a, b) = (start + k, start + k + half);
-                let tr = re[b] * c - im[b] * s;
-                let ti = re[b] * s + im[b] * c;
-                re[b] = re[a] - tr;
-                im[b] = im[a] - ti;
-                re[a] += tr;
-                im[a] += ti;
-            }
-        }
-        half *= 2;
-    }
 }

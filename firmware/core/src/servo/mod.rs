@@ -16,25 +16,30 @@
 //! or a missing host, marks the inputs untrusted ([`DEGRADED_STUCK`] ...) and the feedforward
 //! ramps to zero compensation until the inputs have been healthy for a whole feature window
 //! and a model result computed on such a window is in force.
+//!
+//! The tick side is here ([`Servo`]); the low-priority side, from the request to the result,
+//! is in `models` ([`Models`]), and when model updates happen in `timing` ([`ModelTiming`]).
 
-use heapless::Vec;
+mod models;
+mod timing;
+
 use serde::{Deserialize, Serialize};
 
 use crate::analogue_path::AnaloguePath;
-use crate::axis::compensate::{Compensator, ORDERS};
 use crate::bus::{
     InputSlot, OutputSlot, OUT_FLAG_DEGRADED, OUT_FLAG_ENABLED, OUT_FLAG_MODEL_ACTIVE, OUT_FLAG_SATURATED,
     OUT_FLAG_SLEWING,
 };
 use crate::commands::DefaultCommandRing;
-use crate::features::{
-    DefaultFeatureState, DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features,
-};
+use crate::features::{DefaultFeatureState, DefaultSpectralRings, FeatureConfig, FeatureError};
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
-use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_AMP_UM, REG_PHASE_DEG};
-use crate::synth::{deg_to_turns, um_to_pm, Synth, SynthTargets};
+use crate::program::{ModelOutput, TickTerm};
+use crate::synth::{Synth, SynthTargets};
+use timing::first_request_countdown;
 
 pub use crate::counters::Counters;
+pub use models::{ModelFault, ModelRequest, ModelResult, Models};
+pub use timing::ModelTiming;
 
 /// Degraded: the accelerometer code has not changed for [`ServoConfig::stuck_limit_ticks`].
 pub const DEGRADED_STUCK: u16 = 1 << 0;
@@ -89,6 +94,7 @@ impl Default for ServoConfig {
 /// Why the servo started on defaults.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum InitError {
     /// The feedforward parameters were invalid.
     Params(ParamError),
@@ -96,34 +102,17 @@ pub enum InitError {
     Features(FeatureError),
 }
 
-/// A snapshot handed from the servo tick to the model update.
-#[derive(Clone, Copy, Debug)]
-pub struct ModelRequest {
-    /// The features' state at the request (its [`FeatureSnapshot::capture`] is what the
-    /// features are computed from).
-    pub snapshot: FeatureSnapshot,
-    /// Tick of the request.
-    pub tick: u64,
-    /// Tick at which the result takes effect.
-    pub due_tick: u64,
-    /// The command phase's advance per tick at the request, u32 turns (as `i32`, signed):
-    /// the command frequency, for the analogue-path correction.
-    pub cmd_step_turns: i32,
-    /// The command phase at the request, u32 turns (the axis twin's compensator takes the
-    /// phases of the ticks before from it and the step).
-    pub cmd_phase_turns: u32,
+// The inner error is part of the message, so it is not also given as the source.
+impl core::fmt::Display for InitError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Params(err) => write!(f, "invalid feedforward parameters, started on the defaults: {err}"),
+            Self::Features(err) => write!(f, "invalid feature settings, started on the defaults: {err}"),
+        }
+    }
 }
 
-impl ModelRequest {
-    /// A request for no real window (what an empty request slot holds).
-    pub const EMPTY: Self = Self {
-        snapshot: FeatureSnapshot::empty(FeatureConfig::DEFAULT),
-        tick: 0,
-        due_tick: 0,
-        cmd_step_turns: 0,
-        cmd_phase_turns: 0,
-    };
-}
+impl core::error::Error for InitError {}
 
 /// Where [`Servo::tick`] leaves a model request: written in place, field by field (block
 /// moves rather than a library `memcpy` of the ~110 bytes), and taken out at low priority.
@@ -143,275 +132,6 @@ impl RequestSlot {
     fn take(&mut self) -> Option<ModelRequest> {
         let full = core::mem::replace(&mut self.full, false);
         full.then_some(self.request)
-    }
-}
-
-/// Why a model update produced no output.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum ModelFault {
-    /// No program is active.
-    NoProgram,
-    /// The feature snapshot was overwritten while it was read.
-    Features(FeatureError),
-    /// The program's evaluation failed.
-    Eval(EvalError),
-}
-
-/// What a model update computed.
-#[derive(Clone, Debug)]
-pub struct ModelResult {
-    /// Tick at which it takes effect.
-    pub due_tick: u64,
-    /// The features it used (zero where they could not be computed).
-    pub features: [f32; 12],
-    /// The program's outputs and its per-tick terms, or why there are none.
-    pub outcome: Result<(ModelOutput, Vec<TickTerm, MAX_TERMS>, u32), ModelFault>,
-    /// The outcome's output converted for the synthesiser (silent without one), so that
-    /// the servo tick applying it need not convert.
-    pub targets: SynthTargets,
-    /// Times the axis twin's compensator diverged and was reset since the last result.
-    pub new_axis_resets: u32,
-}
-
-/// The twin programs (active and staged) and the model computation: the low-priority side.
-pub struct Models {
-    active: Option<Program>,
-    staged: Option<Program>,
-    scratch: DefaultScratch,
-    /// The active program's axis twin, compensating (see [`Models::compute`]).
-    compensator: Option<Compensator>,
-    /// The next tick of the command ring the compensator has not simulated.
-    next_command_tick: Option<u64>,
-    /// The compensator's resets already reported.
-    compensator_resets_seen: u32,
-}
-
-/// Ticks of history a compensator starts on (or restarts on, after the low-priority side
-/// fell behind the command ring): 128 ms.
-const COMPENSATOR_START_TICKS: u64 = 1024;
-
-impl Default for Models {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl Models {
-    /// No program.
-    pub const fn new() -> Self {
-        Self {
-            active: None,
-            staged: None,
-            scratch: DefaultScratch::new(),
-            compensator: None,
-            next_command_tick: None,
-            compensator_resets_seen: 0,
-        }
-    }
-
-    /// The active program changed: a new compensator for its axis twin, if it has one.
-    fn activated(&mut self) {
-        let axis = self.active.as_ref().and_then(|p| {
-            p.terms.iter().find_map(|t| if let TickTerm::Axis(params) = t { Some(*params) } else { None })
-        });
-        // Parameters the validator let through always give a model.
-        self.compensator = axis.and_then(|params| Compensator::new(&params).ok());
-        self.next_command_tick = None;
-        self.compensator_resets_seen = 0;
-    }
-
-    /// Validates `program`; stages it, and activates it if asked. A rejected program changes
-    /// nothing.
-    pub fn upload(&mut self, program: Program, activate: bool) -> Result<(), ProgramError> {
-        program.validate()?;
-        if activate {
-            self.active = Some(program);
-            self.activated();
-        } else {
-            self.staged = Some(program);
-        }
-        Ok(())
-    }
-
-    /// Activates the staged program. Returns false if none is staged.
-    pub fn activate_staged(&mut self) -> bool {
-        match self.staged.take() {
-            Some(program) => {
-                self.active = Some(program);
-                self.activated();
-                true
-            }
-            None => false,
-        }
-    }
-
-    /// Removes the active program.
-    pub fn clear(&mut self) {
-        self.active = None;
-        self.activated();
-    }
-
-    /// Id of the active program.
-    pub fn active_id(&self) -> Option<u32> {
-        self.active.as_ref().map(|p| p.id)
-    }
-
-    /// Id of the staged program.
-    pub fn staged_id(&self) -> Option<u32> {
-        self.staged.as_ref().map(|p| p.id)
-    }
-
-    /// Finishes the features of `request`, evaluates the active program on them and corrects
-    /// the phases for the analogue path (`path`, see [`crate::analogue_path`]) at the command
-    /// frequency of the request.
-    ///
-    /// A program with an axis twin compensates through it: the compensator simulates the
-    /// axis on the ticks' commands up to the request (`commands`) and learns its correction
-    /// ([`crate::axis::compensate`]); its fundamental is added to the program's (after the
-    /// path correction: the compensator's simulation already contains the path) and its
-    /// third harmonic takes the axis term's slot, so that the servo tick runs harmonics only.
-    pub fn compute(
-        &mut self,
-        rings: &DefaultSpectralRings,
-        commands: &DefaultCommandRing,
-        request: &ModelRequest,
-        path: &AnaloguePath,
-    ) -> ModelResult {
-        let mut result = ModelResult {
-            due_tick: request.due_tick,
-            features: [0.0; 12],
-            outcome: Err(ModelFault::NoProgram),
-            targets: SynthTargets::SILENT,
-            new_axis_resets: 0,
-        };
-        self.compensate(commands, request);
-        if let Some(compensator) = &self.compensator {
-            result.new_axis_resets = compensator.resets().wrapping_sub(self.compensator_resets_seen);
-            self.compensator_resets_seen = compensator.resets();
-        }
-        let capture = request.snapshot.capture();
-        let features: Features = match rings.finish(&capture, &mut self.scratch) {
-            Ok(features) => features,
-            Err(err) => {
-                result.outcome = Err(ModelFault::Features(err));
-                return result;
-            }
-        };
-        result.features = features.as_array();
-        if let Some(program) = &self.active {
-            result.outcome = match program.evaluate(&result.features) {
-                Ok(mut output) => {
-                    correct_for_path(
-                        &mut output,
-                        &program.terms,
-                        path,
-                        request.cmd_step_turns,
-                        capture.cfg.sample_rate_hz,
-                    );
-                    match &self.compensator {
-                        Some(compensator) => {
-                            result.targets = compensated_targets(&mut output, &program.terms, compensator)
-                        }
-                        None => result.targets = SynthTargets::new(&output, &program.terms),
-                    }
-                    Ok((output, program.terms.clone(), program.id))
-                }
-                Err(err) => Err(ModelFault::Eval(err)),
-            };
-        }
-        result
-    }
-
-    /// Runs the compensator over the commands since its last run, up to the request's tick,
-    /// and learns from them.
-    fn compensate(&mut self, commands: &DefaultCommandRing, request: &ModelRequest) {
-        let Some(compensator) = &mut self.compensator else {
-            return;
-        };
-        let last = request.tick;
-        let start = match self.next_command_tick {
-            Some(next) if next <= last + 1 && last + 1 - next <= COMPENSATOR_START_TICKS => next,
-            _ => last + 1 - (last + 1).min(COMPENSATOR_START_TICKS),
-        };
-        // The phases of the ticks before the request, from its phase and step (exact for a
-        // command at a steady frequency, as in a cut).
-        let step = request.cmd_step_turns as u32;
-        // A tick missing after simulated ones (this side fell behind and the ring moved on,
-        // or the program started): the simulation restarts from rest at the next one.
-        let mut continuous = self.next_command_tick == Some(start);
-        for tick in start..=last {
-            match commands.get(tick as u32) {
-                Some(pos_nm) => {
-                    if !continuous {
-                        compensator.restart();
-                        continuous = true;
-                    }
-                    compensator
-                        .tick(pos_nm, request.cmd_phase_turns.wrapping_sub(step.wrapping_mul((last - tick) as u32)));
-                }
-                None => continuous = false,
-            }
-        }
-        let tick = last + 1;
-        self.next_command_tick = Some(tick);
-        compensator.learn(request.cmd_step_turns);
-    }
-}
-
-/// The synthesiser's targets of a program whose axis twin compensates: its fundamental plus
-/// the compensator's (a correction `u` cancels the error `-u`), and the axis term's slot a
-/// harmonic of the compensator's higher order. The output's fundamental registers are
-/// updated to the sum.
-fn compensated_targets(output: &mut ModelOutput, terms: &[TickTerm], compensator: &Compensator) -> SynthTargets {
-    let correction_nm = compensator.correction_nm();
-    // amp sin(theta + phase) = (amp cos phase) sin theta + (amp sin phase) cos theta.
-    let (amp_um, phase_rad) = (output.amp_um(), output.phase_deg() * (core::f32::consts::PI / 180.0));
-    let (amp_um, phase_deg) = amp_phase_deg(
-        amp_um * libm::cosf(phase_rad) - correction_nm[0].re * 1e-3,
-        amp_um * libm::sinf(phase_rad) - correction_nm[0].im * 1e-3,
-    );
-    output.registers[REG_AMP_UM as usize] = amp_um;
-    output.registers[REG_PHASE_DEG as usize] = phase_deg;
-    let mut targets = SynthTargets::new(output, terms);
-    if let Some(slot) = terms.iter().position(|t| matches!(t, TickTerm::Axis(_))) {
-        let (amp_um, phase_deg) = amp_phase_deg(-correction_nm[1].re * 1e-3, -correction_nm[1].im * 1e-3);
-        targets.set_harmonic(slot, ORDERS[1], um_to_pm(amp_um), deg_to_turns(phase_deg));
-    }
-    targets
-}
-
-/// `re sin + im cos` as `amp sin(theta + phase)`: `(amp, phase_deg)`.
-fn amp_phase_deg(re: f32, im: f32) -> (f32, f32) {
-    (libm::sqrtf(re * re + im * im), libm::atan2f(im, re) * (180.0 / core::f32::consts::PI))
-}
-
-/// Subtracts the analogue path's phase at the command frequency from the fundamental's
-/// phase, and at `n` times it from each order-`n` harmonic term's phase (a phase register
-/// shared by several terms is corrected once, for the first).
-fn correct_for_path(
-    output: &mut ModelOutput,
-    terms: &[TickTerm],
-    path: &AnaloguePath,
-    cmd_step_turns: i32,
-    sample_rate_hz: f32,
-) {
-    if path.count == 0 {
-        return;
-    }
-    let freq_hz = cmd_step_turns as f32 * (sample_rate_hz / 4_294_967_296.0);
-    // A command running backwards sees the conjugate response.
-    let phase_at = |f_hz: f32| if f_hz < 0.0 { -path.phase_deg_at(-f_hz) } else { path.phase_deg_at(f_hz) };
-    let mut corrected = 1u32 << REG_PHASE_DEG;
-    output.registers[REG_PHASE_DEG as usize] -= phase_at(freq_hz);
-    for term in terms {
-        if let TickTerm::Harmonic { order, phase_reg, .. } = *term {
-            let bit = 1u32.checked_shl(u32::from(phase_reg)).unwrap_or(0);
-            if let Some(reg) = output.registers.get_mut(phase_reg as usize).filter(|_| corrected & bit == 0) {
-                *reg -= phase_at(freq_hz * f32::from(order));
-                corrected |= bit;
-            }
-        }
     }
 }
 
@@ -437,47 +157,6 @@ struct Health {
     /// Healthy ticks still needed before the inputs are trusted again.
     recovering_ticks: u32,
     degraded: u16,
-}
-
-/// Ticks to the first model request: one interval, shifted by half a feature block so that
-/// requests (and the model results applied `model_latency_ticks` later, when that is a whole
-/// number of blocks) never fall on the tick that closes a 16-sample feature block, the most
-/// expensive tick of the feature update.
-fn first_request_countdown(timing: &ModelTiming) -> u32 {
-    timing.interval_ticks.saturating_add((crate::features::BLOCK_SAMPLES / 2) as u32)
-}
-
-/// When model updates happen, for a feature window: the interval is the window over
-/// [`ServoConfig::model_updates_per_window`], within the configured bounds, and the latency
-/// half of it (at most [`ServoConfig::model_latency_ticks`]), both in whole 16-sample blocks
-/// so that requests and results avoid the block ends.
-///
-/// Why frequent updates for short windows: the accelerometer sees the compensated motion,
-/// so the twin's amplitude closes a loop through the machine, and a cut whose amplitude
-/// changes (the bicuspid's shrinks with the radius) is followed with this loop's delay
-/// (measured at 40 Hz with a 0.1 s window: 800/400 ticks left a 0.65 deg phase error,
-/// 96/48 ticks 0.30 deg, 48/16 ticks 0.29 deg; the window itself is the larger delay). A long window gains nothing from frequent updates and its
-/// feature computation costs more, so its interval stays long.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ModelTiming {
-    /// Ticks between model requests.
-    pub interval_ticks: u32,
-    /// Ticks from a request to its result taking effect.
-    pub latency_ticks: u32,
-}
-
-impl ModelTiming {
-    /// The timing for `window_samples` under `config`.
-    pub fn new(config: &ServoConfig, window_samples: u32) -> Self {
-        let block = crate::features::BLOCK_SAMPLES as u32;
-        let whole_blocks = |ticks: u32| (ticks / block).max(1) * block;
-        let longest = config.model_interval_ticks.max(1);
-        let shortest = config.min_model_interval_ticks.clamp(1, longest);
-        let per_window = window_samples / config.model_updates_per_window.max(1);
-        let interval_ticks = whole_blocks(per_window.clamp(shortest, longest));
-        let latency_ticks = whole_blocks(interval_ticks / 2).min(config.model_latency_ticks);
-        Self { interval_ticks, latency_ticks }
-    }
 }
 
 /// The servo-interrupt side of the twin. See the [module docs](self).
@@ -1023,26 +702,13 @@ mod tests {
         assert!(outputs.iter().all(|o| o.de_pred_pm.unsigned_abs() <= 2_100_000_000));
     }
 
-    #[test]
-    fn model_timing_follows_the_window_within_bounds_in_whole_blocks() {
-        let config = ServoConfig::default();
-        assert_eq!(ModelTiming::new(&config, 40_000), ModelTiming { interval_ticks: 800, latency_ticks: 400 });
-        assert_eq!(ModelTiming::new(&config, 2_000), ModelTiming { interval_ticks: 112, latency_ticks: 48 });
-        assert_eq!(ModelTiming::new(&config, 800), ModelTiming { interval_ticks: 48, latency_ticks: 16 });
-        assert_eq!(ModelTiming::new(&config, 16), ModelTiming { interval_ticks: 48, latency_ticks: 16 });
-        let odd =
-            ServoConfig { model_interval_ticks: 7, min_model_interval_ticks: 0, model_updates_per_window: 0, ..config };
-        let timing = ModelTiming::new(&odd, 40_000);
-        assert!(timing.interval_ticks >= 1 && timing.latency_ticks >= 1);
-    }
-
     /// Results delivered late, some on the tick before a block end or a model request: each
     /// is applied on the next tick that is neither, with the update prepared for that tick
     /// (`apply_unprepared` asserts it is never needed), and counted as late.
     #[test]
     fn late_results_avoid_the_busy_ticks_and_are_prepared_for_their_tick() {
         use crate::bus::IN_FLAG_PHASE_VALID;
-        use crate::program::{ProgramBuilder, REG_AMP_UM};
+        use crate::program::{ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
         let features = FeatureConfig { window_samples: 800, ..FeatureConfig::DEFAULT };
         let (servo, check) = Servo::new(features, ServoConfig::default(), FeedforwardParams::default());
         assert_eq!(check, Ok(()));
@@ -1086,31 +752,5 @@ mod tests {
         assert!(applied_on.len() > 50, "{}", applied_on.len());
         assert!(applied_on.iter().all(|(_, busy)| !busy), "{applied_on:?}");
         assert_eq!(servo.counters().model_late, servo.counters().model_updates);
-    }
-
-    #[test]
-    fn the_path_phase_is_taken_off_the_fundamental_and_each_harmonic_once() {
-        let path = AnaloguePath::from_points(&[(40.0, -6.0), (80.0, -30.0), (120.0, -90.0)]).unwrap();
-        let mut output = ModelOutput::default();
-        output.registers[REG_PHASE_DEG as usize] = 10.0;
-        output.registers[3] = 1.0;
-        output.registers[5] = 2.0;
-        let terms = [
-            TickTerm::Harmonic { order: 2, amp_reg: 2, phase_reg: 3 },
-            TickTerm::Harmonic { order: 3, amp_reg: 4, phase_reg: 5 },
-            // Shares term 1's phase register: corrected once only.
-            TickTerm::Harmonic { order: 3, amp_reg: 6, phase_reg: 3 },
-        ];
-        correct_for_path(&mut output, &terms, &path, STEP_40HZ, 8000.0);
-        assert!((output.registers[REG_PHASE_DEG as usize] - 16.0).abs() < 1e-3);
-        assert!((output.registers[3] - 31.0).abs() < 1e-3);
-        assert!((output.registers[5] - 92.0).abs() < 1e-3);
-        // A command running backwards sees the conjugate; an empty table changes nothing.
-        let mut backwards = ModelOutput::default();
-        correct_for_path(&mut backwards, &[], &path, -STEP_40HZ, 8000.0);
-        assert!((backwards.registers[REG_PHASE_DEG as usize] + 6.0).abs() < 1e-3);
-        let mut untouched = output;
-        correct_for_path(&mut untouched, &terms, &AnaloguePath::NONE, STEP_40HZ, 8000.0);
-        assert_eq!(untouched, output);
     }
 }

@@ -6,6 +6,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-cargo build --locked -p sts-twin-firmware --target thumbv7em-none-eabihf --profile firmware
-export STS_TWIN_FIRMWARE_ELF="$PWD/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
+cargo --locked xtask firmware --locked --only qemu
+export STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
 exec cargo run --locked --release -p sts-twin -- demo "$@"

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Runs every test of sts-twin: builds the firmware for QEMU and the real board, the core for
-# RISC-V, then the host, core and HIL test suites (the HIL tests boot the firmware in QEMU).
+# Runs every test of sts-twin: formatting and lints, the firmware for QEMU and the real board,
+# the core for RISC-V, then the host, core and HIL test suites (the HIL tests boot the
+# firmware in QEMU).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -8,12 +9,23 @@ bash scripts/setup.sh
 export CARGO_TERM_COLOR=${CARGO_TERM_COLOR:-never}
 step() { printf '\n== %s\n' "$*"; }
 
-step "firmware for QEMU mps2-an386 (thumbv7em-none-eabihf)"
-cargo build --locked -p sts-twin-firmware --target thumbv7em-none-eabihf --profile firmware
-step "firmware for the real board (STM32H7, build only)"
-cargo build --locked -p sts-twin-board-stm32h7 --target thumbv7em-none-eabihf --profile firmware
+step "formatting (the root workspace and the two firmware apps, which are workspaces of their own)"
+cargo fmt --all -- --check
+(cd firmware/qemu-app && cargo fmt -- --check)
+(cd firmware/stm32h7-app && cargo fmt -- --check)
+step "clippy (root workspace)"
+# The -A flags let through findings that predate clippy in this script, in code this
+# script does not own (firmware/core/src/wire/message.rs and bus.rs; host-tools/cli/src/
+# diagnose, report/svg.rs, rig/mod.rs); drop each once its code is fixed.
+cargo clippy --workspace --all-targets --locked -- -D warnings \
+    -A clippy::large_enum_variant -A clippy::assertions_on_constants \
+    -A clippy::needless_range_loop -A clippy::too_many_arguments
+step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"
+cargo --locked xtask firmware --locked
 step "core library for RISC-V (riscv32imac-unknown-none-elf)"
 cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
 step "tests: core, host tools, HIL"
-STS_TWIN_FIRMWARE_ELF="$PWD/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
-    cargo test --locked --release
+# The HIL harness finds the ELFs at these places by itself; named here to be explicit.
+STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
+STS_TWIN_BRINGUP_ELF="$PWD/firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
+    cargo test --workspace --locked --release

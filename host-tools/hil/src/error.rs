@@ -12,16 +12,17 @@ pub enum HilError {
         /// The program that was looked for.
         program: String,
     },
-    /// The Rust target of the firmware is not installed.
-    #[error("the Rust target thumbv7em-none-eabihf is not installed: run `rustup target add thumbv7em-none-eabihf`")]
-    TargetMissing,
-    /// Building the firmware failed.
-    #[error("building the firmware failed (`{command}`):\n{stderr}")]
-    Build {
-        /// The command that was run.
-        command: String,
-        /// Its error output (last lines).
-        stderr: String,
+    /// No firmware ELF: its environment variable is not set and the default place has none.
+    #[error("no {variant} firmware ELF: {env} is not set and {path} does not exist; build the firmware with `{command}` at the repository root (or set {env} to an ELF)")]
+    FirmwareNotBuilt {
+        /// Which application (twin, bring-up).
+        variant: &'static str,
+        /// The environment variable that was not set.
+        env: &'static str,
+        /// The default place that was looked at.
+        path: PathBuf,
+        /// The command that builds it.
+        command: &'static str,
     },
     /// The firmware ELF is not where it should be.
     #[error("firmware ELF not found at {0}")]

@@ -6,7 +6,7 @@
 //! use sts_hil::{Hil, HilConfig};
 //! use sts_twin_core::bus::InputSlot;
 //!
-//! let mut hil = Hil::start(HilConfig::default())?;          // builds the ELF if needed
+//! let mut hil = Hil::start(HilConfig::default())?;          // the ELF from `cargo xtask firmware`
 //! let out = hil.step(InputSlot { acc_code: 100, ..Default::default() })?;
 //! assert_eq!(out.tick, 0);
 //! hil.shutdown()?;                                            // also done on drop
@@ -36,8 +36,7 @@ pub use bench::{
 pub use bus::{BusCounters, BusFile, Diagnostics};
 pub use error::HilError;
 pub use firmware::{
-    build_firmware, build_firmware_variant, firmware_elf, firmware_elf_of, FirmwareVariant, BRINGUP_ELF_ENV,
-    FIRMWARE_ELF_ENV, FIRMWARE_TARGET,
+    firmware_elf, firmware_elf_of, FirmwareVariant, BRINGUP_ELF_ENV, FIRMWARE_ELF_ENV, FIRMWARE_TARGET,
 };
 pub use harness::{Hil, HilConfig};
 pub use link::ControlPort;

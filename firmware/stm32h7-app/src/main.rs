@@ -15,9 +15,9 @@
 //! | config store | flash bank 2, sectors 6 and 7 | - |
 //!
 //! The background half runs in an embassy `InterruptExecutor` on UART4's (unused)
-//! interrupt, below the servo tick and the USART. Build: `cargo build -p
-//! sts-twin-board-stm32h7 --target thumbv7em-none-eabihf --release`; flash and run with
-//! probe-rs: `cargo run --release` from this directory (see `.cargo/config.toml`).
+//! interrupt, below the servo tick and the USART. Build: `cargo xtask firmware` at the
+//! repository root, or `cargo build --profile firmware` in this directory; flash and run
+//! with probe-rs: `cargo run --release` from this directory (see `.cargo/config.toml`).
 #![no_std]
 #![no_main]
 #![deny(missing_docs)]

@@ -1,0 +1,89 @@
+//! Where `cargo xtask firmware` puts the firmware ELFs.
+//!
+//! The firmware apps (`firmware/qemu-app`, `firmware/stm32h7-app`) are workspaces of their
+//! own that only build for [`FIRMWARE_TARGET`]; each image lands in a fixed place under its
+//! app's own `target` directory, given here relative to the repository root. The HIL harness
+//! (`sts_twin::hil`) looks for the QEMU images at the same places (the hil-tests check that
+//! the two agree).
+
+/// The firmware's Rust target (`rustup target add thumbv7em-none-eabihf`).
+pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";
+/// The cargo profile of the firmware images (defined in each app's Cargo.toml).
+pub const FIRMWARE_PROFILE: &str = "firmware";
+/// The command that builds every image, run at the repository root.
+pub const BUILD_COMMAND: &str = "cargo xtask firmware";
+
+/// One firmware image: an app crate built with some features into some target directory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Image {
+    /// The name `cargo xtask firmware --only` takes.
+    pub name: &'static str,
+    /// What it is, for people.
+    pub what: &'static str,
+    /// The app crate's directory.
+    pub app_dir: &'static str,
+    /// Its cargo features (`--features`), empty for none.
+    pub features: &'static str,
+    /// The target directory it is built into.
+    pub target_dir: &'static str,
+    /// The binary's name.
+    pub bin: &'static str,
+    /// The ELF: `<target_dir>/thumbv7em-none-eabihf/firmware/<bin>`.
+    pub elf: &'static str,
+    /// The environment variable that points the HIL harness at another ELF of this kind.
+    pub env: Option<&'static str>,
+}
+
+/// The twin on QEMU mps2-an386: the product, what the HIL tests and the demo run.
+pub const QEMU_TWIN: Image = Image {
+    name: "qemu",
+    what: "twin firmware, QEMU mps2-an386",
+    app_dir: "firmware/qemu-app",
+    features: "",
+    target_dir: "firmware/qemu-app/target",
+    bin: "sts-twin-firmware",
+    elf: "firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
+    env: Some("STS_TWIN_FIRMWARE_ELF"),
+};
+
+/// The bring-up application on QEMU (feature `bringup`), for the platform tests. Its own
+/// target directory, so that it and the twin both exist.
+pub const QEMU_BRINGUP: Image = Image {
+    name: "bringup",
+    what: "bring-up firmware, QEMU mps2-an386",
+    app_dir: "firmware/qemu-app",
+    features: "bringup",
+    target_dir: "firmware/qemu-app/target/bringup",
+    bin: "sts-twin-firmware",
+    elf: "firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
+    env: Some("STS_TWIN_BRINGUP_ELF"),
+};
+
+/// The real board, STM32H743ZI through embassy-stm32 (build only; flash with probe-rs).
+pub const STM32H7: Image = Image {
+    name: "stm32h7",
+    what: "firmware for the STM32H743ZI board",
+    app_dir: "firmware/stm32h7-app",
+    features: "",
+    target_dir: "firmware/stm32h7-app/target",
+    bin: "sts-twin-board-stm32h7",
+    elf: "firmware/stm32h7-app/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7",
+    env: None,
+};
+
+/// Every image, in build order.
+pub const IMAGES: [Image; 3] = [QEMU_TWIN, QEMU_BRINGUP, STM32H7];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn elf_paths_follow_cargo_layout() {
+        for image in IMAGES {
+            let expected = format!("{}/{FIRMWARE_TARGET}/{FIRMWARE_PROFILE}/{}", image.target_dir, image.bin);
+            assert_eq!(image.elf, expected, "{}", image.name);
+            assert!(image.target_dir.starts_with(image.app_dir), "{}", image.name);
+        }
+    }
+}

@@ -1,0 +1,181 @@
+//! `cargo xtask`: the build tasks of sts-twin (the alias is in `.cargo/config.toml`).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode};
+
+use clap::{Parser, Subcommand, ValueEnum};
+use xtask::{Image, BUILD_COMMAND, FIRMWARE_PROFILE, FIRMWARE_TARGET, IMAGES, QEMU_BRINGUP, QEMU_TWIN, STM32H7};
+
+/// Build tasks of sts-twin that plain cargo at the root cannot do.
+#[derive(Debug, Parser)]
+#[command(name = "cargo xtask", bin_name = "cargo xtask")]
+struct Cli {
+    #[command(subcommand)]
+    task: Task,
+}
+
+#[derive(Debug, Subcommand)]
+enum Task {
+    /// Build the firmware ELFs: the QEMU twin, the QEMU bring-up app and the STM32H7 app.
+    #[command(long_about = FIRMWARE_ABOUT)]
+    Firmware(FirmwareArgs),
+}
+
+const FIRMWARE_ABOUT: &str = "\
+Build the firmware ELFs (thumbv7em-none-eabihf, profile `firmware`) and print where they are.
+
+The firmware apps are workspaces of their own (each with its Cargo.lock and a
+.cargo/config.toml that sets the target and the runner), so a plain `cargo build` at the root
+does not build them. This task runs, in each app's directory:
+
+  qemu     firmware/qemu-app     cargo build --profile firmware
+  bringup  firmware/qemu-app     cargo build --profile firmware --features bringup
+                                 --target-dir target/bringup
+  stm32h7  firmware/stm32h7-app  cargo build --profile firmware
+
+The ELFs land at fixed places (paths from the repository root):
+
+  firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware
+  firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware
+  firmware/stm32h7-app/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7
+
+The HIL harness (sts-twin hil, the hil-tests, the demo) takes the QEMU ELFs from there unless
+STS_TWIN_FIRMWARE_ELF / STS_TWIN_BRINGUP_ELF point elsewhere. It never builds them: run this
+again after changing the firmware. Needs the Rust target: `rustup target add thumbv7em-none-eabihf`.";
+
+#[derive(Debug, clap::Args)]
+struct FirmwareArgs {
+    /// Build only this image (repeat for several); all three by default.
+    #[arg(long, value_enum, value_name = "IMAGE")]
+    only: Vec<ImageName>,
+    /// Pass `--locked` to cargo: fail instead of changing an app's Cargo.lock.
+    #[arg(long)]
+    locked: bool,
+    /// Print the ELF paths, build nothing.
+    #[arg(long)]
+    paths: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum ImageName {
+    /// The twin on QEMU mps2-an386 (firmware/qemu-app).
+    Qemu,
+    /// The bring-up app on QEMU mps2-an386 (firmware/qemu-app, feature `bringup`).
+    Bringup,
+    /// The STM32H743ZI board (firmware/stm32h7-app).
+    Stm32h7,
+}
+
+impl ImageName {
+    fn image(self) -> Image {
+        match self {
+            Self::Qemu => QEMU_TWIN,
+            Self::Bringup => QEMU_BRINGUP,
+            Self::Stm32h7 => STM32H7,
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.task {
+        Task::Firmware(args) => firmware(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("error: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The repository root (this crate lives in `<root>/xtask`).
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("xtask sits in the repository root").to_path_buf()
+}
+
+fn firmware(args: &FirmwareArgs) -> Result<(), String> {
+    let root = repo_root();
+    let images: Vec<Image> = if args.only.is_empty() {
+        IMAGES.to_vec()
+    } else {
+        IMAGES.into_iter().filter(|i| args.only.iter().any(|n| n.image() == *i)).collect()
+    };
+    if !args.paths {
+        check_target_installed()?;
+        for image in &images {
+            build(&root, image, args.locked)?;
+        }
+    }
+    println!("firmware ELFs ({FIRMWARE_TARGET}, profile `{FIRMWARE_PROFILE}`):");
+    for image in &images {
+        let elf = root.join(image.elf);
+        let note = match (elf.is_file(), image.env) {
+            (false, _) => format!("  (not built: {BUILD_COMMAND} --only {})", image.name),
+            (true, Some(env)) => format!("  (HIL default; {env} overrides)"),
+            (true, None) => String::new(),
+        };
+        println!("  {:<8} {}{note}", image.name, elf.display());
+    }
+    Ok(())
+}
+
+/// Builds one image in its app's directory, where the app's `.cargo/config.toml` applies.
+fn build(root: &Path, image: &Image, locked: bool) -> Result<(), String> {
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let app_dir = root.join(image.app_dir);
+    let target_dir = root.join(image.target_dir);
+    let mut args = vec!["build", "--profile", FIRMWARE_PROFILE, "--target", FIRMWARE_TARGET];
+    if !image.features.is_empty() {
+        args.extend(["--features", image.features]);
+    }
+    if locked {
+        args.push("--locked");
+    }
+    let shown = format!("cargo {} --target-dir {}", args.join(" "), target_dir.display());
+    eprintln!("xtask: {} ({}): {shown}", image.name, image.what);
+    let status = Command::new(&cargo)
+        .args(&args)
+        .arg("--target-dir")
+        .arg(&target_dir)
+        .current_dir(&app_dir)
+        // The image's place is fixed: no target or target directory from the environment.
+        .env_remove("CARGO_BUILD_TARGET")
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET_DIR")
+        .status()
+        .map_err(|e| format!("cannot run {}: {e}", Path::new(&cargo).display()))?;
+    if !status.success() {
+        return Err(format!("building {} failed ({status}) in {}: {shown}", image.name, app_dir.display()));
+    }
+    let elf = root.join(image.elf);
+    if !elf.is_file() {
+        return Err(format!("{} built, but its ELF is not at {}", image.name, elf.display()));
+    }
+    Ok(())
+}
+
+/// Fails early, with the command to fix it, when the standard library of the firmware's
+/// target is missing from the toolchain's sysroot.
+fn check_target_installed() -> Result<(), String> {
+    let rustc = std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into());
+    let output = Command::new(&rustc)
+        .args(["--print", "sysroot"])
+        .output()
+        .map_err(|e| format!("cannot run {}: {e}", Path::new(&rustc).display()))?;
+    if !output.status.success() {
+        // Leave the diagnosis to cargo.
+        return Ok(());
+    }
+    let sysroot = PathBuf::from(String::from_utf8_lossy(&output.stdout).trim());
+    let lib = sysroot.join("lib").join("rustlib").join(FIRMWARE_TARGET).join("lib");
+    if lib.is_dir() {
+        Ok(())
+    } else {
+        Err(format!(
+            "the Rust target {FIRMWARE_TARGET} is not installed (no {}): run `rustup target add {FIRMWARE_TARGET}`",
+            lib.display()
+        ))
+    }
+}

@@ -193,3 +193,40 @@ fn search_name(target: Target, fold: Option<usize>) -> String {
         None => format!("final {target:?} search"),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The message and its causes, as the sts-twin command prints an error (`{:#}`).
+    fn chain(error: &dyn std::error::Error) -> String {
+        let mut text = error.to_string();
+        let mut cause = error.source();
+        while let Some(e) = cause {
+            text += &format!(": {e}");
+            cause = e.source();
+        }
+        text
+    }
+
+    #[test]
+    fn a_search_and_a_group_are_named_before_their_cause() {
+        let too_few = |target| Box::new(FitError::TooFewGroups { groups: 3, target });
+        let final_search =
+            FitError::Search { target: Target::Amplitude, fold: None, source: too_few(Target::Amplitude) };
+        assert_eq!(final_search.to_string(), "final Amplitude search");
+        assert_eq!(
+            chain(&final_search),
+            "final Amplitude search: only 3 groups can train the Amplitude model; at least 4 are needed"
+        );
+        let fold_search = FitError::Search { target: Target::Phase, fold: Some(2), source: too_few(Target::Phase) };
+        assert_eq!(
+            chain(&fold_search),
+            "Phase search of fold 2: only 3 groups can train the Phase model; at least 4 are needed"
+        );
+        let group = FitError::Targets { file: "g001.csv".into(), source: TargetError::NoCommand { freq_hz: 10.0 } };
+        assert_eq!(chain(&group), "g001.csv: the command has no sinusoid at 10 Hz to measure the phase against");
+        let axis = FitError::IdentifyAxis { source: Box::new(FitError::NoGroups) };
+        assert_eq!(chain(&axis), "identifying the servo axis: the dataset has no groups");
+    }
+}

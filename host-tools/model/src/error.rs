@@ -91,3 +91,22 @@ fn separator(error: &ModelFileError) -> &'static str {
         ModelFileError::Field { .. } => ": ",
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_rejected_text_names_the_file_as_before() {
+        let json = ModelFileError::Json { line: 3, column: 5, message: "expected value".into() };
+        let field = ModelFileError::Field { field: "format", message: "is \"x\", expected \"y\"".into() };
+        let path = PathBuf::from("m.json");
+        assert_eq!(ModelError::File { path: path.clone(), error: json }.to_string(), "m.json:3:5: expected value");
+        assert_eq!(
+            ModelError::File { path, error: field }.to_string(),
+            "m.json: field `format` is \"x\", expected \"y\""
+        );
+        assert_eq!(ModelError::TrailingBytes { count: 1 }.to_string(), "has 1 byte after the program");
+        assert_eq!(ModelError::TrailingBytes { count: 2 }.to_string(), "has 2 bytes after the program");
+    }
+}

@@ -243,7 +243,7 @@ mod tests {
     use super::*;
     use sts_twin_core::wire::Rejection;
 
-    /// The message and its causes as `{:#}` of anyhow prints them.
+    /// The message and its causes, as the sts-twin command prints an error (`{:#}`).
     fn chain(error: &dyn std::error::Error) -> String {
         let mut text = error.to_string();
         let mut cause = error.source();

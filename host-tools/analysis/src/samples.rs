@@ -6,7 +6,7 @@ use sts_dataset::{Dataset, GroupInfo};
 use sts_twin_core::features::{FeatureConfig, FEATURE_COUNT};
 
 use crate::targets::{self, GroupTargets, PHASE_MIN_AMP_UM};
-use crate::{features, resample};
+use crate::{features, resample, AnalysisError};
 
 /// Length of the feature window, s (the paper's t0..tn; the firmware's default window).
 pub const FEATURE_WINDOW_S: f64 = 5.0;
@@ -33,7 +33,7 @@ pub struct GroupSample {
 
 /// Reads the dataset at `dir` for the twin: resampled to the servo rate when recorded at
 /// another (said on standard error).
-pub fn read_dataset(dir: &std::path::Path) -> anyhow::Result<Dataset> {
+pub fn read_dataset(dir: &std::path::Path) -> Result<Dataset, AnalysisError> {
     let dataset = sts_dataset::read(dir)?;
     if let std::borrow::Cow::Owned(resampled) = resample::to_servo_rate(&dataset) {
         eprintln!(
@@ -69,7 +69,7 @@ pub fn feature_start(group_len: usize, config: &FeatureConfig, sample_rate_hz: f
 
 /// Features and targets of every group with the default skip [`DEFAULT_SKIP_S`] (see
 /// [`group_samples_skipping`]).
-pub fn group_samples(dataset: &Dataset, config: &FeatureConfig) -> anyhow::Result<Vec<GroupSample>> {
+pub fn group_samples(dataset: &Dataset, config: &FeatureConfig) -> Result<Vec<GroupSample>, AnalysisError> {
     group_samples_skipping(dataset, config, DEFAULT_SKIP_S)
 }
 
@@ -80,15 +80,12 @@ pub fn group_samples_skipping(
     dataset: &Dataset,
     config: &FeatureConfig,
     skip_s: f64,
-) -> anyhow::Result<Vec<GroupSample>> {
+) -> Result<Vec<GroupSample>, AnalysisError> {
     let fs = dataset.manifest.sample_rate_hz;
     if fs != resample::SERVO_RATE_HZ {
         // Features per sample and terms per tick at another rate would not be what the board
         // computes: the frequencies it reads would be off by the ratio.
-        anyhow::bail!(
-            "the dataset is sampled at {fs} Hz and the co-processor's servo runs at {} Hz: resample it first (`analysis::resample::to_servo_rate`; the sts-twin commands do it themselves)",
-            resample::SERVO_RATE_HZ
-        );
+        return Err(AnalysisError::SampleRate { sample_rate_hz: fs });
     }
     dataset
         .manifest
@@ -99,12 +96,12 @@ pub fn group_samples_skipping(
         .map(|(index, (info, group))| {
             let start = feature_start(group.len(), config, fs, skip_s);
             let features = features::group_features_from(group, config, start)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
-            let targets =
-                targets::group_targets(group, fs, info.freq_hz).map_err(|e| anyhow::anyhow!("{}: {e}", info.file))?;
+                .map_err(|error| AnalysisError::Features { file: info.file.clone(), error })?;
+            let targets = targets::group_targets(group, fs, info.freq_hz)
+                .map_err(|error| AnalysisError::Targets { file: info.file.clone(), error })?;
             Ok(GroupSample { index, info: info.clone(), features, feature_start: start, targets })
         })
-        .collect::<anyhow::Result<Vec<_>>>()
+        .collect::<Result<Vec<_>, AnalysisError>>()
         .map(|mut samples| {
             unwrap_phases(&mut samples, PHASE_MIN_AMP_UM);
             samples

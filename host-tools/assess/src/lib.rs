@@ -4,3 +4,6 @@
 
 pub mod compare;
 pub mod diagnose;
+mod error;
+
+pub use error::AssessError;

@@ -37,6 +37,8 @@ use sts_symreg::{FrontMember, Matrix, OperatorSet, SearchConfig, SearchResult, S
 use sts_twin_core::features::{FeatureConfig, FEATURE_LABELS};
 use sts_twin_core::program::Program;
 
+use crate::FitError;
+
 use sts_analysis::score::{phase_r_squared, r_squared};
 use sts_analysis::targets::PHASE_MIN_AMP_UM;
 use sts_analysis::{self as analysis, GroupSample};
@@ -157,7 +159,7 @@ pub fn search_config(config: &FitConfig, target: Target, fold: Option<usize>) ->
     }
 }
 
-fn matrix(samples: &[&GroupSample]) -> anyhow::Result<Matrix> {
+fn matrix(samples: &[&GroupSample]) -> Result<Matrix, FitError> {
     let rows: Vec<Vec<f64>> = samples.iter().map(|s| feature_row(s)).collect();
     Ok(Matrix::from_rows(&rows)?)
 }
@@ -186,7 +188,7 @@ fn run_search(
     target: Target,
     search: &SearchConfig,
     progress: &mut dyn FnMut(usize, &str),
-) -> anyhow::Result<SearchResult> {
+) -> Result<SearchResult, FitError> {
     let mut rows: Vec<&GroupSample> = samples.iter().copied().filter(|s| trains(s, target)).collect();
     if rows.len() < 4 && target == Target::Phase {
         // Per-tick terms (a servo-axis twin) can leave the formulas almost nothing: the
@@ -197,7 +199,7 @@ fn run_search(
         rows.truncate(4);
     }
     if rows.len() < 4 {
-        anyhow::bail!("only {} groups can train the {target:?} model; at least 4 are needed", rows.len());
+        return Err(FitError::TooFewGroups { groups: rows.len(), target });
     }
     let x = matrix(&rows)?;
     let y: Vec<f64> = rows.iter().map(|s| target_value(s, target)).collect();
@@ -383,7 +385,7 @@ pub fn fit(
     description: &str,
     config: &FitConfig,
     progress: &mut dyn FnMut(&FitProgress),
-) -> anyhow::Result<ModelFile> {
+) -> Result<ModelFile, FitError> {
     let feature_config: FeatureConfig = analysis::feature_config_for(dataset, config.acc_scale_override);
     let samples = analysis::group_samples_skipping(dataset, &feature_config, config.skip_s)?;
     fit_samples(dataset, &samples, feature_config, description, config, progress)
@@ -397,7 +399,7 @@ pub fn fit_samples(
     description: &str,
     config: &FitConfig,
     progress: &mut dyn FnMut(&FitProgress),
-) -> anyhow::Result<ModelFile> {
+) -> Result<ModelFile, FitError> {
     let folds = config.folds.max(2).min(samples.len().max(2));
     // Final searches first so that the progress shows the final formulas early.
     let mut jobs = vec![Job { target: Target::Amplitude, fold: None }, Job { target: Target::Phase, fold: None }];
@@ -410,11 +412,11 @@ pub fn fit_samples(
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(config.threads.max(1))
         .build()
-        .map_err(|e| anyhow::anyhow!("cannot start {} threads: {e}", config.threads))?;
+        .map_err(|error| FitError::ThreadPool { threads: config.threads, error })?;
 
     // Searches run on the pool; this thread relays their progress in arrival order.
     let (sender, receiver) = mpsc::channel::<(usize, Option<(usize, String)>)>();
-    let results: Vec<anyhow::Result<SearchResult>> = std::thread::scope(|scope| {
+    let results: Vec<Result<SearchResult, FitError>> = std::thread::scope(|scope| {
         let worker = scope.spawn(|| {
             let sender = sender;
             pool.install(|| {
@@ -429,11 +431,8 @@ pub fn fit_samples(
                         let mut report = |epoch: usize, best: &str| {
                             let _ = sender.send((k, Some((epoch, best.to_string()))));
                         };
-                        let result =
-                            run_search(&subset, job.target, &search, &mut report).map_err(|e| match job.fold {
-                                Some(fold) => e.context(format!("{:?} search of fold {fold}", job.target)),
-                                None => e.context(format!("final {:?} search", job.target)),
-                            });
+                        let result = run_search(&subset, job.target, &search, &mut report)
+                            .map_err(|e| FitError::Search { target: job.target, fold: job.fold, source: Box::new(e) });
                         let _ = sender.send((k, None));
                         result
                     })
@@ -458,9 +457,9 @@ pub fn fit_samples(
                 best,
             });
         }
-        worker.join().unwrap_or_else(|_| vec![Err(anyhow::anyhow!("a search panicked"))])
+        worker.join().unwrap_or_else(|_| vec![Err(FitError::SearchPanicked)])
     });
-    let results: Vec<SearchResult> = results.into_iter().collect::<anyhow::Result<_>>()?;
+    let results: Vec<SearchResult> = results.into_iter().collect::<Result<_, FitError>>()?;
     let (amp_final, phase_final) = (&results[0], &results[1]);
     let amp_folds: Vec<SearchResult> = results[2..].iter().step_by(2).cloned().collect();
     let phase_folds: Vec<SearchResult> = results[3..].iter().step_by(2).cloned().collect();
@@ -492,17 +491,16 @@ pub fn fit_samples(
     for fold in 0..folds {
         let amp = &member_up_to(&amp_folds[fold].front, amp_complexity).expr;
         let phase = &member_up_to(&phase_folds[fold].front, phase_complexity).expr;
-        fold_programs.push(compile_program(amp, phase).map_err(|e| anyhow::anyhow!("fold {fold}: {e}"))?);
+        fold_programs.push(compile_program(amp, phase).map_err(|error| FitError::FoldProgram { fold, error })?);
     }
     let held_out: Vec<(f64, f64)> = samples.iter().map(|s| predict(&fold_programs[s.index % folds], s)).collect();
     let amp_expr = &amp_final.front[amp_cv.selected].expr;
     let phase_expr = &phase_final.front[phase_cv.selected].expr;
-    let program = compile_program(amp_expr, phase_expr).map_err(|e| anyhow::anyhow!("final model: {e}"))?;
+    let program = compile_program(amp_expr, phase_expr).map_err(|error| FitError::FinalProgram { error })?;
 
     let validation = validate(dataset, samples, &held_out, folds);
     let mut postcard_buf = [0u8; 1024];
-    let bytes = postcard::to_slice(&program, &mut postcard_buf)
-        .map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+    let bytes = postcard::to_slice(&program, &mut postcard_buf).map_err(|error| FitError::Serialise { error })?;
     Ok(ModelFile {
         format: MODEL_FORMAT.to_string(),
         description: description.to_string(),

@@ -4,6 +4,9 @@
 #![deny(missing_docs)]
 
 pub mod effects;
+mod error;
 pub mod formulas;
+
+pub use error::FitError;
 
 pub use formulas::*;

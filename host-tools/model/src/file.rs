@@ -7,11 +7,12 @@
 
 use std::path::Path;
 
-use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 use sts_symreg::{Expr, FloatType};
 use sts_twin_core::features::{FeatureConfig, FEATURE_LABELS};
 use sts_twin_core::program::Program;
+
+use crate::{ModelError, ModelFileError};
 
 /// The names of the physical effects a model can carry and diagnose can name, in the
 /// library's order (the `--effect` names of `fit` and `measure`).
@@ -169,29 +170,6 @@ pub struct ProgramListing {
     pub terms: usize,
 }
 
-/// Why the text of a model file was rejected.
-#[derive(Debug, thiserror::Error, PartialEq)]
-pub enum ModelFileError {
-    /// Not JSON, or JSON of the wrong shape (a missing field, a wrong type).
-    #[error("{line}:{column}: {message}")]
-    Json {
-        /// Line, from 1.
-        line: usize,
-        /// Column, from 1.
-        column: usize,
-        /// What is wrong.
-        message: String,
-    },
-    /// A field with a bad value.
-    #[error("field `{field}` {message}")]
-    Field {
-        /// The field.
-        field: &'static str,
-        /// What is wrong.
-        message: String,
-    },
-}
-
 /// A model file.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ModelFile {
@@ -233,13 +211,10 @@ impl ModelFile {
 
 impl ModelFile {
     /// Reads and checks a model file; errors name the file (and line and column for JSON).
-    pub fn read(path: &Path) -> anyhow::Result<Self> {
+    pub fn read(path: &Path) -> Result<Self, ModelError> {
         let text =
-            std::fs::read_to_string(path).with_context(|| format!("cannot read model file {}", path.display()))?;
-        Self::from_json(&text).map_err(|e| match e {
-            ModelFileError::Json { .. } => anyhow::anyhow!("{}:{e}", path.display()),
-            ModelFileError::Field { .. } => anyhow::anyhow!("{}: {e}", path.display()),
-        })
+            std::fs::read_to_string(path).map_err(|source| ModelError::Read { path: path.to_path_buf(), source })?;
+        Self::from_json(&text).map_err(|error| ModelError::File { path: path.to_path_buf(), error })
     }
 
     /// Parses and checks the text of a model file.
@@ -269,14 +244,14 @@ impl ModelFile {
         let model: ModelFile = serde_json::from_str(text).map_err(json)?;
         model
             .firmware_program()
-            .map_err(|e| ModelFileError::Field { field: "program_postcard_hex", message: format!("{e:#}") })?;
+            .map_err(|e| ModelFileError::Field { field: "program_postcard_hex", message: e.to_string() })?;
         Ok(model)
     }
 
     /// Writes the model file as pretty JSON.
-    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+    pub fn write(&self, path: &Path) -> Result<(), ModelError> {
         let text = serde_json::to_string_pretty(self)?;
-        std::fs::write(path, text + "\n").with_context(|| format!("cannot write model file {}", path.display()))
+        std::fs::write(path, text + "\n").map_err(|source| ModelError::Write { path: path.to_path_buf(), source })
     }
 
     /// The formulas as Rust source: `dynamic_error_amp_um(x: &[f64]) -> f64` and
@@ -300,15 +275,14 @@ impl ModelFile {
     }
 
     /// The firmware program, decoded from the postcard bytes and validated.
-    pub fn firmware_program(&self) -> anyhow::Result<Program> {
-        let bytes =
-            hex_decode(&self.program_postcard_hex).context("is not hexadecimal (an even number of 0-9, a-f digits)")?;
+    pub fn firmware_program(&self) -> Result<Program, ModelError> {
+        let bytes = hex_decode(&self.program_postcard_hex).ok_or(ModelError::NotHex)?;
         let (program, rest): (Program, &[u8]) =
-            postcard::take_from_bytes(&bytes).map_err(|e| anyhow::anyhow!("is not a postcard-encoded program: {e}"))?;
+            postcard::take_from_bytes(&bytes).map_err(|error| ModelError::NotPostcard { error })?;
         if !rest.is_empty() {
-            anyhow::bail!("has {} byte{} after the program", rest.len(), if rest.len() == 1 { "" } else { "s" });
+            return Err(ModelError::TrailingBytes { count: rest.len() });
         }
-        program.validate().map_err(|e| anyhow::anyhow!("holds an invalid program: {e}"))?;
+        program.validate().map_err(|error| ModelError::InvalidProgram { error })?;
         Ok(program)
     }
 }

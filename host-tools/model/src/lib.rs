@@ -5,8 +5,10 @@
 #![deny(missing_docs)]
 
 mod compile;
+mod error;
 mod file;
 pub mod replay;
 
 pub use compile::{compile_program, expr_to_code};
+pub use error::{ModelError, ModelFileError};
 pub use file::*;

@@ -5,6 +5,7 @@ use sts_model::replay::turns_u32;
 use sts_twin_core::feedforward::FeedforwardParams;
 
 use crate::trajectory::{Trajectory, TrajectoryPoint};
+use crate::RigError;
 use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
 use sts_twin_core::wire::{Request, Response};
 
@@ -25,18 +26,18 @@ pub fn machine_params(plant: &PlantParams, offset_v: f64) -> FeedforwardParams {
 /// A co-processor running the twin: the firmware under QEMU or its host simulation.
 pub trait Coprocessor {
     /// One servo tick.
-    fn tick(&mut self, input: &InputSlot) -> anyhow::Result<OutputSlot>;
+    fn tick(&mut self, input: &InputSlot) -> Result<OutputSlot, RigError>;
     /// One control request and its answer.
-    fn request(&mut self, request: Request) -> anyhow::Result<Response>;
+    fn request(&mut self, request: Request) -> Result<Response, RigError>;
     /// A short name for reports ("hil" or "sim").
     fn kind(&self) -> &'static str;
 }
 
 /// Fails unless `response` is `Ack`, naming what was asked.
-pub fn expect_ack(what: &str, response: Response) -> anyhow::Result<()> {
+pub fn expect_ack(what: &str, response: Response) -> Result<(), RigError> {
     match response {
         Response::Ack => Ok(()),
-        other => anyhow::bail!("the co-processor refused {what}: {other:?}"),
+        other => Err(RigError::Refused { what: what.to_string(), response: Box::new(other) }),
     }
 }
 
@@ -61,7 +62,7 @@ pub fn run_loop(
     dac_full_scale_v: f64,
     analog_enabled: bool,
     mut record: impl FnMut(&LoopSample),
-) -> anyhow::Result<()> {
+) -> Result<(), RigError> {
     let sample_rate_hz = trajectory.sample_rate_hz();
     let mut analog_in_v = 0.0;
     let at_tick = |k: u64| trajectory.at(k as f64 / sample_rate_hz);

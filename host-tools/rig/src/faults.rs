@@ -22,7 +22,7 @@ use sts_twin_core::servo::{
 };
 use sts_twin_core::wire::{ConfigSource, Request, Response, Status};
 
-use super::Coprocessor;
+use super::{Coprocessor, RigError};
 
 /// Every fault `status` shows, one sentence each, most urgent first: why compensation is
 /// ramped out now (the degraded bits), a missing model, a configuration that fell back to
@@ -108,10 +108,10 @@ fn counter_lines(c: &Counters) -> Vec<String> {
 
 /// Asks `coprocessor` for its status and prints [`fault_report`] to stderr (stdout stays
 /// free for reports and JSON).
-pub fn print_fault_report(coprocessor: &mut dyn Coprocessor) -> anyhow::Result<()> {
+pub fn print_fault_report(coprocessor: &mut dyn Coprocessor) -> Result<(), RigError> {
     let status = match coprocessor.request(Request::GetStatus)? {
         Response::Status(status) => status,
-        other => anyhow::bail!("the co-processor answered its status request with {other:?}"),
+        other => return Err(RigError::Unexpected { request: "its status request", response: Box::new(other) }),
     };
     let lines = fault_report(&status);
     if lines.is_empty() {

@@ -3,11 +3,10 @@
 
 use std::time::Duration;
 
-use anyhow::Context as _;
 use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::wire::{encode_frame, FrameDecoder, Request, Response, MAX_ENCODED_FRAME};
 
-use super::Coprocessor;
+use super::{Coprocessor, RigError};
 use sts_hil::{Hil, HilConfig};
 
 /// How long a control request may take to be answered.
@@ -21,8 +20,8 @@ pub struct HilCoprocessor {
 
 impl HilCoprocessor {
     /// Boots the firmware (building it if needed).
-    pub fn start(config: HilConfig) -> anyhow::Result<Self> {
-        let hil = Hil::start(config).context("cannot start the firmware under QEMU")?;
+    pub fn start(config: HilConfig) -> Result<Self, RigError> {
+        let hil = Hil::start(config).map_err(RigError::Start)?;
         Ok(Self { hil, seq: 0 })
     }
 
@@ -32,24 +31,24 @@ impl HilCoprocessor {
     }
 
     /// Ends QEMU.
-    pub fn shutdown(self) -> anyhow::Result<()> {
+    pub fn shutdown(self) -> Result<(), RigError> {
         self.hil.shutdown()?;
         Ok(())
     }
 
     /// Sends raw bytes on the control link and returns the first response frame that comes
     /// back, if any (for tests of corrupted frames).
-    pub fn exchange_raw(&mut self, bytes: &[u8], timeout: Duration) -> anyhow::Result<Vec<u8>> {
+    pub fn exchange_raw(&mut self, bytes: &[u8], timeout: Duration) -> Result<Vec<u8>, RigError> {
         Ok(self.hil.transact(bytes, timeout, |reply| reply.contains(&0))?)
     }
 }
 
 impl Coprocessor for HilCoprocessor {
-    fn tick(&mut self, input: &InputSlot) -> anyhow::Result<OutputSlot> {
+    fn tick(&mut self, input: &InputSlot) -> Result<OutputSlot, RigError> {
         Ok(self.hil.step(*input)?)
     }
 
-    fn request(&mut self, request: Request) -> anyhow::Result<Response> {
+    fn request(&mut self, request: Request) -> Result<Response, RigError> {
         self.seq = self.seq.wrapping_add(1);
         request_on(&mut self.hil, self.seq, request)
     }
@@ -61,11 +60,11 @@ impl Coprocessor for HilCoprocessor {
 
 /// Sends `request` with sequence number `seq` over the firmware's control link (the bus
 /// paused meanwhile) and returns its answer.
-pub fn request_on(hil: &mut Hil, seq: u16, request: Request) -> anyhow::Result<Response> {
+pub fn request_on(hil: &mut Hil, seq: u16, request: Request) -> Result<Response, RigError> {
     let mut frame = [0u8; MAX_ENCODED_FRAME + 1];
     // A leading delimiter resynchronises the firmware's decoder after any line noise.
-    let len =
-        encode_frame(seq, &request, &mut frame[1..]).map_err(|e| anyhow::anyhow!("cannot encode {request:?}: {e}"))?;
+    let len = encode_frame(seq, &request, &mut frame[1..])
+        .map_err(|error| RigError::Encode { request: Box::new(request.clone()), error })?;
     let reply = hil.transact(&frame[..len + 1], REQUEST_TIMEOUT, |bytes| answered(bytes, seq))?;
     let mut decoder = FrameDecoder::<Response>::new();
     for &byte in &reply {
@@ -75,7 +74,7 @@ pub fn request_on(hil: &mut Hil, seq: u16, request: Request) -> anyhow::Result<R
             }
         }
     }
-    anyhow::bail!("the firmware sent no answer to {request:?} (sequence {seq})")
+    Err(RigError::NoAnswer { request: Box::new(request), seq })
 }
 
 /// Whether `bytes` hold a well-formed response with sequence number `seq`.

@@ -9,6 +9,7 @@
 
 pub mod calibrate;
 mod coprocessor;
+mod error;
 mod faults;
 mod hil;
 mod lossy;
@@ -23,3 +24,4 @@ pub use sim::SimCoprocessor;
 pub use trajectory::{Bicuspid, Sinusoid, Trajectory, TrajectoryPoint};
 
 pub use coprocessor::*;
+pub use error::RigError;

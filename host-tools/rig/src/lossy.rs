@@ -14,7 +14,7 @@ use std::time::Duration;
 use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::wire::{encode_frame, FrameDecoder, Request, Response, MAX_ENCODED_FRAME};
 
-use super::{Coprocessor, HilCoprocessor};
+use super::{Coprocessor, HilCoprocessor, RigError};
 use sts_hil::{Hil, HilError};
 
 /// How often a frame is lost or damaged in one direction.
@@ -206,18 +206,18 @@ impl LossyHilCoprocessor {
     }
 
     /// Ends QEMU.
-    pub fn shutdown(self) -> anyhow::Result<()> {
+    pub fn shutdown(self) -> Result<(), RigError> {
         self.inner.shutdown()
     }
 
     /// One attempt: `Some(answer)` or `None` when none came within `timeout`.
-    fn attempt(&mut self, request: &Request, timeout: Duration) -> anyhow::Result<Option<Response>> {
+    fn attempt(&mut self, request: &Request, timeout: Duration) -> Result<Option<Response>, RigError> {
         self.seq = self.seq.wrapping_add(1);
         let seq = self.seq;
         let mut frame = [0u8; MAX_ENCODED_FRAME + 1];
         // A leading delimiter resynchronises the firmware's decoder after a damaged frame.
         let len = encode_frame(seq, request, &mut frame[1..])
-            .map_err(|e| anyhow::anyhow!("cannot encode {request:?}: {e}"))?;
+            .map_err(|error| RigError::Encode { request: Box::new(request.clone()), error })?;
         let wire: &[u8] = match self.inbound.pass(&mut frame[1..len]) {
             FrameFate::Dropped => &[],
             FrameFate::Delivered | FrameFate::Corrupted => &frame[..len + 1],
@@ -260,11 +260,11 @@ impl LossyHilCoprocessor {
 }
 
 impl Coprocessor for LossyHilCoprocessor {
-    fn tick(&mut self, input: &InputSlot) -> anyhow::Result<OutputSlot> {
+    fn tick(&mut self, input: &InputSlot) -> Result<OutputSlot, RigError> {
         self.inner.tick(input)
     }
 
-    fn request(&mut self, request: Request) -> anyhow::Result<Response> {
+    fn request(&mut self, request: Request) -> Result<Response, RigError> {
         let mut timeout = self.policy.first_timeout;
         for attempt in 1..=self.policy.attempts {
             self.stats.attempts += 1;
@@ -275,7 +275,7 @@ impl Coprocessor for LossyHilCoprocessor {
             }
             timeout = (timeout * 2).min(self.policy.max_timeout);
         }
-        anyhow::bail!("no answer to {request:?} after {} attempts over the lossy link", self.policy.attempts)
+        Err(RigError::NoAnswerLossy { request: Box::new(request), attempts: self.policy.attempts })
     }
 
     fn kind(&self) -> &'static str {

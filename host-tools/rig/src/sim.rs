@@ -7,7 +7,7 @@ use sts_twin_core::servo::ServoConfig;
 use sts_twin_core::twin::Twin;
 use sts_twin_core::wire::{Request, Response};
 
-use super::Coprocessor;
+use super::{Coprocessor, RigError};
 
 /// The host simulation of the co-processor.
 pub struct SimCoprocessor {
@@ -27,11 +27,11 @@ impl SimCoprocessor {
 }
 
 impl Coprocessor for SimCoprocessor {
-    fn tick(&mut self, input: &InputSlot) -> anyhow::Result<OutputSlot> {
+    fn tick(&mut self, input: &InputSlot) -> Result<OutputSlot, RigError> {
         Ok(self.twin.tick(Some(input)))
     }
 
-    fn request(&mut self, request: Request) -> anyhow::Result<Response> {
+    fn request(&mut self, request: Request) -> Result<Response, RigError> {
         Ok(self.twin.handle(request))
     }
 

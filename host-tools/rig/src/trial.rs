@@ -17,7 +17,7 @@ use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::{ConfigSource, Request, Response};
 
 use crate::calibrate::{measure_path, path_table, PathConfig, PathPoint};
-use crate::{expect_ack, run_loop, Bicuspid, Coprocessor, Trajectory, TrajectoryPoint};
+use crate::{expect_ack, run_loop, Bicuspid, Coprocessor, RigError, Trajectory, TrajectoryPoint};
 use sts_model::ModelFile;
 
 /// Settings of a trial.
@@ -119,7 +119,7 @@ pub fn with_measured_path(
     effects: &[EffectSpec],
     params: FeedforwardParams,
     seed: u64,
-) -> anyhow::Result<(FeedforwardParams, Vec<PathPoint>)> {
+) -> Result<(FeedforwardParams, Vec<PathPoint>), RigError> {
     let mut machine = Machine::new(plant, effects, seed ^ 0xCA1B)?;
     let points = measure_path(coprocessor, &mut machine, params, &PathConfig::default(), 0)?;
     let analogue_path = path_table(&points)?;
@@ -170,14 +170,14 @@ impl Trajectory for WithAirCut {
 /// The feedforward parameters (offset, K_dv, analogue path, ...) the co-processor loaded from
 /// its config store at boot, as `calibrate-offset` stored them; an error that says what to run
 /// when it booted without a stored calibration.
-pub fn stored_params(coprocessor: &mut dyn Coprocessor) -> anyhow::Result<FeedforwardParams> {
+pub fn stored_params(coprocessor: &mut dyn Coprocessor) -> Result<FeedforwardParams, RigError> {
     let status = match coprocessor.request(Request::GetStatus)? {
         Response::Status(status) => status,
-        other => anyhow::bail!("the co-processor answered its status request with {other:?}"),
+        other => return Err(RigError::Unexpected { request: "its status request", response: Box::new(other) }),
     };
     match status.config_source {
         ConfigSource::Stored => Ok(status.params),
-        other => anyhow::bail!("the co-processor booted without a stored calibration ({other:?}); calibrate first: sts-twin calibrate-offset --bus FILE"),
+        other => Err(RigError::NotCalibrated { config_source: other }),
     }
 }
 
@@ -190,7 +190,7 @@ pub fn run_trial(
     model: Option<&ModelFile>,
     params: FeedforwardParams,
     config: &TrialConfig,
-) -> anyhow::Result<TrialReport> {
+) -> Result<TrialReport, RigError> {
     let started = std::time::Instant::now();
     let mut machine = Machine::new(plant, effects, config.seed)?;
     expect_ack("the feedforward parameters", coprocessor.request(Request::SetParams(params))?)?;
@@ -250,7 +250,7 @@ pub fn run_trial(
         c_des += design * cos;
     })?;
     if deviations.is_empty() {
-        anyhow::bail!("no point of the cut lies within r <= {} mm", config.r_eval_mm);
+        return Err(RigError::NoCutPoints { r_eval_mm: config.r_eval_mm });
     }
     let mean = |f: fn(&Bin) -> f64| -> Vec<Vec<Option<f64>>> {
         bins.chunks(angular_bins)

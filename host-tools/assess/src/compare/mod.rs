@@ -21,6 +21,8 @@ use sts_analysis::{self as analysis};
 use sts_model::replay::{predict_group, program_output};
 use sts_model::ModelFile;
 
+use crate::AssessError;
+
 /// Highest harmonic order of the command frequency reported in the residual spectrum.
 pub const MAX_ORDER: usize = 10;
 
@@ -170,7 +172,7 @@ pub struct GroupWaves {
 }
 
 /// Compares `model` with `dataset`. Also returns each group's last-second waveforms.
-pub fn compare(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<(Comparison, Vec<GroupWaves>)> {
+pub fn compare(dataset: &Dataset, model: &ModelFile) -> Result<(Comparison, Vec<GroupWaves>), AssessError> {
     let corrected = model.probe_corrected(dataset);
     let dataset: &Dataset = &corrected;
     let program = model.firmware_program()?;

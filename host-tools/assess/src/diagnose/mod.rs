@@ -43,6 +43,8 @@ use sts_analysis::{self as analysis, GroupSample};
 use sts_model::replay::predict_group;
 use sts_model::ModelFile;
 
+use crate::AssessError;
+
 pub use sts_model::EFFECTS;
 
 /// Smallest held-out explained fraction of a verdict.
@@ -163,7 +165,7 @@ pub fn contexts<'a>(
     dataset: &'a Dataset,
     samples: &'a [GroupSample],
     model: &ModelFile,
-) -> anyhow::Result<Vec<GroupCtx<'a>>> {
+) -> Result<Vec<GroupCtx<'a>>, AssessError> {
     let program = model.firmware_program()?;
     let fs = dataset.manifest.sample_rate_hz;
     Ok(samples
@@ -182,7 +184,7 @@ pub fn contexts<'a>(
 }
 
 /// Diagnoses `model` on `dataset`.
-pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> anyhow::Result<Diagnosis> {
+pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> Result<Diagnosis, AssessError> {
     let corrected = model.probe_corrected(dataset);
     let dataset: &Dataset = &corrected;
     let mut feature_config = model.feature_config;

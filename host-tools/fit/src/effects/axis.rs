@@ -22,6 +22,8 @@ use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
 
 use sts_analysis::lsq::{ridge_solve, solve, Stats};
 
+use crate::FitError;
+
 /// Servo tick, s (the dataset's rate is checked to be 8 kHz by the caller).
 const TICK_S: f64 = 1.0 / 8000.0;
 /// Implicitness of the friction step, as in the firmware.
@@ -443,16 +445,13 @@ pub struct AxisFit {
 }
 
 /// Identifies the axis with `effects` from `dataset` (8 kHz samples, with encoder and probe).
-pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisFit> {
+pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitError> {
     if (dataset.manifest.sample_rate_hz - 1.0 / TICK_S).abs() > 1e-6 {
-        anyhow::bail!(
-            "the axis twin needs samples at the 8 kHz servo rate, the dataset has {} Hz",
-            dataset.manifest.sample_rate_hz
-        );
+        return Err(FitError::AxisSampleRate { sample_rate_hz: dataset.manifest.sample_rate_hz });
     }
     let n = dataset.groups.len();
     if n == 0 {
-        anyhow::bail!("the dataset has no groups");
+        return Err(FitError::NoGroups);
     }
     // About a dozen groups over the whole grid for the searches, more for the final fit.
     let coarse = Sample { dataset, groups: (0..n).step_by(n.div_ceil(12).max(1)).collect(), stride: 4 };
@@ -504,8 +503,7 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisF
             levenberg_marquardt(lin, &free, &coarse, Fit::Encoder, 45)
         })
         .collect();
-    let mut best =
-        searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or_else(|| anyhow::anyhow!("no start"))?;
+    let mut best = searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or(FitError::NoStart)?;
     if effects.friction {
         // The Stribeck velocity from a grid too, from the best servo: a local fit from one
         // guess can trade the Stribeck peak for a friction that rises with velocity (static
@@ -540,7 +538,7 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisF
             mode_best = Some(fitted);
         }
     }
-    let (c, _) = mode_best.ok_or_else(|| anyhow::anyhow!("no mode start"))?;
+    let (c, _) = mode_best.ok_or(FitError::NoModeStart)?;
 
     // Everything on both readings.
     let mut all: Vec<Slot> = SERVO.iter().chain(&MODE).copied().collect();
@@ -549,6 +547,6 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> anyhow::Result<AxisF
     let encoder_rms_nm = rms(&fine.residuals(&c, Fit::Encoder)) * 1e3;
     let tcp_rms_nm = rms(&fine.residuals(&c, Fit::Tcp)) * 1e3;
     let params = c.params();
-    params.check().map_err(|e| anyhow::anyhow!("the identified axis is not usable: {e:?} ({params:?})"))?;
+    params.check().map_err(|error| FitError::AxisUnusable { error, params: Box::new(params) })?;
     Ok(AxisFit { params, encoder_rms_nm, tcp_rms_nm })
 }

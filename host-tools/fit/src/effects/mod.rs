@@ -29,7 +29,6 @@ pub mod axis;
 use std::f64::consts::PI;
 use std::path::Path;
 
-use anyhow::Context as _;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sts_dataset::{Dataset, GroupData};
@@ -39,6 +38,8 @@ use sts_analysis::lsq::{solve, Stats};
 use sts_analysis::targets;
 use sts_model::EFFECTS;
 use sts_model::{hex_encode, ModelFile};
+
+use crate::FitError;
 
 /// Laguerre pole of the effect terms (the same as the diagnosis's).
 pub const POLE: f64 = 0.93;
@@ -107,7 +108,7 @@ struct GroupInputs {
     target: Vec<f64>,
 }
 
-fn group_inputs(group: &GroupData, fs: f64, freq_hz: f64) -> anyhow::Result<GroupInputs> {
+fn group_inputs(group: &GroupData, fs: f64, freq_hz: f64) -> Result<GroupInputs, targets::TargetError> {
     let t = targets::group_targets(group, fs, freq_hz)?;
     let start = skip_start(group.len(), fs);
     let theta: Vec<f64> = group.t_s.iter().map(|ts| 2.0 * PI * freq_hz * ts + t.cmd.phase_rad).collect();
@@ -208,10 +209,10 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
 
 /// Prepares `fit --effect` for the named effects: fits their terms and returns the dataset
 /// whose `z_tcp_um` excludes the terms' output.
-pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> {
+pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError> {
     for n in names {
         if !EFFECTS.contains(&n.as_str()) {
-            anyhow::bail!("--effect: unknown effect {n:?} (known: {})", EFFECTS.join(", "));
+            return Err(FitError::UnknownEffect { name: n.clone() });
         }
     }
     if names.iter().any(|n| n == "sensor-gain") {
@@ -244,8 +245,10 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
         .groups
         .par_iter()
         .zip(dataset.groups.par_iter())
-        .map(|(info, g)| group_inputs(g, fs, info.freq_hz).with_context(|| info.file.clone()))
-        .collect::<anyhow::Result<_>>()?;
+        .map(|(info, g)| {
+            group_inputs(g, fs, info.freq_hz).map_err(|source| FitError::Targets { file: info.file.clone(), source })
+        })
+        .collect::<Result<_, FitError>>()?;
     let mut terms = Vec::new();
     let mut records = Vec::new();
     let mut axis_names: Vec<String> = Vec::new();
@@ -275,11 +278,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
         records.extend(axis_records);
     }
     if terms.len() > sts_twin_core::program::MAX_TERMS {
-        anyhow::bail!(
-            "--effect: {} per-tick terms needed, the program holds at most {}",
-            terms.len(),
-            sts_twin_core::program::MAX_TERMS
-        );
+        return Err(FitError::TooManyTerms { needed: terms.len() });
     }
     // The dataset without the terms' output, through the firmware's own synthesiser.
     let mut reduced = dataset.clone();
@@ -302,8 +301,8 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> anyhow::Result<Prepared> 
         })
         .collect();
     if let Some(file) = diverged.into_iter().flatten().next() {
-        let axis = terms.iter().find_map(|t| if let TickTerm::Axis(p) = t { Some(p) } else { None });
-        anyhow::bail!("the identified servo axis diverges on the motion of {file} (its loop is unstable there: {axis:?}); the measurement may not show enough of the axis to identify it");
+        let axis = terms.iter().find_map(|t| if let TickTerm::Axis(p) = t { Some(Box::new(*p)) } else { None });
+        return Err(FitError::AxisDiverges { file, axis });
     }
     Ok(Prepared { dataset: reduced, terms, records, probe_gain: None })
 }
@@ -332,7 +331,7 @@ fn fit_axis(
     dataset: &Dataset,
     inputs: &[GroupInputs],
     names: &[String],
-) -> anyhow::Result<(TickTerm, Vec<EffectRecord>)> {
+) -> Result<(TickTerm, Vec<EffectRecord>), FitError> {
     let has = |n: &str| names.iter().any(|x| x == n);
     let ripple_pitch_um = has("force-ripple").then(|| ripple_pitch_um(dataset, inputs));
     let effects = axis::AxisEffects {
@@ -340,7 +339,7 @@ fn fit_axis(
         hysteresis: has("presliding-hysteresis"),
         ripple_pitch_um,
     };
-    let fit = axis::identify(dataset, effects).context("identifying the servo axis")?;
+    let fit = axis::identify(dataset, effects).map_err(|e| FitError::IdentifyAxis { source: Box::new(e) })?;
     let p = fit.params;
     let shared = |params: &mut Vec<(String, f64)>| {
         params.extend([
@@ -468,11 +467,11 @@ fn project_out_fundamental_keep_mean(y: &[f64], theta: &[f64]) -> Vec<f64> {
     y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k]).collect()
 }
 
-fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> anyhow::Result<(TickTerm, Vec<(String, f64)>)> {
+fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> Result<(TickTerm, Vec<(String, f64)>), FitError> {
     let has_x = dataset.groups.iter().all(|g| g.x_acc_mps2.is_some());
     let has_s = dataset.groups.iter().all(|g| g.spindle_deg.is_some());
     if !has_x && !has_s {
-        anyhow::bail!("--effect axis-coupling: the dataset has no x_acc_mps2 or spindle_deg column");
+        return Err(FitError::NoCouplingColumns);
     }
     let stats: Vec<Stats> = dataset
         .groups
@@ -513,23 +512,21 @@ fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> anyhow::Result<(Ti
 
 impl Prepared {
     /// Appends the terms to a model fitted on [`Prepared::dataset`] (program, listing, id).
-    pub fn attach(&self, mut model: ModelFile) -> anyhow::Result<ModelFile> {
+    pub fn attach(&self, mut model: ModelFile) -> Result<ModelFile, FitError> {
         model.probe_gain = self.probe_gain;
         if self.terms.is_empty() {
             return Ok(model);
         }
         let mut program = model.firmware_program()?;
         for t in &self.terms {
-            program.terms.push(*t).map_err(|_| anyhow::anyhow!("too many per-tick terms"))?;
+            program.terms.push(*t).map_err(|_| FitError::TermsFull)?;
         }
         program.id = 0;
-        program.validate().map_err(|e| anyhow::anyhow!("program with effect terms: {e}"))?;
+        program.validate().map_err(|error| FitError::EffectProgram { error })?;
         let mut buf = [0u8; 2048];
-        let bytes =
-            postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+        let bytes = postcard::to_slice(&program, &mut buf).map_err(|error| FitError::Serialise { error })?;
         program.id = sts_twin_core::wire::frame_crc32(bytes);
-        let bytes =
-            postcard::to_slice(&program, &mut buf).map_err(|e| anyhow::anyhow!("cannot serialise the program: {e}"))?;
+        let bytes = postcard::to_slice(&program, &mut buf).map_err(|error| FitError::Serialise { error })?;
         model.program_postcard_hex = hex_encode(bytes);
         model.program.id = program.id;
         model.program.terms = program.terms.len();
@@ -537,25 +534,27 @@ impl Prepared {
     }
 
     /// Adds the `effects` field to a written model file.
-    pub fn write_record(&self, path: &Path) -> anyhow::Result<()> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-        let mut value: serde_json::Value =
-            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    pub fn write_record(&self, path: &Path) -> Result<(), FitError> {
+        let mut value = read_json(path)?;
         value["effects"] = serde_json::to_value(&self.records)?;
         std::fs::write(path, serde_json::to_string_pretty(&value)? + "\n")
-            .with_context(|| format!("cannot write {}", path.display()))
+            .map_err(|source| FitError::Write { path: path.to_path_buf(), source })
     }
 }
 
 /// The `effects` field of a model file, if any.
-pub fn read_records(path: &Path) -> anyhow::Result<Vec<EffectRecord>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let value: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
-    match value.get("effects") {
-        Some(v) => serde_json::from_value(v.clone()).with_context(|| format!("{}: field `effects`", path.display())),
+pub fn read_records(path: &Path) -> Result<Vec<EffectRecord>, FitError> {
+    match read_json(path)?.get("effects") {
+        Some(v) => serde_json::from_value(v.clone())
+            .map_err(|source| FitError::EffectsField { path: path.to_path_buf(), source }),
         None => Ok(Vec::new()),
     }
+}
+
+/// A model file as JSON, to read or add its `effects` field.
+fn read_json(path: &Path) -> Result<serde_json::Value, FitError> {
+    let text = std::fs::read_to_string(path).map_err(|source| FitError::Read { path: path.to_path_buf(), source })?;
+    serde_json::from_str(&text).map_err(|source| FitError::NotJson { path: path.to_path_buf(), source })
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@ use serde::Serialize;
 use sts_twin_core::wire::Request;
 
 use super::rest::RestRig;
+use crate::RigError;
 
 /// Settings of the enable check.
 #[derive(Clone, Debug)]
@@ -57,9 +58,9 @@ pub fn enable_check(
     pulse_nm: f64,
     enable_ramp_ticks: u32,
     config: &EnableConfig,
-) -> anyhow::Result<EnableCheck> {
+) -> Result<EnableCheck, RigError> {
     if !(config.settle_s >= 0.0 && config.window_s > 0.0 && config.sample_rate_hz > 0.0) {
-        anyhow::bail!("the enable check's settling and window times must be positive");
+        return Err(RigError::EnableTimes);
     }
     let offset_v = f64::from(rig.status()?.params.offset_v);
     let settle_ticks = (config.settle_s * config.sample_rate_hz).round() as u32;

@@ -11,6 +11,7 @@ use serde::Serialize;
 use sts_twin_core::feedforward::FeedforwardParams;
 
 use super::rest::RestRig;
+use crate::RigError;
 use sts_analysis::lsq::least_squares;
 
 /// Settings of the `K_dv` measurement.
@@ -75,11 +76,11 @@ pub struct KdvReport {
     pub residual_max_um: f64,
 }
 
-fn fit(points: &[KdvPoint], value: impl Fn(&KdvPoint) -> f64) -> anyhow::Result<sts_analysis::lsq::LinearFit> {
+fn fit(points: &[KdvPoint], value: impl Fn(&KdvPoint) -> f64) -> Result<sts_analysis::lsq::LinearFit, RigError> {
     let t0 = points.first().map_or(0.0, |p| p.time_s);
     let rows: Vec<[f64; 3]> = points.iter().map(|p| [p.volts, 1.0, p.time_s - t0]).collect();
     let y: Vec<f64> = points.iter().map(value).collect();
-    least_squares(&rows, &y).ok_or_else(|| anyhow::anyhow!("the K_dv voltages cannot separate slope, offset and drift: use at least three distinct voltages, not in time order"))
+    least_squares(&rows, &y).ok_or(RigError::KdvSingular)
 }
 
 /// Measures `K_dv` on `rig` about the calibrated `offset_v` (compensation off, no program).
@@ -89,16 +90,16 @@ pub fn measure_kdv(
     params: &FeedforwardParams,
     offset_v: f64,
     config: &KdvConfig,
-) -> anyhow::Result<KdvReport> {
+) -> Result<KdvReport, RigError> {
     if config.voltages_v.len() < 3 {
-        anyhow::bail!("the K_dv fit needs at least three voltages, not {}", config.voltages_v.len());
+        return Err(RigError::KdvVoltageCount { count: config.voltages_v.len() });
     }
     let limit_v = f64::from(params.dac_full_scale_v) / 2.0 - offset_v.abs();
     if let Some(bad) = config.voltages_v.iter().find(|v| !(v.is_finite() && v.abs() <= limit_v)) {
-        anyhow::bail!("a K_dv voltage of {bad} V is beyond the DAC's range about the offset ({limit_v:.3} V)");
+        return Err(RigError::KdvVoltageRange { volts: *bad, limit_v });
     }
     if !(config.settle_s >= 0.0 && config.average_s > 0.0 && config.sample_rate_hz > 0.0) {
-        anyhow::bail!("the K_dv settling and averaging times must be positive");
+        return Err(RigError::KdvTimes);
     }
     let settle_ticks = (config.settle_s * config.sample_rate_hz).round() as u32;
     let average_ticks = ((config.average_s * config.sample_rate_hz).round() as u32).max(1);
@@ -133,10 +134,7 @@ pub fn measure_kdv(
     let span_um = points.iter().map(|p| p.z_tcp_um).fold(f64::MIN, f64::max)
         - points.iter().map(|p| p.z_tcp_um).fold(f64::MAX, f64::min);
     if k_dv_um_per_v.is_nan() || k_dv_um_per_v.abs() < 1e-4 || span_um < 4.0 * probe.residual_rms {
-        anyhow::bail!(
-            "the axis hardly moved with the analogue input ({k_dv_um_per_v:.5} um/V, span {span_um:.4} um, residual {:.4} um): is the controller's analogue feedforward on?",
-            probe.residual_rms
-        );
+        return Err(RigError::AxisDidNotMove { k_dv_um_per_v, span_um, residual_um: probe.residual_rms });
     }
     Ok(KdvReport {
         points,

@@ -17,6 +17,7 @@ use serde::Serialize;
 use sts_twin_core::feedforward::FeedforwardParams;
 
 use super::rest::{RestAverage, RestRig};
+use crate::RigError;
 use sts_analysis::lsq::least_squares;
 
 /// Settings of the offset measurement.
@@ -102,15 +103,15 @@ fn measure_at(
     params: &FeedforwardParams,
     dac_v: f64,
     config: &OffsetConfig,
-) -> anyhow::Result<OffsetPoint> {
+) -> Result<OffsetPoint, RigError> {
     rig.hold_dac_v(params, dac_v)?;
     let average = rig.average(config.settle_ticks, config.average_ticks)?;
     if !average.dac_steady {
-        anyhow::bail!(
-            "the DAC did not settle at {dac_v:.4} V within {} ticks (slew limit {} V per tick): lengthen the settling",
-            config.settle_ticks,
-            params.slew_v_per_tick
-        );
+        return Err(RigError::DacNotSettled {
+            dac_v,
+            settle_ticks: config.settle_ticks,
+            slew_v_per_tick: params.slew_v_per_tick,
+        });
     }
     Ok(point(rig, &average))
 }
@@ -122,13 +123,13 @@ pub fn measure_offset(
     rig: &mut RestRig<'_>,
     params: &FeedforwardParams,
     config: &OffsetConfig,
-) -> anyhow::Result<OffsetReport> {
+) -> Result<OffsetReport, RigError> {
     if config.fit_voltages_v.len() < 2 {
-        anyhow::bail!("the offset fit needs at least two DAC voltages, not {}", config.fit_voltages_v.len());
+        return Err(RigError::OffsetVoltageCount { count: config.fit_voltages_v.len() });
     }
     let limit_v = f64::from(params.dac_full_scale_v) / 2.0;
     if let Some(bad) = config.fit_voltages_v.iter().find(|v| !(v.is_finite() && v.abs() <= limit_v)) {
-        anyhow::bail!("an offset fit voltage of {bad} V is beyond half the DAC's full scale ({limit_v} V)");
+        return Err(RigError::OffsetVoltageRange { volts: *bad, limit_v });
     }
     rig.analog_enabled = false;
     let volts_per_code = rig.volts_per_code();
@@ -138,11 +139,10 @@ pub fn measure_offset(
     }
     let rows: Vec<[f64; 2]> = fit_points.iter().map(|p| [p.dac_v, 1.0]).collect();
     let reads: Vec<f64> = fit_points.iter().map(|p| p.ain_read_v).collect();
-    let fit = least_squares(&rows, &reads)
-        .ok_or_else(|| anyhow::anyhow!("the offset fit's DAC voltages are not distinct"))?;
+    let fit = least_squares(&rows, &reads).ok_or(RigError::OffsetSingular)?;
     let (gain, intercept_v) = (fit.coefficients[0], fit.coefficients[1]);
     if !(gain.is_finite() && gain.abs() > 0.1) {
-        anyhow::bail!("the controller's reading hardly follows the DAC ({gain:.4} V per V): is the co-processor's output wired to the controller's analogue input?");
+        return Err(RigError::ReadingDoesNotFollow { gain });
     }
     let pulse_rows: Vec<[f64; 1]> = fit_points.iter().map(|p| [p.ain_read_v]).collect();
     let pulses: Vec<f64> = fit_points.iter().map(|p| p.ain_pulses).collect();
@@ -158,7 +158,7 @@ pub fn measure_offset(
     let null_v = -intercept_v / gain;
     let null_code = (null_v / volts_per_code).round();
     if null_code.abs() > f64::from(i16::MAX) {
-        anyhow::bail!("the interface's offset ({intercept_v:.4} V) is beyond the DAC's range");
+        return Err(RigError::OffsetBeyondRange { intercept_v });
     }
     let mut search_points = Vec::new();
     for delta in -i32::from(config.search_codes)..=i32::from(config.search_codes) {
@@ -168,7 +168,7 @@ pub fn measure_offset(
         }
         let p = measure_at(rig, params, f64::from(code) * volts_per_code, config)?;
         if i32::from(p.dac_code) != code {
-            anyhow::bail!("asked the co-processor for DAC code {code}, it wrote {}", p.dac_code);
+            return Err(RigError::DacCodeMismatch { asked: code, wrote: p.dac_code });
         }
         search_points.push(p);
     }
@@ -177,7 +177,7 @@ pub fn measure_offset(
         .iter()
         .map(score)
         .min_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal))
-        .ok_or_else(|| anyhow::anyhow!("no DAC code to try"))?;
+        .ok_or(RigError::NoDacCode)?;
     // Equally good codes: the middle one, farthest from the pulses on either side.
     let ties: Vec<&OffsetPoint> = search_points.iter().filter(|p| score(p) == best).collect();
     let chosen = *ties[ties.len() / 2];

@@ -24,7 +24,7 @@ use sts_twin_core::wire::Request;
 use sts_analysis::lsq::least_squares;
 use sts_model::replay::turns_u32;
 
-use crate::{expect_ack, Coprocessor};
+use crate::{expect_ack, Coprocessor, RigError};
 
 /// Program id of the calibration's constant program.
 pub const PATH_PROGRAM_ID: u32 = 0xCA1B_0001;
@@ -71,18 +71,15 @@ pub struct PathPoint {
 }
 
 /// The table for the firmware from measured points.
-pub fn path_table(points: &[PathPoint]) -> anyhow::Result<AnaloguePath> {
+pub fn path_table(points: &[PathPoint]) -> Result<AnaloguePath, RigError> {
     let pairs: Vec<(f32, f32)> = points.iter().map(|p| (p.freq_hz as f32, p.phase_deg as f32)).collect();
-    AnaloguePath::from_points(&pairs)
-        .map_err(|err| anyhow::anyhow!("the measured analogue path is not a valid table: {err}"))
+    AnaloguePath::from_points(&pairs).map_err(|error| RigError::PathTable { error })
 }
 
 /// Least-squares `a sin + b cos + c` of `values` against `angles`; returns `(a, b)`.
-fn phasor(angles: &[f64], values: &[f64]) -> anyhow::Result<(f64, f64)> {
+fn phasor(angles: &[f64], values: &[f64]) -> Result<(f64, f64), RigError> {
     let rows: Vec<[f64; 3]> = angles.iter().map(|a| [a.sin(), a.cos(), 1.0]).collect();
-    let fit = least_squares(&rows, values).ok_or_else(|| {
-        anyhow::anyhow!("cannot fit a sine to {} points (too few, or not spread over the period)", angles.len())
-    })?;
+    let fit = least_squares(&rows, values).ok_or(RigError::SineFit { points: angles.len() })?;
     Ok((fit.coefficients[0], fit.coefficients[1]))
 }
 
@@ -102,7 +99,7 @@ impl AtRest {
         coprocessor: &mut dyn Coprocessor,
         machine: &mut Machine,
         cmd_phase_turns: f64,
-    ) -> anyhow::Result<(StepOutput, OutputSlot)> {
+    ) -> Result<(StepOutput, OutputSlot), RigError> {
         let out = machine.step(&StepInput {
             z_cmd_um: 0.0,
             x_mm: 0.0,
@@ -134,9 +131,9 @@ pub fn measure_path(
     params: FeedforwardParams,
     config: &PathConfig,
     first_tick: u64,
-) -> anyhow::Result<Vec<PathPoint>> {
+) -> Result<Vec<PathPoint>, RigError> {
     if config.freqs_hz.is_empty() || config.freqs_hz.len() > PATH_POINTS {
-        anyhow::bail!("the analogue path is measured at 1 to {PATH_POINTS} frequencies, not {}", config.freqs_hz.len());
+        return Err(RigError::PathFrequencyCount { count: config.freqs_hz.len() });
     }
     let params = FeedforwardParams { analogue_path: AnaloguePath::NONE, ..params };
     expect_ack("the feedforward parameters", coprocessor.request(Request::SetParams(params))?)?;
@@ -147,7 +144,7 @@ pub fn measure_path(
     let mut builder = ProgramBuilder::new();
     builder.id(PATH_PROGRAM_ID).constant(config.amp_um as f32).store(REG_AMP_UM);
     builder.constant(0.0).store(REG_PHASE_DEG);
-    let program = builder.finish().map_err(|err| anyhow::anyhow!("the calibration program: {err:?}"))?;
+    let program = builder.finish().map_err(|error| RigError::PathProgram { error })?;
     expect_ack("the calibration program", coprocessor.request(Request::UploadProgram { program, activate: true })?)?;
     expect_ack("enabling the output", coprocessor.request(Request::SetEnabled(true))?)?;
 
@@ -159,7 +156,7 @@ pub fn measure_path(
     let warmup_s = f64::from(params.enable_ramp_ticks) / rate + 0.25;
     for (index, &freq_hz) in config.freqs_hz.iter().enumerate() {
         if !(freq_hz.is_finite() && freq_hz > 0.0 && freq_hz < rate / 2.0) {
-            anyhow::bail!("cannot measure the analogue path at {freq_hz} Hz");
+            return Err(RigError::PathFrequency { freq_hz });
         }
         let settle_s = config.settle_s + if index == 0 { warmup_s } else { 0.0 };
         let settle_ticks = (settle_s * rate).round() as u64;
@@ -186,10 +183,7 @@ pub fn measure_path(
         let (ts, tc) = phasor(&angles, &tcp_um)?;
         let u_amp = us.hypot(uc);
         if u_amp < 0.1 * config.amp_um {
-            anyhow::bail!(
-                "at {freq_hz} Hz the co-processor asked for {u_amp:.3} um instead of {:.3} um: is its output enabled and its program running?",
-                config.amp_um
-            );
+            return Err(RigError::OutputTooSmall { freq_hz, asked_um: u_amp, expected_um: config.amp_um });
         }
         // Phasors as complex numbers (sin part real, cos part imaginary): H = tcp / u.
         let gain = ts.hypot(tc) / u_amp;

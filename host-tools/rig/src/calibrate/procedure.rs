@@ -26,7 +26,7 @@ use super::offset::{measure_offset, OffsetConfig, OffsetReport};
 use super::path::{measure_path, path_table, PathConfig, PathPoint};
 use super::rest::{status, RestRig};
 use crate::machine_params;
-use crate::{expect_ack, Coprocessor};
+use crate::{expect_ack, Coprocessor, RigError};
 
 /// Settings of the whole calibration.
 #[derive(Clone, Debug, Default)]
@@ -43,19 +43,17 @@ pub struct CalibrationConfig {
 
 impl CalibrationConfig {
     /// Checks the settings that would otherwise fail only after the first measurements.
-    pub fn validate(&self) -> anyhow::Result<()> {
+    pub fn validate(&self) -> Result<(), RigError> {
         if let Some(path) = &self.path {
             let freqs = &path.freqs_hz;
             let nyquist_hz = (path.sample_rate_hz / 2.0).min(f64::from(PATH_MAX_FREQ_HZ));
             let increasing = freqs.windows(2).all(|w| w[0] < w[1]);
             let in_range = freqs.iter().all(|f| f.is_finite() && *f > 0.0 && *f < nyquist_hz);
             if freqs.is_empty() || freqs.len() > PATH_POINTS || !increasing || !in_range {
-                anyhow::bail!(
-                    "the analogue path is measured at 1 to {PATH_POINTS} frequencies, increasing, each above 0 and below {nyquist_hz} Hz, not {freqs:?}"
-                );
+                return Err(RigError::PathFrequencies { freqs_hz: freqs.clone(), nyquist_hz });
             }
             if !(path.amp_um.is_finite() && path.amp_um > 0.0 && path.settle_s >= 0.0 && path.measure_s > 0.0) {
-                anyhow::bail!("the analogue path's amplitude and measuring time must be positive");
+                return Err(RigError::PathSettings);
             }
         }
         Ok(())
@@ -101,7 +99,7 @@ pub struct BootState {
 
 impl BootState {
     /// Reads it from the co-processor's status.
-    pub fn read(coprocessor: &mut dyn Coprocessor) -> anyhow::Result<Self> {
+    pub fn read(coprocessor: &mut dyn Coprocessor) -> Result<Self, RigError> {
         let status = status(coprocessor)?;
         Ok(Self { config_source: status.config_source, params: status.params, enabled: status.enabled })
     }
@@ -190,7 +188,7 @@ pub fn calibrate(
     seed: u64,
     config: &CalibrationConfig,
     progress: &mut dyn FnMut(&str),
-) -> anyhow::Result<CalibrationReport> {
+) -> Result<CalibrationReport, RigError> {
     config.validate()?;
     let mut machine = Machine::new(plant, effects, seed)?;
     let boot = BootState::read(board.coprocessor())?;
@@ -199,7 +197,7 @@ pub fn calibrate(
     // The DAC's full scale, slew limit and ramp are the co-processor's hardware settings;
     // offset, K_dv and K_vc are what this measures.
     let base = machine_params(plant, 0.0);
-    base.validate().map_err(|err| anyhow::anyhow!("the starting parameters: {err}"))?;
+    base.validate().map_err(|error| RigError::StartingParams { error })?;
     let fs_v = f64::from(base.dac_full_scale_v);
     let cop = board.coprocessor();
     expect_ack("switching compensation off", cop.request(Request::SetEnabled(false))?)?;
@@ -217,7 +215,7 @@ pub fn calibrate(
         k_vc_pulses_per_v: offset.k_vc_pulses_per_v as f32,
         ..base
     };
-    params.validate().map_err(|err| anyhow::anyhow!("the measured parameters are not valid ({err}): {params:?}"))?;
+    params.validate().map_err(|error| RigError::MeasuredParams { error, params: Box::new(params) })?;
     let path = match &config.path {
         Some(path_config) => {
             progress("step 3: the analogue path's phase (a sine through the analogue input at each frequency)");
@@ -237,7 +235,7 @@ pub fn calibrate(
     let saved = match board_request(&mut rig, Request::SaveConfig)? {
         Response::Ack => true,
         Response::Rejected(Rejection::Store) => false,
-        other => anyhow::bail!("the co-processor answered SaveConfig with {other:?}"),
+        other => return Err(RigError::Unexpected { request: "SaveConfig", response: Box::new(other) }),
     };
     let live_params_match = rig.status()?.params == params;
 
@@ -273,7 +271,7 @@ pub fn calibrate(
     })
 }
 
-fn board_request(rig: &mut RestRig<'_>, request: Request) -> anyhow::Result<Response> {
+fn board_request(rig: &mut RestRig<'_>, request: Request) -> Result<Response, RigError> {
     let (cop, _, _) = rig.parts();
     cop.request(request)
 }

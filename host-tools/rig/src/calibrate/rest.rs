@@ -9,7 +9,7 @@ use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::{Request, Response, Status};
 
-use crate::{expect_ack, Coprocessor};
+use crate::{expect_ack, Coprocessor, RigError};
 
 /// DAC codes at full scale (code 32767 is `dac_full_scale_v`).
 pub const DAC_FULL_SCALE_CODE: f64 = 32767.0;
@@ -77,7 +77,7 @@ impl<'a> RestRig<'a> {
     }
 
     /// One tick.
-    pub fn step(&mut self) -> anyhow::Result<(StepOutput, OutputSlot)> {
+    pub fn step(&mut self) -> Result<(StepOutput, OutputSlot), RigError> {
         let machine = self.machine.step(&StepInput {
             z_cmd_um: 0.0,
             x_mm: 0.0,
@@ -93,7 +93,7 @@ impl<'a> RestRig<'a> {
     }
 
     /// Steps `settle_ticks`, then averages over `average_ticks` (at least one).
-    pub fn average(&mut self, settle_ticks: u32, average_ticks: u32) -> anyhow::Result<RestAverage> {
+    pub fn average(&mut self, settle_ticks: u32, average_ticks: u32) -> Result<RestAverage, RigError> {
         for _ in 0..settle_ticks {
             self.step()?;
         }
@@ -126,19 +126,19 @@ impl<'a> RestRig<'a> {
     }
 
     /// Sends `request`, which must be acknowledged.
-    pub fn request(&mut self, what: &str, request: Request) -> anyhow::Result<()> {
+    pub fn request(&mut self, what: &str, request: Request) -> Result<(), RigError> {
         expect_ack(what, self.coprocessor.request(request)?)
     }
 
     /// Sets the co-processor's parameters so that, compensation off, it writes `dac_v` volts
     /// (its output is then `-offset_v`).
-    pub fn hold_dac_v(&mut self, params: &FeedforwardParams, dac_v: f64) -> anyhow::Result<()> {
+    pub fn hold_dac_v(&mut self, params: &FeedforwardParams, dac_v: f64) -> Result<(), RigError> {
         let params = FeedforwardParams { offset_v: -dac_v as f32, ..*params };
         self.request(&format!("an offset of {:.4} V", params.offset_v), Request::SetParams(params))
     }
 
     /// The co-processor's status.
-    pub fn status(&mut self) -> anyhow::Result<Status> {
+    pub fn status(&mut self) -> Result<Status, RigError> {
         status(self.coprocessor)
     }
 
@@ -157,9 +157,9 @@ impl<'a> RestRig<'a> {
 }
 
 /// The co-processor's status.
-pub fn status(coprocessor: &mut dyn Coprocessor) -> anyhow::Result<Status> {
+pub fn status(coprocessor: &mut dyn Coprocessor) -> Result<Status, RigError> {
     match coprocessor.request(Request::GetStatus)? {
         Response::Status(status) => Ok(status),
-        other => anyhow::bail!("the co-processor answered the status request with {other:?}"),
+        other => Err(RigError::Unexpected { request: "the status request", response: Box::new(other) }),
     }
 }

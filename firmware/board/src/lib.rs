@@ -1,21 +1,4 @@
-//! # sts-twin-board
-//!
-//! The board seam of the sts-twin firmware: the few things the servo needs from hardware,
-//! as small traits, plus the board-agnostic machinery both boards share.
-//!
-//! - [`AdcSource`]: the inputs of one servo tick (accelerometer ADC code and the motion
-//!   controller's command phase and position) as a [`InputSlot`].
-//! - [`DacSink`]: the output of one servo tick ([`OutputSlot`]) to the analogue output.
-//! - [`TickSource`]: the 8 kHz servo-rate interrupt: acknowledge, re-arm, detect overruns.
-//! - [`ConfigStore`]: a small persistent blob (settings, the active twin program).
-//! - [`ControlLink`]: the non-blocking byte channel of the control protocol.
-//!
-//! The application plugs in through [`servo::ServoApp`] (the per-tick work, run in the servo
-//! interrupt) and [`servo::BackgroundApp`] (model updates and control, run at a lower
-//! priority); [`servo::run_tick`] is the one per-tick procedure every board calls from its
-//! servo interrupt. [`bringup`] is a small deterministic application for bring-up and the
-//! platform tests. [`bus`] is the firmware side of the virtual analogue bus and [`qemu`] the
-//! rest of the QEMU board's shared-memory map.
+#![doc = include_str!("../README.md")]
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
 

@@ -1,7 +1,4 @@
-//! Turning a dataset into what the twin learns from: per-group features (the firmware's own
-//! fixed-point code) and targets (the measured dynamic error's amplitude and phase), with the
-//! signal tools the later stages share: sine fits, resampling to the servo rate,
-//! repeatability, regression bases and least squares.
+#![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
 pub mod bases;

@@ -1,5 +1,4 @@
-//! Assessing a model against a measurement: [`compare`] (the predicted dynamic error against
-//! the measured one, group by group) and [`diagnose`] (which physical effect is missing).
+#![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
 pub mod compare;

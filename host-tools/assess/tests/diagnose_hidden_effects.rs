@@ -11,7 +11,7 @@
 //!
 //! ```text
 //! STS_SUITE_SEEDS=20 STS_SUITE_FIT_SEEDS=3 STS_SUITE_GRID=paper \
-//!   cargo test --release -p sts-twin --test diagnose_hidden_effects -- --ignored --nocapture
+//!   cargo test --release -p sts-assess --test diagnose_hidden_effects -- --ignored --nocapture
 //! ```
 //!
 //! `STS_SUITE_EFFECTS=coulomb-friction,force-ripple` runs only those hidden effects (`none`

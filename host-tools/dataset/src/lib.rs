@@ -1,35 +1,4 @@
-//! # sts-dataset
-//!
-//! The canonical on-disk format of a dynamic-error measurement, `sts-twin-dataset/1`, read and
-//! written by this one crate (the emulator writes it, a lab can export its own measurements
-//! into it, `compare`, `diagnose` and `fit` read it). The full specification is in
-//! `docs/dataset-format.md`; in short:
-//!
-//! - `DIR/manifest.json`: `{"format": "sts-twin-dataset/1", "sample_rate_hz": 8000,
-//!   "description": "...", "groups": [{"file": "g000.csv", "freq_hz": 1.0, "amp_um": 1.0,
-//!   "start_s": 0.0}, ...]}` with an optional `"acc_mps2_per_lsb"`;
-//! - one CSV per group with header `t_s,z_cmd_um,z_enc_um,z_tcp_um,acc_mps2` and the
-//!   optional columns `x_mm`, `x_acc_mps2`, `spindle_deg`, `temp_c`.
-//!
-//! Reading never panics on bad input: every error names the file, the line and the column.
-//!
-//! ```
-//! use sts_dataset::{Dataset, GroupData, GroupInfo, Manifest};
-//! let dir = tempfile::tempdir().unwrap();
-//! let mut group = GroupData::with_len(3);
-//! for i in 0..3 {
-//!     group.t_s[i] = i as f64 / 8000.0;
-//!     group.z_cmd_um[i] = 0.1 * i as f64;
-//! }
-//! let info = GroupInfo { file: "g000.csv".into(), freq_hz: 1.0, amp_um: 1.0, start_s: 0.0 };
-//! let dataset = Dataset {
-//!     manifest: Manifest::new(8000.0, "example", vec![info]),
-//!     groups: vec![group],
-//! };
-//! sts_dataset::write(dir.path(), &dataset).unwrap();
-//! let back = sts_dataset::read(dir.path()).unwrap();
-//! assert_eq!(back.groups[0].z_cmd_um, vec![0.0, 0.1, 0.2]);
-//! ```
+#![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
 mod error;

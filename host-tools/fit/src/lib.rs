@@ -1,6 +1,4 @@
-//! Fitting the twin to a dataset: the explainable amplitude and phase formulas
-//! ([`formulas`], symbolic regression), and the physical-effect terms of the firmware program
-//! ([`effects`], `fit --effect`).
+#![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
 pub mod effects;

@@ -1,23 +1,4 @@
-//! Hardware-in-the-loop: the real firmware ELF under QEMU (`mps2-an386`), driven tick by
-//! tick through the virtual analogue bus in shared memory, with the control link on a
-//! loopback TCP socket and the firmware's defmt logs decoded from QEMU's stdout.
-//!
-//! ```no_run
-//! use sts_hil::{Hil, HilConfig};
-//! use sts_twin_core::bus::InputSlot;
-//!
-//! let mut hil = Hil::start(HilConfig::default())?;          // the ELF from `cargo xtask firmware`
-//! let out = hil.step(InputSlot { acc_code: 100, ..Default::default() })?;
-//! assert_eq!(out.tick, 0);
-//! hil.shutdown()?;                                            // also done on drop
-//! # Ok::<(), sts_hil::HilError>(())
-//! ```
-//!
-//! QEMU never outlives its harness: [`Hil`] kills it on drop (also when unwinding from a
-//! panic), a signal handler kills every QEMU of the process on SIGINT/SIGTERM/SIGHUP, and
-//! QEMU gets `PR_SET_PDEATHSIG(SIGKILL)` so that it dies with the process even when the
-//! process is SIGKILLed. The bus file is unlinked as soon as it is created (QEMU opens it
-//! through `/proc/self/fd`), so nothing is left in `/dev/shm` either.
+#![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
 mod bench;

@@ -1,7 +1,4 @@
-//! The twin as a file and as the board runs it: the model file `sts-twin-model/1` (the
-//! fitted formulas as text, their statistics, the feature settings, and the firmware program
-//! ready to upload) and the replay of a model on a measured group, through the firmware's own
-//! program interpreter and synthesiser.
+#![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
 mod compile;

@@ -1,10 +1,4 @@
-//! The closed loop: the emulated machine and a co-processor (the firmware in QEMU, or the
-//! same core simulated on the host) stepped together at the servo rate.
-//!
-//! Tick `k`: the machine steps with the command of tick `k` and the analogue input the
-//! co-processor wrote at tick `k - 1`; its accelerometer code and the command phase go to the
-//! co-processor, whose DAC code for tick `k` reaches the machine at tick `k + 1`.
-
+#![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
 pub mod calibrate;

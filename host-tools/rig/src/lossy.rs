@@ -149,7 +149,10 @@ pub struct LinkStats {
     pub max_attempts: u32,
 }
 
-/// The firmware in QEMU behind a lossy control link (see the [module docs](self)).
+/// The firmware in QEMU behind a lossy control link: every control frame, in and out, is
+/// delivered, dropped or corrupted as a seeded [`FrameInjector`] decides, and requests are
+/// sent with a [`RetryPolicy`] (a new sequence number per attempt, late answers ignored), so
+/// every request is carried out and answered despite the losses.
 pub struct LossyHilCoprocessor {
     inner: HilCoprocessor,
     inbound: FrameInjector,

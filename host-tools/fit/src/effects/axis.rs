@@ -8,7 +8,7 @@
 //! bandwidth), the servo and the effect fitted together on the encoder, the best start
 //! kept; then the mode from a grid of frequencies on the probe; then everything on both.
 //! The encoder ripple's phase and amplitudes enter each stage by linear least squares
-//! ([`ripple_linear`]): over a travel of several pitches a local fit of the phase has a
+//! (`ripple_linear`): over a travel of several pitches a local fit of the phase has a
 //! minimum every turn.
 //! The simulation here is f64 (the firmware's is f32); both simulate the whole axis with the
 //! same laws and share the discretisation ([`zoh`]).

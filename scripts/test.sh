@@ -14,12 +14,7 @@ cargo fmt --all -- --check
 (cd firmware/qemu-app && cargo fmt -- --check)
 (cd firmware/stm32h7-app && cargo fmt -- --check)
 step "clippy (root workspace)"
-# The -A flags let through findings that predate clippy in this script, in code this
-# script does not own (firmware/core/src/wire/message.rs and bus.rs; host-tools/cli/src/
-# diagnose, report/svg.rs, rig/mod.rs); drop each once its code is fixed.
-cargo clippy --workspace --all-targets --locked -- -D warnings \
-    -A clippy::large_enum_variant -A clippy::assertions_on_constants \
-    -A clippy::needless_range_loop -A clippy::too_many_arguments
+cargo clippy --workspace --all-targets --locked -- -D warnings
 step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"
 cargo --locked xtask firmware --locked
 step "core library for RISC-V (riscv32imac-unknown-none-elf)"

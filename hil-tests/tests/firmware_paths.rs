@@ -1,6 +1,6 @@
 //! The HIL harness looks for the firmware ELFs where `cargo xtask firmware` puts them.
 
-use sts_twin::hil::{FirmwareVariant, BRINGUP_ELF_ENV, FIRMWARE_ELF_ENV, FIRMWARE_TARGET};
+use sts_hil::{FirmwareVariant, BRINGUP_ELF_ENV, FIRMWARE_ELF_ENV, FIRMWARE_TARGET};
 
 #[test]
 fn harness_defaults_are_the_xtask_outputs() {

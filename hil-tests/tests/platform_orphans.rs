@@ -31,7 +31,7 @@ fn orphan_child() {
 /// Starts the child in `mode`; returns it and its QEMU's pid.
 fn child(mode: &str) -> (Child, u32) {
     let mut child = Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "orphan_child", "--nocapture", "--test-threads=1"])
+        .args(["--exact", "platform_orphans::orphan_child", "--nocapture", "--test-threads=1"])
         .env(MODE_ENV, mode)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())

@@ -153,7 +153,9 @@ pub fn least_squares<const N: usize>(rows: &[[f64; N]], y: &[f64]) -> Option<Lin
     let qr = x.qr();
     let r = qr.r();
     let largest = (0..N).map(|i| r[(i, i)].abs()).fold(0.0, f64::max);
-    if (0..N).any(|i| !(r[(i, i)].abs() > RANK_TOLERANCE * largest)) {
+    // NaN on the diagonal also counts as dependent.
+    let independent = |i: usize| r[(i, i)].abs() > RANK_TOLERANCE * largest;
+    if !(0..N).all(independent) {
         return None;
     }
     let mut qty = DVector::from_column_slice(y);

@@ -274,12 +274,12 @@ mod tests {
 
     #[test]
     fn a_harness_error_is_the_cause_of_its_context() {
-        let start = RigError::Start(HilError::TargetMissing);
+        let missing = || HilError::QemuMissing { program: "qemu-system-arm".into() };
         assert_eq!(
-            chain(&start),
-            "cannot start the firmware under QEMU: the Rust target thumbv7em-none-eabihf is not installed: run `rustup target add thumbv7em-none-eabihf`"
+            chain(&RigError::Start(missing())),
+            "cannot start the firmware under QEMU: `qemu-system-arm` not found: install QEMU for Arm (Debian/Ubuntu: `sudo apt-get install qemu-system-arm`) or point STS_TWIN_QEMU at it"
         );
         // Without context the harness's error reads as it is.
-        assert_eq!(chain(&RigError::from(HilError::TargetMissing)), HilError::TargetMissing.to_string());
+        assert_eq!(chain(&RigError::from(missing())), missing().to_string());
     }
 }

@@ -13,6 +13,8 @@ step "formatting (the root workspace and the two firmware apps, which are worksp
 cargo fmt --all -- --check
 (cd firmware/qemu-app && cargo fmt -- --check)
 (cd firmware/stm32h7-app && cargo fmt -- --check)
+step "layering: no import cycle between the top-level modules of any crate"
+cargo --locked xtask layering >/dev/null
 step "clippy (root workspace)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"

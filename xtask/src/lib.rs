@@ -1,10 +1,13 @@
-//! Where `cargo xtask firmware` puts the firmware ELFs.
+//! The build tasks' library: where `cargo xtask firmware` puts the firmware ELFs, and the
+//! module-layering check of `cargo xtask layering` ([`layering`]).
 //!
 //! The firmware apps (`firmware/qemu-app`, `firmware/stm32h7-app`) are workspaces of their
 //! own that only build for [`FIRMWARE_TARGET`]; each image lands in a fixed place under its
 //! app's own `target` directory, given here relative to the repository root. The HIL harness
-//! (`sts_twin::hil`) looks for the QEMU images at the same places (the hil-tests check that
+//! (`sts_hil`) looks for the QEMU images at the same places (the hil-tests check that
 //! the two agree).
+
+pub mod layering;
 
 /// The firmware's Rust target (`rustup target add thumbv7em-none-eabihf`).
 pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";

@@ -19,6 +19,9 @@ enum Task {
     /// Build the firmware ELFs: the QEMU twin, the QEMU bring-up app and the STM32H7 app.
     #[command(long_about = FIRMWARE_ABOUT)]
     Firmware(FirmwareArgs),
+    /// Check that no crate of the root workspace has an import cycle between its top-level
+    /// modules, and print each crate's module graph.
+    Layering,
 }
 
 const FIRMWARE_ABOUT: &str = "\
@@ -80,6 +83,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.task {
         Task::Firmware(args) => firmware(&args),
+        Task::Layering => layering(),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -119,6 +123,46 @@ fn firmware(args: &FirmwareArgs) -> Result<(), String> {
         println!("  {:<8} {}{note}", image.name, elf.display());
     }
     Ok(())
+}
+
+/// The root workspace's members, from the `members = [...]` list of the root Cargo.toml.
+fn workspace_members(root: &Path) -> Result<Vec<PathBuf>, String> {
+    let manifest = root.join("Cargo.toml");
+    let text = std::fs::read_to_string(&manifest).map_err(|e| format!("{}: {e}", manifest.display()))?;
+    let start = text.find("members = [").ok_or_else(|| format!("{}: no `members = [`", manifest.display()))?;
+    let list = &text[start..];
+    let list = &list[..list.find(']').unwrap_or(list.len())];
+    Ok(list
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix('"').and_then(|l| l.split('"').next()))
+        .map(|m| root.join(m))
+        .collect())
+}
+
+fn layering() -> Result<(), String> {
+    let root = repo_root();
+    let mut cycles = Vec::new();
+    for member in workspace_members(&root)? {
+        let name = member.strip_prefix(&root).unwrap_or(&member).display().to_string();
+        for root_file in ["src/lib.rs", "src/main.rs"].map(|f| member.join(f)).into_iter().filter(|f| f.is_file()) {
+            let graph = xtask::layering::module_graph(&root_file);
+            let file = root_file.file_name().unwrap_or_default().to_string_lossy();
+            println!("{name} ({file}):");
+            for (module, uses) in &graph.edges {
+                let uses: Vec<&str> = uses.iter().map(String::as_str).collect();
+                println!("  {module} -> {}", if uses.is_empty() { "-".to_string() } else { uses.join(", ") });
+            }
+            for group in graph.cycles() {
+                cycles.push(format!("{name}: {}", group.join(" <-> ")));
+            }
+        }
+    }
+    if cycles.is_empty() {
+        println!("no import cycle between the top-level modules of any crate");
+        Ok(())
+    } else {
+        Err(format!("import cycles between top-level modules:\n  {}", cycles.join("\n  ")))
+    }
 }
 
 /// Builds one image in its app's directory, where the app's `.cargo/config.toml` applies.

@@ -69,7 +69,7 @@ pub const CONFIG_SLOT_BYTES: usize = 32 * 1024;
 /// The CMSDK timer clock of the board.
 pub const TIMER_CLOCK_HZ: u32 = 25_000_000;
 /// The servo rate.
-pub const SERVO_RATE_HZ: u32 = 8_000;
+pub const SERVO_RATE_HZ: u32 = sts_twin_core::SERVO_RATE_HZ;
 /// Timer counts per servo period.
 pub const SERVO_PERIOD_COUNTS: u32 = TIMER_CLOCK_HZ / SERVO_RATE_HZ;
 

@@ -3,6 +3,10 @@
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
 
+/// The servo rate: one tick of the co-processor (and of the motion controller's servo loop
+/// it follows) every 125 us. Every rate and tick length of the host tools derives from it.
+pub const SERVO_RATE_HZ: u32 = 8_000;
+
 pub mod analogue_path;
 pub mod axis;
 pub mod bus;

@@ -59,7 +59,7 @@ fn make_app() -> (App, AppBackground, AppShared) {
 }
 
 /// Servo rate.
-const SERVO_RATE_HZ: u32 = 8_000;
+const SERVO_RATE_HZ: u32 = sts_twin_core::SERVO_RATE_HZ;
 /// Spindle encoder counts per revolution (quadrature, x4).
 const ENCODER_COUNTS_PER_REV: u32 = 16_384;
 /// Z command monitor scale: nanometres per ADC code around mid-scale (16-bit reads).

@@ -17,7 +17,7 @@ use std::f64::consts::PI;
 use sts_dataset::{Dataset, GroupData};
 
 /// The co-processor's servo rate, Hz.
-pub const SERVO_RATE_HZ: f64 = 8000.0;
+pub const SERVO_RATE_HZ: f64 = sts_twin_core::SERVO_RATE_HZ as f64;
 
 /// Zero crossings of the sinc on each side of an output instant (at the cut-off).
 const HALF_WIDTH_CROSSINGS: f64 = 32.0;

@@ -1,5 +1,6 @@
 //! Closed loop at one frequency, simulated co-processor, with and without a model:
 //! `cargo run --release -p sts-twin --example closed_loop -- MODEL FREQ_HZ AMP_UM`.
+use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_analysis::sine::fit_sine;
 use sts_emulator::{Machine, PlantParams};
 use sts_model::ModelFile;
@@ -32,7 +33,7 @@ fn main() -> anyhow::Result<()> {
             )?;
             expect_ack("enable", cop.request(Request::SetEnabled(true))?)?;
         }
-        let traj = Sinusoid { freq_hz, amp_um, duration_s: 10.0, sample_rate_hz: 8000.0 };
+        let traj = Sinusoid { freq_hz, amp_um, duration_s: 10.0, sample_rate_hz: SERVO_RATE_HZ };
         let (mut t, mut de, mut pred) = (Vec::new(), Vec::new(), Vec::new());
         run_loop(&mut machine, &mut cop, &traj, 0..80_000, 10.0, true, |s| {
             if s.machine.time_s >= 9.0 {

@@ -9,7 +9,7 @@ use sts_symreg::SymregError;
 use sts_twin_core::axis::{AxisError, AxisParams};
 use sts_twin_core::program::{ProgramError, MAX_TERMS};
 
-use crate::formulas::Target;
+use crate::target::Target;
 
 /// Why the twin could not be fitted, or its effect terms not attached or recorded.
 #[derive(Debug, thiserror::Error)]

@@ -37,6 +37,7 @@ use sts_symreg::{FrontMember, Matrix, OperatorSet, SearchConfig, SearchResult, S
 use sts_twin_core::features::{FeatureConfig, FEATURE_LABELS};
 use sts_twin_core::program::Program;
 
+use crate::target::Target;
 use crate::FitError;
 
 use sts_analysis::score::{phase_r_squared, r_squared};
@@ -99,15 +100,6 @@ impl Default for FitConfig {
             cv_ratio: 1.5,
         }
     }
-}
-
-/// What a search is for, for progress reports.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Target {
-    /// The amplitude model.
-    Amplitude,
-    /// The phase model.
-    Phase,
 }
 
 /// Progress of a fit: a search reports its current best formula after each epoch.

@@ -4,7 +4,9 @@
 pub mod effects;
 mod error;
 pub mod formulas;
+mod target;
 
 pub use error::FitError;
+pub use target::Target;
 
 pub use formulas::*;

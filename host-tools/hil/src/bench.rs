@@ -176,12 +176,12 @@ pub struct ThroughputReport {
 impl ThroughputReport {
     /// Lockstep simulated seconds per wall second.
     pub fn lockstep_sim_per_wall(&self) -> f64 {
-        self.lockstep_ticks_per_s / 8000.0
+        self.lockstep_ticks_per_s / f64::from(sts_twin_core::SERVO_RATE_HZ)
     }
 
     /// Open-loop simulated seconds per wall second.
     pub fn open_loop_sim_per_wall(&self) -> f64 {
-        self.open_loop_ticks_per_s / 8000.0
+        self.open_loop_ticks_per_s / f64::from(sts_twin_core::SERVO_RATE_HZ)
     }
 }
 

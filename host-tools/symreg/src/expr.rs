@@ -255,37 +255,6 @@ impl Expr {
         }
     }
 
-    /// Evaluates on column-major data (`columns[i][row]` is variable `i`); `None` if any
-    /// intermediate value is non-finite on any row.
-    ///
-    /// ```
-    /// use sts_symreg::{Expr, BinaryOp};
-    /// let e = Expr::binary(BinaryOp::Div, Expr::Var(0), Expr::Var(1));
-    /// let x0 = [1.0, 2.0];
-    /// let x1 = [2.0, 0.0];
-    /// assert_eq!(e.eval_columns(&[&x0, &x1]), None); // 2/0 is not finite
-    /// ```
-    pub fn eval_columns(&self, columns: &[&[f64]]) -> Option<Vec<f64>> {
-        let n_rows = columns.first().map_or(0, |c| c.len());
-        let program = crate::eval::Program::compile(self);
-        let mut evaluator = crate::eval::Evaluator::new(n_rows);
-        let mut out = vec![0.0; n_rows];
-        evaluator.eval(&program, columns, &mut out).then_some(out)
-    }
-
-    /// Evaluates on every row of a row-major [`crate::Matrix`]; `None` if any intermediate
-    /// value is non-finite.
-    pub fn eval_matrix(&self, x: &crate::Matrix) -> Option<Vec<f64>> {
-        let columns = x.columns();
-        let refs: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
-        if refs.is_empty() {
-            // No input columns: only constant expressions can be evaluated.
-            let v = self.eval_row(&[]);
-            return v.is_finite().then(|| vec![v; x.n_rows()]);
-        }
-        self.eval_columns(&refs)
-    }
-
     /// The largest variable index used plus one (0 if none).
     pub fn n_vars_used(&self) -> usize {
         match self {

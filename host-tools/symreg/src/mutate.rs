@@ -4,7 +4,7 @@ use rand_chacha::rand_core::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::expr::{BinaryOp, Expr};
-use crate::search::OperatorSet;
+use crate::operators::OperatorSet;
 
 /// A seeded random stream with the few draws the search needs (independent of `rand`'s
 /// distribution code, so results cannot change with a dependency update).

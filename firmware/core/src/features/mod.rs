@@ -222,7 +222,8 @@ pub struct FeatureConfig {
 impl FeatureConfig {
     /// 5 s at 8 kHz, 1e-4 m/s^2 per LSB (full scale +-3.28 m/s^2; a 1e-4 m/s^2 sinusoid is
     /// one LSB and is resolved in the spectrum with 0.3 LSB rms or more of noise as dither).
-    pub const DEFAULT: Self = Self { window_samples: 40_000, acc_mps2_per_lsb: 1.0e-4, sample_rate_hz: 8000.0 };
+    pub const DEFAULT: Self =
+        Self { window_samples: 40_000, acc_mps2_per_lsb: 1.0e-4, sample_rate_hz: crate::SERVO_RATE_HZ as f32 };
 
     /// Checks the configuration for a state holding `capacity_samples` samples.
     pub const fn validate(&self, capacity_samples: usize) -> Result<(), FeatureError> {

@@ -43,7 +43,10 @@ mod validate;
 pub use builder::ProgramBuilder;
 pub use builtin::{paper_program, PAPER_PROGRAM_ID};
 pub use eval::{EvalError, ModelOutput};
-pub use term::{tick_cost, TermInput, TickTerm, LAGUERRE_STAGES, MAX_HARMONIC_ORDER, TICK_BUDGET_INSTRUCTIONS};
+pub use term::{
+    laguerre_stages_are_narrow, tick_cost, TermInput, TickTerm, LAGUERRE_STAGES, MAX_HARMONIC_ORDER,
+    NARROW_POLE_MAX_Q30, TICK_BUDGET_INSTRUCTIONS, VELOCITY_SMOOTH_32_BIT_LIMIT,
+};
 pub use validate::ProgramError;
 
 use heapless::Vec;

@@ -12,7 +12,7 @@
 use super::TickInput;
 use crate::axis::{AxisModel, AxisState};
 use crate::math::{div_1e6, harmonic_pm, isqrt_u64, sin_q31};
-use crate::program::{TermInput, TickTerm, LAGUERRE_STAGES};
+use crate::program::{laguerre_stages_are_narrow, TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
 
 /// Ticks between two steps of a [`TickTerm::Drift`]'s exponential (its value is held in between).
 pub const DRIFT_STEP_TICKS: u32 = 256;
@@ -48,30 +48,6 @@ impl Stages {
         }
     }
 }
-
-/// Largest pole (Q30, 0.995) whose Laguerre stages are computed in 32 bits.
-///
-/// Why they fit: with `|u| <= 1` every stage is bounded by the l1 norm of its impulse
-/// response from the input, times `2^24 sqrt(1 - a^2)`, plus the rounding of the shifts
-/// (at most one unit per shift, through the same filters). At `a = 0.995` that is below
-/// `0.45 * 2^31` for every stage (`narrow_stages_are_bounded_well_inside_i32` computes it),
-/// so twice a stage fits in 32 bits, the product terms (`2a * 2y`, below `2^62`) and their
-/// sums (below `2^63`) are exact in 64 bits, and with gains of at most 2^32 in sum the
-/// weighted sum of the doubled stages cannot overflow either: the 32-bit stages give the
-/// 64-bit ones' output bit for bit (`narrow_and_wide_laguerre_banks_agree_bit_for_bit`
-/// checks it at the limits).
-pub const NARROW_POLE_MAX_Q30: i32 = (1 << 30) / 200 * 199;
-
-/// Whether a Laguerre bank with pole `pole_q30` and gains `gains_pm` runs on 32-bit stages
-/// (otherwise on 64-bit ones, about twice the instructions).
-pub fn laguerre_stages_are_narrow(pole_q30: i32, gains_pm: &[i32; LAGUERRE_STAGES]) -> bool {
-    let gain_sum: u64 = gains_pm.iter().map(|g| u64::from(g.unsigned_abs())).sum();
-    pole_q30 > 0 && pole_q30 <= NARROW_POLE_MAX_Q30 && gain_sum <= 1 << 32
-}
-
-/// Smoothing velocities (nm per 4 ticks) below this are divided by in 32 bits; at or above,
-/// a 64-bit division (a library call) does it.
-pub const VELOCITY_SMOOTH_32_BIT_LIMIT: i32 = 1 << 17;
 
 /// Kernel state of a term other than a harmonic.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -391,6 +367,7 @@ fn laguerre_step_narrow(
 mod tests {
     use super::*;
     use crate::program::ModelOutput;
+    use crate::program::NARROW_POLE_MAX_Q30;
     use crate::synth::tests::rng;
     use crate::synth::Synth;
 

@@ -10,6 +10,7 @@ use sts_analysis::sine::line_amp;
 use sts_model::EFFECTS;
 
 use super::GroupCtx;
+use sts_analysis::resample::SERVO_RATE_HZ;
 
 /// Pole of the Laguerre filters modelling the servo's response to a disturbance.
 pub const LAGUERRE_POLE: f64 = 0.93;
@@ -296,7 +297,7 @@ fn fundamental_shape(ctx: &[GroupCtx], folds: usize, which: Candidate) -> Evalua
 }
 
 fn transient_line_hz(ctx: &[GroupCtx]) -> f64 {
-    let fs = ctx.first().map_or(8000.0, |c| c.sample_rate_hz);
+    let fs = ctx.first().map_or(SERVO_RATE_HZ, |c| c.sample_rate_hz);
     let n = (0.25 * fs) as usize;
     let mut spectrum = vec![0.0; 1000];
     for c in ctx {

@@ -10,6 +10,7 @@ use sts_rig::machine_params;
 use sts_rig::trial::{run_trial, with_measured_path, TrialConfig};
 
 use super::machine::{coprocessor, print_path, print_report};
+use sts_analysis::resample::SERVO_RATE_HZ;
 
 /// Arguments of `sts-twin demo`.
 #[derive(Debug, clap::Args)]
@@ -51,7 +52,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
     eprintln!("3/3 cutting the bicuspid surface at {} Hz with {which} in the loop ...", args.freq);
     let params = machine_params(&plant, plant.interface.offset_v);
-    let window_samples = args.window_s.map(|s| ((s * 8000.0) as u32 / 16) * 16);
+    let window_samples = args.window_s.map(|s| ((s * SERVO_RATE_HZ) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut reports = Vec::new();
     for twin in [None, Some(&model)] {

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use sts_emulator::{EffectSpec, PlantParams};
 
+use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_hil::HilConfig;
 use sts_model::ModelFile;
 use sts_rig::calibrate::PathPoint;
@@ -141,7 +142,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let (plant, effects) = args.machine.load()?;
     let model = args.twin.as_ref().map(|p| ModelFile::read(p)).transpose()?;
     let params = machine_params(&plant, args.offset.unwrap_or(plant.interface.offset_v));
-    let window_samples = args.window_s.map(|s| ((s * 8000.0) as u32 / 16) * 16);
+    let window_samples = args.window_s.map(|s| ((s * SERVO_RATE_HZ) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut cop = match &args.bus {
         Some(bus) => stored_calibration_board(bus)?,

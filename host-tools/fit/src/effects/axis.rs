@@ -23,9 +23,10 @@ use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
 use sts_analysis::lsq::{ridge_solve, solve, Stats};
 
 use crate::FitError;
+use sts_analysis::resample::SERVO_RATE_HZ;
 
 /// Servo tick, s (the dataset's rate is checked to be 8 kHz by the caller).
-const TICK_S: f64 = 1.0 / 8000.0;
+const TICK_S: f64 = 1.0 / SERVO_RATE_HZ;
 /// Implicitness of the friction step, as in the firmware.
 const THETA: f64 = 0.5;
 

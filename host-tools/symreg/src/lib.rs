@@ -12,6 +12,7 @@ pub mod planted;
 pub mod search;
 pub mod select;
 pub mod simplify;
+pub mod table;
 
 pub use data::{Matrix, SymregError};
 pub use eval::{Evaluator, Program};

@@ -9,8 +9,9 @@
 use anyhow::{bail, Context};
 use serde::Serialize;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
+use sts_symreg::table::{read_table, Table};
 use sts_symreg::{fit, Matrix, OperatorSet, SearchConfig, SearchResult, StopReason};
 
 /// Arguments of `sts-twin regress`.
@@ -46,76 +47,6 @@ pub struct Args {
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
-}
-
-/// A table read from CSV: column names and row-major values.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Table {
-    /// Header names, in file order.
-    pub columns: Vec<String>,
-    /// Rows of values, each as long as `columns`.
-    pub rows: Vec<Vec<f64>>,
-}
-
-/// Reads a numeric CSV table. Errors name the file, the line and the column.
-pub fn read_table(path: &Path) -> anyhow::Result<Table> {
-    let shown = path.display();
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .trim(csv::Trim::All)
-        .from_path(path)
-        .with_context(|| format!("cannot open {shown}"))?;
-    let columns: Vec<String> = reader
-        .headers()
-        .with_context(|| format!("{shown}:1: cannot read the header row"))?
-        .iter()
-        .map(str::to_string)
-        .collect();
-    if columns.is_empty() || columns.iter().all(String::is_empty) {
-        bail!("{shown}:1: the header row is empty");
-    }
-    for (i, name) in columns.iter().enumerate() {
-        if name.is_empty() {
-            bail!("{shown}:1: column {} has an empty name", i + 1);
-        }
-        if columns[..i].contains(name) {
-            bail!("{shown}:1: column name `{name}` appears twice");
-        }
-    }
-    let mut rows = Vec::new();
-    for record in reader.records() {
-        let record = record.map_err(|e| csv_error(&shown.to_string(), &columns, e))?;
-        let line = record.position().map_or(0, |p| p.line());
-        let mut row = Vec::with_capacity(columns.len());
-        for (i, field) in record.iter().enumerate() {
-            let value: f64 = field.parse().map_err(|_| {
-                anyhow::anyhow!("{shown}:{line}: column {} (`{}`): `{field}` is not a number", i + 1, columns[i])
-            })?;
-            if !value.is_finite() {
-                bail!("{shown}:{line}: column {} (`{}`): `{field}` is not a finite number", i + 1, columns[i]);
-            }
-            row.push(value);
-        }
-        rows.push(row);
-    }
-    if rows.is_empty() {
-        bail!("{shown}: no data rows after the header");
-    }
-    Ok(Table { columns, rows })
-}
-
-fn csv_error(file: &str, columns: &[String], e: csv::Error) -> anyhow::Error {
-    match e.kind() {
-        csv::ErrorKind::UnequalLengths { pos, expected_len, len } => {
-            let line = pos.as_ref().map_or(0, |p| p.line());
-            anyhow::anyhow!("{file}:{line}: {len} fields, expected {expected_len} (columns: {})", columns.join(", "))
-        }
-        csv::ErrorKind::Utf8 { pos, err } => {
-            let line = pos.as_ref().map_or(0, |p| p.line());
-            anyhow::anyhow!("{file}:{line}: column {}: not valid UTF-8", err.field() + 1)
-        }
-        _ => anyhow::anyhow!("{file}: {e}"),
-    }
 }
 
 /// One front member in the JSON output.

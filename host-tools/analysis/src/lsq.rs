@@ -4,8 +4,8 @@
 //! - [`Stats`]: one group's regression reduced to the triangular factor of `[X | r]`, which
 //!   folds of groups stack and reduce again ([`solve`]), so cross-validation by group never
 //!   goes back to the samples (diagnose's candidates, the effects' terms);
-//! - [`ridge_solve`]: damped and ridge-regularised solves on whole columns (the axis
-//!   identification's Levenberg-Marquardt steps);
+//! - [`solve_damped`]: the same with Marquardt's damping (the axis identification's
+//!   Levenberg-Marquardt steps, the Jacobian reduced once for every damping tried);
 //! - [`least_squares`]: a small fit with its residuals, refusing dependent columns
 //!   (calibration, sine fits).
 //!
@@ -15,7 +15,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-/// The ridge of [`solve`] and [`ridge_solve`], relative to each column's squared norm.
+/// The ridge of [`solve`] and [`solve_damped`], relative to each column's squared norm.
 pub const RIDGE: f64 = 1e-9;
 
 /// A column whose diagonal in the triangular factor is below this fraction of the largest
@@ -34,10 +34,25 @@ pub struct Stats {
 impl Stats {
     /// The factor of regressor columns `x` (each over the window) and residual `r`.
     pub fn from_columns(x: &[Vec<f64>], r: &[f64]) -> Self {
-        let p = x.len();
-        let n = r.len();
-        let augmented = DMatrix::from_fn(n, p + 1, |i, j| if j < p { x[j][i] } else { r[i] });
-        Self { r_factor: triangular_factor(augmented) }
+        let cols = x.len() + 1;
+        let value = |i: usize, j: usize| if j < cols - 1 { x[j][i] } else { r[i] };
+        // Tall and skinny: reduced block by block ([R; next rows] -> R), so each QR works on
+        // a matrix that stays in cache; the same factor as one QR of all rows.
+        let mut factor = DMatrix::zeros(0, cols);
+        let mut start = 0;
+        while start < r.len() {
+            let rows = (r.len() - start).min(QR_BLOCK_ROWS);
+            let top = factor.nrows();
+            let block =
+                DMatrix::from_fn(
+                    top + rows,
+                    cols,
+                    |i, j| if i < top { factor[(i, j)] } else { value(start + i - top, j) },
+                );
+            factor = block.qr().r();
+            start += rows;
+        }
+        Self { r_factor: pad_square(factor) }
     }
 
     /// Number of regressors.
@@ -58,11 +73,18 @@ impl Stats {
     }
 }
 
+/// Rows of one block of [`Stats::from_columns`]'s reduction.
+const QR_BLOCK_ROWS: usize = 256;
+
 /// The QR decomposition's `R` of `m`, padded with zero rows to square when `m` has fewer rows
 /// than columns.
 fn triangular_factor(m: DMatrix<f64>) -> DMatrix<f64> {
-    let cols = m.ncols();
-    let r = m.qr().r();
+    pad_square(m.qr().r())
+}
+
+/// `r` with zero rows added below to make it square.
+fn pad_square(r: DMatrix<f64>) -> DMatrix<f64> {
+    let cols = r.ncols();
     if r.nrows() == cols {
         return r;
     }
@@ -74,6 +96,12 @@ fn triangular_factor(m: DMatrix<f64>) -> DMatrix<f64> {
 /// Ridge least-squares coefficients over a set of groups' stats: the groups' factors stacked
 /// and reduced again, each column scaled to unit norm with a ridge of [`RIDGE`].
 pub fn solve(stats: &[&Stats]) -> Vec<f64> {
+    solve_damped(stats, 0.0)
+}
+
+/// [`solve`] with a damping of `damping` in Marquardt's scaling added to the ridge
+/// (a Levenberg-Marquardt step: `X` the Jacobian, `r` minus the residuals).
+pub fn solve_damped(stats: &[&Stats], damping: f64) -> Vec<f64> {
     let Some(first) = stats.first() else { return Vec::new() };
     let p = first.columns();
     if p == 0 {
@@ -87,21 +115,11 @@ pub fn solve(stats: &[&Stats]) -> Vec<f64> {
     let reduced = triangular_factor(stacked);
     let x = reduced.columns(0, p).into_owned();
     let y = reduced.column(p).into_owned();
-    ridge_solve_matrix(x, y, 0.0)
+    ridge_solve_matrix(x, y, damping)
 }
 
 /// Solves `min ||y - X b||^2 + (damping + RIDGE) ||D b||^2` where `D` holds the columns' norms
-/// (Marquardt's scaling), by QR of the augmented system. `x` holds the columns.
-pub fn ridge_solve(x: &[Vec<f64>], y: &[f64], damping: f64) -> Vec<f64> {
-    let p = x.len();
-    if p == 0 {
-        return Vec::new();
-    }
-    let n = y.len();
-    let xm = DMatrix::from_fn(n, p, |i, j| x[j][i]);
-    ridge_solve_matrix(xm, DVector::from_column_slice(y), damping)
-}
-
+/// (Marquardt's scaling), by QR of the augmented system.
 fn ridge_solve_matrix(x: DMatrix<f64>, y: DVector<f64>, damping: f64) -> Vec<f64> {
     let (n, p) = x.shape();
     let scale: Vec<f64> = (0..p).map(|j| x.column(j).norm().max(1e-300)).collect();
@@ -176,14 +194,30 @@ mod tests {
     use super::*;
 
     #[test]
-    fn ridge_solve_matches_the_exact_solution_of_a_well_posed_system() {
+    fn solves_a_well_posed_system_and_damping_shrinks_the_step() {
         let x = vec![vec![1.0, 2.0, 3.0, 4.0], vec![1.0, -1.0, 1.0, -1.0]];
         let y: Vec<f64> = (0..4).map(|i| 0.5 * x[0][i] - 2.0 * x[1][i]).collect();
-        let b = ridge_solve(&x, &y, 0.0);
+        let stats = Stats::from_columns(&x, &y);
+        let b = solve(&[&stats]);
         assert!((b[0] - 0.5).abs() < 1e-6 && (b[1] + 2.0).abs() < 1e-6, "{b:?}");
-        // Damping shrinks the step.
-        let damped = ridge_solve(&x, &y, 1.0);
+        let damped = solve_damped(&[&stats], 1.0);
         assert!(damped[0].abs() < 0.5 && damped[1].abs() < 2.0, "{damped:?}");
+    }
+
+    #[test]
+    fn blocks_reduce_to_the_factor_of_all_rows() {
+        let n = 3 * QR_BLOCK_ROWS + 17;
+        let x: Vec<Vec<f64>> = (0..3).map(|j| (0..n).map(|i| ((i * (j + 2)) as f64 * 0.37).sin()).collect()).collect();
+        let r: Vec<f64> = (0..n).map(|i| (i as f64 * 0.011).cos()).collect();
+        let blocked = Stats::from_columns(&x, &r);
+        let whole = triangular_factor(DMatrix::from_fn(n, 4, |i, j| if j < 3 { x[j][i] } else { r[i] }));
+        // Equal up to the signs of the rows.
+        for i in 0..4 {
+            let sign = (blocked.r_factor[(i, i)] * whole[(i, i)]).signum();
+            for j in 0..4 {
+                assert!((blocked.r_factor[(i, j)] - sign * whole[(i, j)]).abs() < 1e-9, "{i} {j}");
+            }
+        }
     }
 
     #[test]

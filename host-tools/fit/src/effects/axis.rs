@@ -20,7 +20,7 @@ use sts_dataset::Dataset;
 use sts_twin_core::axis::discretise::{zoh, Continuous, STATES};
 use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
 
-use sts_analysis::lsq::{ridge_solve, solve, Stats};
+use sts_analysis::lsq::{solve, solve_damped, Stats};
 
 use crate::FitError;
 use sts_analysis::resample::SERVO_RATE_HZ;
@@ -374,11 +374,13 @@ fn levenberg_marquardt(
                 rs.iter().zip(&r).map(|(a, b)| (a - b) / h).collect()
             })
             .collect();
-        // The step makes J step ~ -r, damped by lambda in Marquardt's scaling.
+        // The step makes J step ~ -r, damped by lambda in Marquardt's scaling; J is reduced
+        // to its triangular factor once for all the lambdas tried.
         let minus_r: Vec<f64> = r.iter().map(|v| -v).collect();
+        let step_stats = Stats::from_columns(&jac, &minus_r);
         let mut improved = false;
         for _ in 0..8 {
-            let step = ridge_solve(&jac, &minus_r, lambda);
+            let step = solve_damped(&[&step_stats], lambda);
             let mut trial = c;
             for (&slot, &s) in free.iter().zip(&step) {
                 trial = moved(&trial, slot, s);

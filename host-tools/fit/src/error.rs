@@ -200,13 +200,7 @@ mod tests {
 
     /// The message and its causes, as the sts-twin command prints an error (`{:#}`).
     fn chain(error: &dyn std::error::Error) -> String {
-        let mut text = error.to_string();
-        let mut cause = error.source();
-        while let Some(e) = cause {
-            text += &format!(": {e}");
-            cause = e.source();
-        }
-        text
+        std::iter::successors(Some(error), |e| e.source()).map(|e| e.to_string()).collect::<Vec<_>>().join(": ")
     }
 
     #[test]

@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::validate::register_ok;
+use super::REGISTER_COUNT;
 use crate::axis::AxisParams;
 
 /// Largest pole (Q30, 0.995) whose Laguerre stages are computed in 32 bits.
@@ -249,4 +249,9 @@ impl TickTerm {
     pub fn is_kernel(&self) -> bool {
         !matches!(self, Self::Harmonic { .. } | Self::Axis(_))
     }
+}
+
+/// Whether a term's register references are valid given the set of stored registers.
+fn register_ok(register: u8, written: u16) -> bool {
+    (register as usize) < REGISTER_COUNT && written & (1 << register) != 0
 }

@@ -235,11 +235,6 @@ impl Program {
     }
 }
 
-/// Whether a term's register references are valid given the set of stored registers.
-pub(super) fn register_ok(register: u8, written: u16) -> bool {
-    (register as usize) < REGISTER_COUNT && written & (1 << register) != 0
-}
-
 impl TickTerm {
     fn is_valid(&self, written: u16) -> bool {
         self.check(written)

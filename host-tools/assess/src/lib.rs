@@ -4,5 +4,6 @@
 pub mod compare;
 pub mod diagnose;
 mod error;
+pub mod explain;
 
 pub use error::AssessError;

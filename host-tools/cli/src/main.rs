@@ -23,6 +23,8 @@ enum Command {
     Machine(cmd::machine::Args),
     /// Rank the physical effects missing from a model by how much of its residual they explain.
     Diagnose(cmd::diagnose::Args),
+    /// The lab's loop by itself: fit, diagnose, add the named effect, refit, until nothing is missing.
+    Explain(cmd::explain::Args),
     /// Train the explainable twin (amplitude and phase formulas) on a dataset.
     Fit(cmd::fit::Args),
     /// The firmware under QEMU on its own: status, benchmarks.
@@ -72,6 +74,7 @@ fn run(cli: &Cli) -> std::process::ExitCode {
         Command::Compare(args) => cmd::compare::run(args),
         Command::Demo(args) => cmd::demo::run(args),
         Command::Diagnose(args) => cmd::diagnose::run(args),
+        Command::Explain(args) => cmd::explain::run(args),
         Command::Fit(args) => cmd::fit::run(args),
         Command::Hil(args) => cmd::hil::run(args),
         Command::Machine(args) => cmd::machine::run(args),

@@ -378,27 +378,33 @@ fn ripple(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     // Pitch search on the unfiltered position sine over the slowest groups, where the servo
     // follows a position-periodic error without filtering (peak velocity at most 100 um/s, or
     // the slowest fifth).
-    let pitches: Vec<f64> = (0..60).map(|i| 1.0 * 1.04f64.powi(i)).collect();
     let vpeak = |c: &GroupCtx| 2.0 * PI * c.sample.info.freq_hz * cmd_amp(c);
     let mut speeds: Vec<f64> = ctx.iter().map(vpeak).collect();
     speeds.sort_by(f64::total_cmp);
     let limit = speeds.get(speeds.len() / 5).copied().unwrap_or(0.0).max(100.0);
     let slow: Vec<&GroupCtx> = ctx.iter().filter(|c| vpeak(c) <= limit).collect();
-    let raw: Vec<Vec<Stats>> = pitches
-        .par_iter()
-        .map(|p| {
-            slow.iter()
-                .map(|c| {
-                    let x = &c.data.z_enc_um[c.start..];
-                    let s: Vec<f64> = x.iter().map(|x| (2.0 * PI * x / p).sin()).collect();
-                    let co: Vec<f64> = x.iter().map(|x| (2.0 * PI * x / p).cos()).collect();
-                    Stats::from_columns(&[s, co], &c.residual)
-                })
-                .collect()
-        })
-        .collect();
-    let (_, best_p, theta_raw) = cross_validate(&raw, folds);
-    let pitch = pitches[best_p];
+    let search = |pitches: &[f64]| -> (f64, Vec<f64>) {
+        let raw: Vec<Vec<Stats>> = pitches
+            .par_iter()
+            .map(|p| {
+                slow.iter()
+                    .map(|c| {
+                        let x = &c.data.z_enc_um[c.start..];
+                        let s: Vec<f64> = x.iter().map(|x| (2.0 * PI * x / p).sin()).collect();
+                        let co: Vec<f64> = x.iter().map(|x| (2.0 * PI * x / p).cos()).collect();
+                        Stats::from_columns(&[s, co], &c.residual)
+                    })
+                    .collect()
+            })
+            .collect();
+        let (_, best, theta) = cross_validate(&raw, folds);
+        (pitches[best], theta)
+    };
+    // A grid of 4% steps, then 0.25% and 0.02% around its best: over a travel of ten pitches
+    // a 4% error in the pitch turns the sine half a period against the error.
+    let (coarse, _) = search(&(0..60).map(|i| 1.04f64.powi(i)).collect::<Vec<f64>>());
+    let (fine, _) = search(&(-16..=16).map(|k| coarse * (1.0 + 0.0025 * f64::from(k))).collect::<Vec<f64>>());
+    let (pitch, theta_raw) = search(&(-12..=12).map(|k| fine * (1.0 + 0.0002 * f64::from(k))).collect::<Vec<f64>>());
     let amp_nm = theta_raw.first().copied().unwrap_or(0.0).hypot(theta_raw.get(1).copied().unwrap_or(0.0)) * 1e3;
     // Filtered model at that pitch.
     let columns: Vec<Vec<Vec<f64>>> = ctx

@@ -26,9 +26,12 @@
 //! residual add up to more than chance allows: a one-sided sign-flip test over groups
 //! (`sum / sqrt(sum of squares)`, normal approximation) of two statistics, the reductions of
 //! each group's sum of squares and the same relative to it, at `p < ALPHA / 16` (Bonferroni
-//! over the eight candidates and the two statistics), and (3) what it explains is more than the model's
-//! own cross-validated error (its RMS exceeds the model's held-out waveform RMS), so that the
-//! ordinary imprecision of a well-fitted model is not mistaken for a missing effect.
+//! over the eight candidates and the two statistics), and (3) what it explains is more than
+//! the data's own floor: its RMS exceeds the part of the error that does not repeat from one
+//! command period to the next (the sensors' noise; [`Repeatability::floor_um`]) and
+//! [`NOT_REPEATING_MIN_UM`]. The floor is the data's, not the model's: a model fitted on the
+//! same data (the lab's workflow) has the missing effect in its own held-out error, so a test
+//! against that error would hide every effect it is asked to find.
 
 mod candidates;
 
@@ -38,7 +41,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use sts_dataset::Dataset;
 
-use sts_analysis::repeat::{group_non_repeating_um, Repeatability};
+use sts_analysis::repeat::{group_non_repeating_um, Repeatability, NOT_REPEATING_MIN_UM};
 use sts_analysis::{self as analysis, GroupSample};
 use sts_model::replay::predict_group;
 use sts_model::ModelFile;
@@ -204,6 +207,12 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
     let total_n: usize = ctx.iter().map(|c| c.residual.len()).sum();
     let residual_rms_um = (total_ss / total_n.max(1) as f64).sqrt();
     let folds = FOLDS.min(n).max(2);
+    let repeatability = Repeatability::from_groups(
+        ctx.par_iter().map(|c| group_non_repeating_um(c.data, c.sample, c.sample_rate_hz)).collect(),
+    );
+    // The data's floor; unknown (groups too short) counts as none, leaving the minimum.
+    let floor_um = if repeatability.floor_um.is_finite() { repeatability.floor_um } else { 0.0 };
+    let explains_past_floor = |explained_rms_um: f64| explained_rms_um > floor_um.max(NOT_REPEATING_MIN_UM);
     let results: Vec<Ranked> = candidates::ALL
         .par_iter()
         .map(|cand| {
@@ -222,7 +231,7 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
             let significant = evaluated.testable
                 && explained_fraction >= MIN_EXPLAINED
                 && p_value < significance_threshold()
-                && explained_rms > model_cv_rms_um;
+                && explains_past_floor(explained_rms);
             Ranked {
                 effect: cand.name().to_string(),
                 explained_fraction,
@@ -242,17 +251,17 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
     };
     let summary = match ranking.first() {
         Some(best) if best.significant => format!(
-            "{} explains {:.0}% of the held-out residual (RMS {:.1} nm; the model's own held-out error is {:.1} nm): {}",
+            "{} explains {:.0}% of the held-out residual (RMS {:.1} nm; the data's floor, what does not repeat from period to period, is {:.1} nm): {}",
             best.effect,
             best.explained_fraction * 100.0,
             residual_rms_um * 1e3,
-            model_cv_rms_um * 1e3,
+            floor_um * 1e3,
             best.evidence
         ),
         Some(best) => format!(
-            "no candidate explains a significant part of the residual (RMS {:.1} nm, the model's own held-out error {:.1} nm); the best, {}, explains {:.0}% (p = {:.1e})",
+            "no candidate explains a significant part of the residual (RMS {:.1} nm; the data's floor, what does not repeat from period to period, is {:.1} nm); the best, {}, explains {:.0}% (p = {:.1e})",
             residual_rms_um * 1e3,
-            model_cv_rms_um * 1e3,
+            floor_um * 1e3,
             best.effect,
             best.explained_fraction * 100.0,
             best.p_value
@@ -260,13 +269,11 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         None => "no groups".to_string(),
     };
     let test = format!(
-        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold. A candidate is significant when it explains at least {:.0}% of the held-out residual, its per-group reductions of the held-out residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, of the reductions and of the reductions relative to each group's residual, p < {ALPHA}/16 = {:.2e}, Bonferroni over the 8 candidates and the 2 statistics), and the residual RMS it explains exceeds the model's own cross-validated waveform RMS ({:.1} nm). The verdict is the best candidate if significant, else none.",
+        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold. A candidate is significant when it explains at least {:.0}% of the held-out residual, its per-group reductions of the held-out residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, of the reductions and of the reductions relative to each group's residual, p < {ALPHA}/16 = {:.2e}, Bonferroni over the 8 candidates and the 2 statistics), and the residual RMS it explains exceeds the data's own floor, the part of the error that does not repeat from one command period to the next (the lower quartile over the groups, {:.1} nm, and at least {:.0} nm). The verdict is the best candidate if significant, else none.",
         MIN_EXPLAINED * 100.0,
         significance_threshold(),
-        model_cv_rms_um * 1e3
-    );
-    let repeatability = Repeatability::from_groups(
-        ctx.par_iter().map(|c| group_non_repeating_um(c.data, c.sample, c.sample_rate_hz)).collect(),
+        floor_um * 1e3,
+        NOT_REPEATING_MIN_UM * 1e3
     );
     let not_repeating = repeatability.describe(|i| (ctx[i].sample.info.freq_hz, ctx[i].sample.info.amp_um));
     Diagnosis { verdict, ranking, residual_rms_um, model_cv_rms_um, summary, test, repeatability, not_repeating }

@@ -4,6 +4,7 @@ pub mod calibrate;
 pub mod compare;
 pub mod demo;
 pub mod diagnose;
+pub mod explain;
 pub mod fit;
 pub mod hil;
 pub mod machine;

@@ -3,6 +3,7 @@
 //! as a heat map, residual spectra, residual against the motion and machine time, and the
 //! diagnosis.
 
+pub mod explain;
 pub mod svg;
 pub mod trial;
 

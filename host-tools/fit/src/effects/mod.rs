@@ -535,11 +535,16 @@ impl Prepared {
 
     /// Adds the `effects` field to a written model file.
     pub fn write_record(&self, path: &Path) -> Result<(), FitError> {
-        let mut value = read_json(path)?;
-        value["effects"] = serde_json::to_value(&self.records)?;
-        std::fs::write(path, serde_json::to_string_pretty(&value)? + "\n")
-            .map_err(|source| FitError::Write { path: path.to_path_buf(), source })
+        write_records(path, &self.records)
     }
+}
+
+/// Sets the `effects` field of a written model file.
+pub fn write_records(path: &Path, records: &[EffectRecord]) -> Result<(), FitError> {
+    let mut value = read_json(path)?;
+    value["effects"] = serde_json::to_value(records)?;
+    std::fs::write(path, serde_json::to_string_pretty(&value)? + "\n")
+        .map_err(|source| FitError::Write { path: path.to_path_buf(), source })
 }
 
 /// The `effects` field of a model file, if any.

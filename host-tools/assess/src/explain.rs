@@ -1,0 +1,260 @@
+//! `explain`: the lab's loop run by itself. Fit a twin (or start from a given one), diagnose
+//! its residual on the same data, give the twin the named effect, refit, diagnose again;
+//! until `diagnose` names nothing (the residual is at the data's floor), the named effect
+//! does not lower the error, it cannot be added, or the effect budget is spent.
+//!
+//! Each step's "before" is the twin's error on the data (a twin fitted on it: its own
+//! 5-fold held-out waveform RMS; a given base twin: its waveform RMS on the data, every group
+//! held out for it) and "after" the refitted twin's held-out RMS, so the ladder compares like
+//! with like from the second step on.
+
+use serde::Serialize;
+use sts_dataset::Dataset;
+use sts_fit::effects::{prepare, EffectRecord};
+use sts_fit::{fit, FitConfig, FitError};
+use sts_model::ModelFile;
+
+use crate::compare::compare;
+use crate::diagnose::{diagnose, Diagnosis};
+use crate::AssessError;
+
+/// Settings of the loop.
+#[derive(Clone, Debug)]
+pub struct ExplainConfig {
+    /// The formulas' fit (seed, folds, budgets).
+    pub fit: FitConfig,
+    /// Effects added at most (a base twin's own effects not counted).
+    pub max_effects: usize,
+}
+
+/// A twin to start from instead of fitting one.
+pub struct Base {
+    /// The model.
+    pub model: ModelFile,
+    /// The effects it already carries (its file's `effects` field).
+    pub effects: Vec<EffectRecord>,
+}
+
+/// One rung of the ladder: an effect named and added.
+#[derive(Clone, Debug, Serialize)]
+pub struct Step {
+    /// Canonical effect name.
+    pub effect: String,
+    /// What `diagnose` saw before it was added: explained fraction of the held-out residual.
+    pub explained_fraction: f64,
+    /// The sign-flip test's p-value.
+    pub p_value: f64,
+    /// The evidence in words.
+    pub evidence: String,
+    /// The effect's parameters as the refitted twin identified them (name with unit, value).
+    pub params: Vec<(String, f64)>,
+    /// The twin's waveform RMS on the data before the step, um.
+    pub waveform_rms_um_before: f64,
+    /// The refitted twin's held-out waveform RMS, um.
+    pub waveform_rms_um_after: f64,
+}
+
+/// Why the loop stopped.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stop {
+    /// `diagnose` named nothing: no candidate explains more than the data's floor.
+    None,
+    /// The effect budget is spent while `diagnose` still names one.
+    MaxEffects {
+        /// The effect it named next.
+        next: String,
+    },
+    /// The twin already carries the named effect: its term does not capture it all.
+    AlreadyCarried {
+        /// The effect.
+        effect: String,
+    },
+    /// Adding the named effect did not lower the held-out error; the twin before it is kept.
+    NoGain {
+        /// The effect.
+        effect: String,
+        /// The held-out error with it, um.
+        waveform_rms_um: f64,
+    },
+    /// The effect could not be added (for example, over the firmware's budget with the others).
+    CannotAdd {
+        /// The effect.
+        effect: String,
+        /// Why.
+        reason: String,
+    },
+}
+
+impl Stop {
+    /// One sentence.
+    pub fn describe(&self) -> String {
+        match self {
+            Stop::None => "none: no candidate explains more of the residual than the data's own floor".into(),
+            Stop::MaxEffects { next } => format!("the effect budget is spent; diagnose names {next} next"),
+            Stop::AlreadyCarried { effect } => {
+                format!(
+                    "diagnose names {effect} again, which the twin already carries: its term does not capture it all"
+                )
+            }
+            Stop::NoGain { effect, waveform_rms_um } => format!(
+                "adding {effect} did not lower the held-out error ({:.1} nm with it); the twin before it is kept",
+                waveform_rms_um * 1e3
+            ),
+            Stop::CannotAdd { effect, reason } => format!("{effect} cannot be added: {reason}"),
+        }
+    }
+
+    /// `"none"`, or the kind of stop.
+    pub fn verdict(&self) -> &'static str {
+        match self {
+            Stop::None => "none",
+            Stop::MaxEffects { .. } => "max-effects",
+            Stop::AlreadyCarried { .. } => "already-carried",
+            Stop::NoGain { .. } => "no-gain",
+            Stop::CannotAdd { .. } => "cannot-add",
+        }
+    }
+}
+
+/// The ladder and the final twin.
+pub struct Explanation {
+    /// The starting twin's error on the data, um (before any step).
+    pub start_waveform_rms_um: f64,
+    /// The rungs.
+    pub steps: Vec<Step>,
+    /// Why it stopped.
+    pub stop: Stop,
+    /// The last diagnosis (of the final twin).
+    pub last: Diagnosis,
+    /// The final twin.
+    pub model: ModelFile,
+    /// The final twin's effects (for its file's `effects` field).
+    pub effects: Vec<EffectRecord>,
+    /// The final twin's error on the data, um.
+    pub waveform_rms_um: f64,
+}
+
+/// What the loop reports as it goes.
+pub enum ExplainProgress<'a> {
+    /// The starting twin is being fitted.
+    Fitting,
+    /// A twin is being diagnosed (its error on the data, um).
+    Diagnosing {
+        /// Effects it carries.
+        effects: &'a [String],
+    },
+    /// A twin with these effects is being fitted.
+    Refitting {
+        /// Effects it will carry.
+        effects: &'a [String],
+    },
+}
+
+/// Why `explain` failed (a step that merely cannot go on is a [`Stop`], not an error).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ExplainError {
+    /// Fitting the starting twin failed.
+    #[error("fitting the starting twin: {0}")]
+    Fit(#[from] FitError),
+    /// Comparing or diagnosing failed.
+    #[error(transparent)]
+    Assess(#[from] AssessError),
+}
+
+/// Runs the loop on `dataset`, from `base` or from a twin fitted on the data.
+pub fn explain(
+    dataset: &Dataset,
+    description: &str,
+    base: Option<Base>,
+    config: &ExplainConfig,
+    progress: &mut dyn FnMut(ExplainProgress),
+) -> Result<Explanation, ExplainError> {
+    let (mut model, mut records, start_rms_um) = match base {
+        Some(b) => {
+            let (c, _) = compare(dataset, &b.model)?;
+            (b.model, b.effects, c.waveform_rms_um)
+        }
+        None => {
+            progress(ExplainProgress::Fitting);
+            let m = fit(dataset, description, &config.fit, &mut |_| {})?;
+            let rms = m.validation.waveform_rms_um;
+            (m, Vec::new(), rms)
+        }
+    };
+    let mut rms_um = start_rms_um;
+    let mut steps = Vec::new();
+    loop {
+        let names: Vec<String> = records.iter().map(|r| r.effect.clone()).collect();
+        progress(ExplainProgress::Diagnosing { effects: &names });
+        let d = diagnose(dataset, &model)?;
+        let stop = if d.verdict == "none" {
+            Some(Stop::None)
+        } else if names.contains(&d.verdict) {
+            Some(Stop::AlreadyCarried { effect: d.verdict.clone() })
+        } else if steps.len() >= config.max_effects {
+            Some(Stop::MaxEffects { next: d.verdict.clone() })
+        } else {
+            None
+        };
+        if let Some(stop) = stop {
+            return Ok(Explanation {
+                start_waveform_rms_um: start_rms_um,
+                steps,
+                stop,
+                last: d,
+                model,
+                effects: records,
+                waveform_rms_um: rms_um,
+            });
+        }
+        let named = &d.ranking[0];
+        let mut with: Vec<String> = names.clone();
+        with.push(d.verdict.clone());
+        progress(ExplainProgress::Refitting { effects: &with });
+        let refit = prepare(dataset, &with).and_then(|prepared| {
+            let m = fit(&prepared.dataset, description, &config.fit, &mut |_| {})?;
+            Ok((prepared.attach(m)?, prepared.records))
+        });
+        let (next_model, next_records) = match refit {
+            Ok(r) => r,
+            Err(e) => {
+                return Ok(Explanation {
+                    start_waveform_rms_um: start_rms_um,
+                    steps,
+                    stop: Stop::CannotAdd { effect: d.verdict.clone(), reason: e.to_string() },
+                    last: d,
+                    model,
+                    effects: records,
+                    waveform_rms_um: rms_um,
+                })
+            }
+        };
+        let after_um = next_model.validation.waveform_rms_um;
+        if after_um.is_nan() || after_um >= rms_um {
+            return Ok(Explanation {
+                start_waveform_rms_um: start_rms_um,
+                steps,
+                stop: Stop::NoGain { effect: d.verdict.clone(), waveform_rms_um: after_um },
+                last: d,
+                model,
+                effects: records,
+                waveform_rms_um: rms_um,
+            });
+        }
+        let params = next_records.iter().find(|r| r.effect == d.verdict).map_or_else(Vec::new, |r| r.params.clone());
+        steps.push(Step {
+            effect: d.verdict.clone(),
+            explained_fraction: named.explained_fraction,
+            p_value: named.p_value,
+            evidence: named.evidence.clone(),
+            params,
+            waveform_rms_um_before: rms_um,
+            waveform_rms_um_after: after_um,
+        });
+        model = next_model;
+        records = next_records;
+        rms_um = after_um;
+    }
+}

@@ -8,6 +8,15 @@ use crate::sine::{fit_sine, wrap_deg, SineFit};
 /// Smallest measured dynamic-error amplitude whose phase trains and scores the phase model, um.
 pub const PHASE_MIN_AMP_UM: f64 = 0.02;
 
+/// Whether a group's measured phase means something: its dynamic error's amplitude is at
+/// least [`PHASE_MIN_AMP_UM`] and the sine at the command frequency holds more of the error
+/// than everything else in it (the rest's RMS below the sine's, `amp / sqrt(2)`). Where a
+/// position-periodic ripple or friction's steps dominate a slow group, the fundamental's phase
+/// is whatever their leakage gives it, and a phase formula trained on it fits no group well.
+pub fn phase_is_measured(targets: &GroupTargets) -> bool {
+    targets.de_amp_um >= PHASE_MIN_AMP_UM && targets.de.residual_rms < targets.de_amp_um / std::f64::consts::SQRT_2
+}
+
 /// Seconds at the end of a group over which the targets are measured.
 pub const TARGET_WINDOW_S: f64 = 1.0;
 
@@ -84,6 +93,29 @@ pub fn command_phase_rad(cmd: &SineFit, freq_hz: f64, t_s: f64) -> f64 {
 mod tests {
     use super::*;
     use std::f64::consts::PI;
+
+    /// A 2 Hz group whose error is a fundamental of `fund_um` plus a 9th harmonic of `ripple_um`.
+    fn slow_group(fund_um: f64, ripple_um: f64) -> GroupTargets {
+        let n = 8000 * 3;
+        let mut g = GroupData::with_len(n);
+        for i in 0..n {
+            let t = i as f64 / 8000.0;
+            g.t_s[i] = t;
+            g.z_cmd_um[i] = 5.0 * (2.0 * PI * 2.0 * t).sin();
+            g.z_tcp_um[i] =
+                g.z_cmd_um[i] + fund_um * (2.0 * PI * 2.0 * t + 0.5).sin() + ripple_um * (2.0 * PI * 18.0 * t).sin();
+        }
+        group_targets(&g, 8000.0, 2.0).unwrap()
+    }
+
+    #[test]
+    fn a_phase_is_measured_where_the_fundamental_holds_the_error() {
+        assert!(phase_is_measured(&slow_group(0.1, 0.05)));
+        // The same fundamental under a ripple that holds most of the error.
+        assert!(!phase_is_measured(&slow_group(0.1, 0.2)));
+        // Too small to have a phase.
+        assert!(!phase_is_measured(&slow_group(0.01, 0.0)));
+    }
 
     #[test]
     fn measures_amplitude_and_phase_relative_to_the_command() {

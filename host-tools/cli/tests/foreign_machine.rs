@@ -280,6 +280,27 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
                 failures.push(format!("probe-gain: estimated {gain}, true 0.95"));
             }
         }
+
+        // The lab's workflow: no twin of the machine as it was; a twin fitted on this very
+        // measurement, diagnosed on it. The change is named, or the formulas absorbed it (the
+        // own twin within 1.5x the clean twin's error, so that `none` is the right answer).
+        let own = dir.join(format!("own-{}.json", case.name));
+        sts_twin(&["fit", path(&data), "--out", path(&own), "--quiet"]);
+        let own_um = held_out_rms_um(&own);
+        let lab = sts_twin(&["diagnose", path(&data), "--model", path(&own), "--json"]);
+        let lab_verdict = lab["verdict"].as_str().unwrap();
+        let absorbed = lab_verdict == "none" && own_um <= 1.5 * clean_rms_um;
+        println!(
+            "{:<15} lab workflow: own twin's held-out {:.1} nm; verdict {lab_verdict} ({:.0}% explained, p = {:.1e}){}",
+            case.name,
+            own_um * 1e3,
+            lab["ranking"][0]["explained_fraction"].as_f64().unwrap() * 100.0,
+            lab["ranking"][0]["p_value"].as_f64().unwrap(),
+            if absorbed { ": absorbed by the formulas" } else { "" }
+        );
+        if !(case.verdicts.contains(&lab_verdict) || absorbed) {
+            failures.push(format!("{}: lab workflow: verdict {lab_verdict}: {}", case.name, lab["summary"]));
+        }
     }
     let _ = std::fs::remove_dir_all(&dir);
     assert!(failures.is_empty(), "{failures:#?}");

@@ -163,6 +163,16 @@ impl Candidate {
         EFFECTS[ALL.iter().position(|c| *c == self).unwrap_or(0)]
     }
 
+    /// Whether its signature reaches beyond each group's fundamental (harmonics, steps,
+    /// trends, other lines), so that a twin's formulas cannot absorb all of it. A structural
+    /// mode, a loop delay and a sensor's gain change the fundamental only.
+    pub fn beyond_fundamental(self) -> bool {
+        matches!(
+            self,
+            Candidate::Friction | Candidate::Hysteresis | Candidate::Thermal | Candidate::Ripple | Candidate::Coupling
+        )
+    }
+
     /// Cross-validated evaluation on the groups.
     pub fn evaluate(self, ctx: &[GroupCtx], folds: usize) -> Evaluated {
         match self {
@@ -194,7 +204,7 @@ fn friction(ctx: &[GroupCtx], folds: usize) -> Evaluated {
         })
         .collect();
     let stats: Vec<Vec<Stats>> = (0..smooth_grid.len())
-        .map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| Stats::from_columns(&cols[v], &c.residual)).collect())
+        .map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| c.stats(&cols[v])).collect())
         .collect();
     let (improvements, v, theta) = cross_validate(&stats, folds);
     let contrib_rms = rms(&columns.iter().flat_map(|cols| contribution(&cols[v], &theta)).collect::<Vec<f64>>());
@@ -222,9 +232,8 @@ fn hysteresis(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                 .collect()
         })
         .collect();
-    let stats: Vec<Vec<Stats>> = (0..x0_grid.len())
-        .map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| Stats::from_columns(&cols[v], &c.residual)).collect())
-        .collect();
+    let stats: Vec<Vec<Stats>> =
+        (0..x0_grid.len()).map(|v| ctx.par_iter().zip(&columns).map(|(c, cols)| c.stats(&cols[v])).collect()).collect();
     let (improvements, v, theta) = cross_validate(&stats, folds);
     let contrib_rms = rms(&columns.iter().flat_map(|cols| contribution(&cols[v], &theta)).collect::<Vec<f64>>());
     let (small, large) = odd_harmonics_by_amplitude(ctx);
@@ -261,8 +270,7 @@ fn fundamental_shape(ctx: &[GroupCtx], folds: usize, which: Candidate) -> Evalua
             }
         })
         .collect();
-    let stats: Vec<Vec<Stats>> =
-        vec![ctx.iter().zip(&columns).map(|(c, cols)| Stats::from_columns(cols, &c.residual)).collect()];
+    let stats: Vec<Vec<Stats>> = vec![ctx.iter().zip(&columns).map(|(c, cols)| c.stats(cols)).collect()];
     let (improvements, _, theta) = cross_validate(&stats, folds);
     // Transient line: the residual's strongest line above 100 Hz in each group's first 0.25 s.
     let line_hz = transient_line_hz(ctx);
@@ -323,7 +331,7 @@ fn thermal(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                 .map(|c| {
                     let t0 = c.sample.info.start_s;
                     let e: Vec<f64> = c.data.t_s[c.start..].iter().map(|t| (-(t0 + t) / tau).exp()).collect();
-                    Stats::from_columns(&[vec![1.0; e.len()], e], &c.residual)
+                    c.stats(&[vec![1.0; e.len()], e])
                 })
                 .collect()
         })
@@ -340,7 +348,7 @@ fn thermal(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                         .as_ref()
                         .map(|v| v[c.start..].iter().map(|x| x - mean_t).collect::<Vec<f64>>())
                         .unwrap_or_default();
-                    Stats::from_columns(&[vec![1.0; temp.len()], temp], &c.residual)
+                    c.stats(&[vec![1.0; temp.len()], temp])
                 })
                 .collect(),
         );
@@ -392,7 +400,7 @@ fn ripple(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                         let x = &c.data.z_enc_um[c.start..];
                         let s: Vec<f64> = x.iter().map(|x| (2.0 * PI * x / p).sin()).collect();
                         let co: Vec<f64> = x.iter().map(|x| (2.0 * PI * x / p).cos()).collect();
-                        Stats::from_columns(&[s, co], &c.residual)
+                        c.stats(&[s, co])
                     })
                     .collect()
             })
@@ -417,7 +425,7 @@ fn ripple(ctx: &[GroupCtx], folds: usize) -> Evaluated {
             cols
         })
         .collect();
-    let stats = vec![ctx.iter().zip(&columns).map(|(c, cols)| Stats::from_columns(cols, &c.residual)).collect()];
+    let stats = vec![ctx.iter().zip(&columns).map(|(c, cols)| c.stats(cols)).collect()];
     let (improvements, _, _) = cross_validate(&stats, folds);
     Evaluated {
         improvements,
@@ -472,7 +480,7 @@ fn coupling(ctx: &[GroupCtx], folds: usize) -> Evaluated {
             cols
         })
         .collect();
-    let stats = vec![ctx.iter().zip(&columns).map(|(c, cols)| Stats::from_columns(cols, &c.residual)).collect()];
+    let stats = vec![ctx.iter().zip(&columns).map(|(c, cols)| c.stats(cols)).collect()];
     let (improvements, _, theta) = cross_validate(&stats, folds);
     let mut params = Vec::new();
     let mut words = Vec::new();
@@ -496,10 +504,8 @@ fn coupling(ctx: &[GroupCtx], folds: usize) -> Evaluated {
 }
 
 fn gain(ctx: &[GroupCtx], folds: usize) -> Evaluated {
-    let probe: Vec<Stats> =
-        ctx.iter().map(|c| Stats::from_columns(&[c.data.z_tcp_um[c.start..].to_vec()], &c.residual)).collect();
-    let acc: Vec<Stats> =
-        ctx.iter().map(|c| Stats::from_columns(&[c.predicted_um[c.start..].to_vec()], &c.residual)).collect();
+    let probe: Vec<Stats> = ctx.iter().map(|c| c.stats(&[c.data.z_tcp_um[c.start..].to_vec()])).collect();
+    let acc: Vec<Stats> = ctx.iter().map(|c| c.stats(&[c.predicted_um[c.start..].to_vec()])).collect();
     let (improvements, v, theta) = cross_validate(&[probe, acc], folds);
     let k = theta.first().copied().unwrap_or(0.0);
     if v == 0 {

@@ -36,6 +36,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     "p_value": r.p_value,
                     "groups_improved": r.groups_improved,
                     "significant": r.significant,
+                    "explained_rms_um": r.explained_rms_um,
+                    "without_fundamental": r.without_fundamental,
                     "params": params,
                     "evidence": r.evidence,
                 })
@@ -61,14 +63,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         if let Some(text) = &d.not_repeating {
             println!("note: {text}");
         }
-        println!("ranking (explained fraction of the held-out residual):");
+        println!("ranking (explained fraction of the held-out residual; * of the residual without each group's fundamental):");
         for (i, r) in d.ranking.iter().enumerate() {
             let params: Vec<String> = r.params.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect();
             println!(
-                "  {}. {:<22} {:>6.1}%  p = {:.1e}{}  [{}]",
+                "  {}. {:<22} {:>6.1}%{} p = {:.1e}{}  [{}]",
                 i + 1,
                 r.effect,
                 r.explained_fraction * 100.0,
+                if r.without_fundamental { "*" } else { " " },
                 r.p_value,
                 if r.significant { "  significant" } else { "" },
                 params.join(", ")

@@ -11,7 +11,8 @@
 //! and the held-out RMS of the model fitted with the verdict's terms, against the reference
 //! model's own held-out RMS on clean data.
 //!
-//! CI runs a reduced suite (`ci_suite`: one seed per effect on 5.5 s groups, a few minutes).
+//! CI runs a reduced suite (`ci_suite`: one seed per effect on 5.5 s groups, a few minutes;
+//! `ci_suite_lab`: the same cases in the lab's workflow, without refits).
 //! The full run is
 //!
 //! ```text
@@ -300,6 +301,21 @@ fn ci_suite() {
         first_seed: 0,
         seeds: env_u64("STS_SUITE_CI_SEEDS", 1),
         fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1),
+        paper_grid: false,
+        epochs: 10,
+    });
+}
+
+/// CI's share of the lab's workflow: the same cases, each diagnosed against a twin fitted on
+/// its own data (no refits).
+#[test]
+fn ci_suite_lab() {
+    run_suite(&Suite {
+        workflow: Workflow::Lab,
+        only: Vec::new(),
+        first_seed: 0,
+        seeds: env_u64("STS_SUITE_CI_SEEDS", 1),
+        fit_seeds: 0,
         paper_grid: false,
         epochs: 10,
     });

@@ -198,16 +198,20 @@ pub fn explain(
         } else {
             None
         };
-        if let Some(stop) = stop {
-            return Ok(Explanation {
+        // Where it stops, the twin so far is the answer.
+        let done = |stop, last, steps, model, effects| {
+            Ok(Explanation {
                 start_waveform_rms_um: start_rms_um,
                 steps,
                 stop,
-                last: d,
+                last,
                 model,
-                effects: records,
+                effects,
                 waveform_rms_um: rms_um,
-            });
+            })
+        };
+        if let Some(stop) = stop {
+            return done(stop, d, steps, model, records);
         }
         let named = &d.ranking[0];
         let mut with: Vec<String> = names.clone();
@@ -220,28 +224,14 @@ pub fn explain(
         let (next_model, next_records) = match refit {
             Ok(r) => r,
             Err(e) => {
-                return Ok(Explanation {
-                    start_waveform_rms_um: start_rms_um,
-                    steps,
-                    stop: Stop::CannotAdd { effect: d.verdict.clone(), reason: e.to_string() },
-                    last: d,
-                    model,
-                    effects: records,
-                    waveform_rms_um: rms_um,
-                })
+                let stop = Stop::CannotAdd { effect: d.verdict.clone(), reason: e.to_string() };
+                return done(stop, d, steps, model, records);
             }
         };
         let after_um = next_model.validation.waveform_rms_um;
         if after_um.is_nan() || after_um >= rms_um {
-            return Ok(Explanation {
-                start_waveform_rms_um: start_rms_um,
-                steps,
-                stop: Stop::NoGain { effect: d.verdict.clone(), waveform_rms_um: after_um },
-                last: d,
-                model,
-                effects: records,
-                waveform_rms_um: rms_um,
-            });
+            let stop = Stop::NoGain { effect: d.verdict.clone(), waveform_rms_um: after_um };
+            return done(stop, d, steps, model, records);
         }
         let params = next_records.iter().find(|r| r.effect == d.verdict).map_or_else(Vec::new, |r| r.params.clone());
         steps.push(Step {

@@ -28,8 +28,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             .ranking
             .iter()
             .map(|r| {
-                let params: serde_json::Map<String, serde_json::Value> =
-                    r.params.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect();
+                let params = super::params_json(&r.params);
                 serde_json::json!({
                     "effect": r.effect,
                     "explained_fraction": r.explained_fraction,

@@ -81,8 +81,7 @@ fn json(e: &Explanation) -> serde_json::Value {
         .steps
         .iter()
         .map(|s| {
-            let params: serde_json::Map<String, serde_json::Value> =
-                s.params.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect();
+            let params = super::params_json(&s.params);
             serde_json::json!({
                 "effect": s.effect,
                 "params": params,

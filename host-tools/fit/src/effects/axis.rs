@@ -4,9 +4,11 @@
 //! (output error: the whole axis simulated from the command).
 //!
 //! The fit is local, so it starts from a grid: command delays of 1-3 ticks times servo
-//! bandwidths of 30, 100 and 300 Hz (controller gains of a well-damped PID at that
-//! bandwidth), the servo and the effect fitted together on the encoder, the best start
-//! kept; then the mode from a grid of frequencies on the probe; then everything on both.
+//! bandwidths of 30-300 Hz (controller gains of a well-damped PID at that bandwidth), the
+//! servo and the effect fitted together on the encoder, the starts thinned by successive
+//! halving; then the mode from a grid of frequencies on the probe; then everything on both.
+//! Each group is simulated over a few periods of its steady sine, not the whole group: the
+//! same fits from a fifth of the simulated ticks.
 //! The encoder ripple's phase and amplitudes enter each stage by linear least squares
 //! (`ripple_linear`): over a travel of several pitches a local fit of the phase has a
 //! minimum every turn.
@@ -296,25 +298,47 @@ enum Fit {
     Both,
 }
 
-/// Groups and samples the fit reads (every `group_step`-th group from its 1/12th on, every
-/// `stride`-th sample).
+/// Groups and samples the fit reads: in each of `groups`, every `stride`-th sample of a
+/// window from the group's 1/12th on (the start's transient left out), the window lasting
+/// `periods` of the command or `min_s`, whichever is longer, or to the group's end. In a
+/// steady sine every period repeats the last, so a few of them carry what the whole group
+/// does; the axis is simulated only to the window's end.
 struct Sample<'a> {
     dataset: &'a Dataset,
     groups: Vec<usize>,
     stride: usize,
+    /// Each of `groups`' first and end sample.
+    windows: Vec<(usize, usize)>,
 }
 
-impl Sample<'_> {
+impl<'a> Sample<'a> {
+    fn new(dataset: &'a Dataset, group_step: usize, stride: usize, periods: f64, min_s: f64) -> Self {
+        let groups: Vec<usize> = (0..dataset.groups.len()).step_by(group_step.max(1)).collect();
+        let windows = groups
+            .iter()
+            .map(|&gi| {
+                let len = dataset.groups[gi].len();
+                let freq_hz = dataset.manifest.groups[gi].freq_hz;
+                let window_s = if freq_hz > 0.0 { (periods / freq_hz).max(min_s) } else { f64::INFINITY };
+                let first = len / 12;
+                let end = (first as f64 + window_s * SERVO_RATE_HZ).min(len as f64) as usize;
+                (first, end.max(first))
+            })
+            .collect();
+        Sample { dataset, groups, stride, windows }
+    }
+
     fn residuals(&self, c: &Candidate, what: Fit) -> Vec<f64> {
         let discrete = discretise(c);
         let parts: Vec<Vec<f64>> = self
             .groups
             .par_iter()
-            .map(|&gi| {
+            .zip(self.windows.par_iter())
+            .map(|(&gi, &(first, end))| {
                 let g = &self.dataset.groups[gi];
-                let (enc, tcp) = simulate(c, &discrete, &g.z_cmd_um);
+                let (enc, tcp) = simulate(c, &discrete, &g.z_cmd_um[..end]);
                 let mut out = Vec::new();
-                for k in (g.len() / 12..g.len()).step_by(self.stride) {
+                for k in (first..end).step_by(self.stride) {
                     if what != Fit::Tcp {
                         out.push(g.z_enc_um[k] - enc[k]);
                     }
@@ -365,7 +389,12 @@ fn levenberg_marquardt(
             Some(scale) => *x += step * scale,
             None => *x *= step.clamp(-0.7, 0.7).exp(),
         }
-        let (lo, hi) = slot.bounds();
+        let (lo, hi) = match (slot, c.effects.ripple_pitch_um) {
+            // Near the pitch measured from the data: at twice it, the second harmonic alone
+            // fits the same ripple.
+            (Slot::RipplePitch, Some(pitch_um)) => (pitch_um / 1.05, pitch_um * 1.05),
+            _ => slot.bounds(),
+        };
         *x = x.clamp(lo, hi);
         out
     };
@@ -464,8 +493,8 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
         return Err(FitError::NoGroups);
     }
     // About a dozen groups over the whole grid for the searches, more for the final fit.
-    let coarse = Sample { dataset, groups: (0..n).step_by(n.div_ceil(12).max(1)).collect(), stride: 4 };
-    let fine = Sample { dataset, groups: (0..n).step_by(n.div_ceil(32).max(1)).collect(), stride: 2 };
+    let coarse = Sample::new(dataset, n.div_ceil(12), 4, 2.0, 0.5);
+    let fine = Sample::new(dataset, n.div_ceil(32), 2, 3.0, 1.0);
 
     let mut base = [0.0; SLOTS];
     let set = |v: &mut [f64; SLOTS], s: Slot, x: f64| v[s as usize] = x;
@@ -487,7 +516,7 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
     // Servo and effect from a grid of starts, on the encoder (the probe's mode comes later).
     let mut starts = Vec::new();
     for delay in 1..=3 {
-        for bandwidth_hz in [30.0, 100.0, 300.0] {
+        for bandwidth_hz in [30.0, 55.0, 100.0, 180.0, 300.0] {
             let w: f64 = 2.0 * PI * bandwidth_hz;
             let mut v = base;
             set(&mut v, Slot::Kp, w * w);
@@ -500,52 +529,68 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
     // Servo and effect together: the servo alone, fitted first, bends to the effect's part of
     // the encoder error and ends in another minimum (kp twice the true one on a weak friction).
     let servo_and_effect: Vec<Slot> = SERVO.iter().chain(&encoder_slots).copied().collect();
-    let searched: Vec<(Candidate, f64)> = starts
+    let free: Vec<Slot> =
+        if ripple { servo_and_effect.iter().chain(&RIPPLE_SHAPE).copied().collect() } else { servo_and_effect.clone() };
+    // Successive halving: every start a few steps, the best few further, the best to the end.
+    // Most starts stall in a minimum of their own or crawl along a valley of the servo's
+    // nearly interchangeable gains; the start in the right valley is among the best early.
+    let mut pool: Vec<(Candidate, f64)> = starts
         .iter()
         .map(|&start| {
-            if !ripple {
-                return levenberg_marquardt(start, &servo_and_effect, &coarse, Fit::Encoder, 45);
-            }
             // The ripple shows in the reading where the loop cannot follow it (fast groups):
             // its phase and amplitudes for the start's servo, then both.
-            let free: Vec<Slot> = servo_and_effect.iter().chain(&RIPPLE_SHAPE).copied().collect();
-            let lin = ripple_linear(&start, &coarse, Fit::Encoder);
-            levenberg_marquardt(lin, &free, &coarse, Fit::Encoder, 45)
+            let start = if ripple { ripple_linear(&start, &coarse, Fit::Encoder) } else { start };
+            levenberg_marquardt(start, &free, &coarse, Fit::Encoder, 12)
         })
         .collect();
-    let mut best = searched.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)).ok_or(FitError::NoStart)?;
+    // The ripple's encoder fit has minima of nearly equal depth (the servo's gains traded
+    // against the ripple's phase); the probe tells them apart, so two go on to the mode.
+    let survivors = if ripple { 2 } else { 1 };
+    for (keep, iterations) in [(3, 30), (survivors, 100)] {
+        // Stable sort: the first of equals (the grid's order) is kept.
+        pool.sort_by(|a, b| a.1.total_cmp(&b.1));
+        pool.truncate(keep);
+        pool = pool.into_iter().map(|(c, _)| levenberg_marquardt(c, &free, &coarse, Fit::Encoder, iterations)).collect();
+    }
     if effects.friction {
         // The Stribeck velocity from a grid too, from the best servo: a local fit from one
         // guess can trade the Stribeck peak for a friction that rises with velocity (static
         // below Coulomb, Stribeck velocity 18x the true one on a suite draw), which fits
         // the encoder almost as well and the fast groups' probe reading 2x worse.
+        let best = *pool.first().ok_or(FitError::NoStart)?;
         let restarts = [3e-5, 1e-4, 3e-4, 3e-3].map(|stribeck_mps| {
             let mut c = best.0;
-            let coulomb = c.v[Slot::Coulomb as usize];
-            c.v[Slot::Static as usize] = c.v[Slot::Static as usize].max(1.5 * coulomb);
+            let (coulomb, stat) = (c.v[Slot::Coulomb as usize], c.v[Slot::Static as usize]);
+            if stat < coulomb {
+                // A friction rising with velocity: its low-speed level is the static one.
+                c.v[Slot::Coulomb as usize] = 0.6 * stat;
+            } else {
+                c.v[Slot::Static as usize] = stat.max(1.5 * coulomb);
+            }
             c.v[Slot::Stribeck as usize] = stribeck_mps;
-            levenberg_marquardt(c, &servo_and_effect, &coarse, Fit::Encoder, 45)
+            levenberg_marquardt(c, &free, &coarse, Fit::Encoder, 45)
         });
         // The first of equals is kept: the grid's best wins a tie.
-        best = std::iter::once(best).chain(restarts).min_by(|a, b| a.1.total_cmp(&b.1)).unwrap_or(best);
+        pool = vec![std::iter::once(best).chain(restarts).min_by(|a, b| a.1.total_cmp(&b.1)).unwrap_or(best)];
     }
-    let (best, _) = best;
 
     // The mode (and the ripple) on the probe, from a grid of frequencies.
     let mut tcp_free: Vec<Slot> = MODE.to_vec();
     tcp_free.extend(&probe_slots);
     let mut mode_best: Option<(Candidate, f64)> = None;
-    for mode_hz in [40.0, 90.0, 200.0, 500.0] {
-        let mut c = best;
-        c.v[Slot::ModeHz as usize] = mode_hz;
-        let (mut m, _) = levenberg_marquardt(c, &MODE, &coarse, Fit::Tcp, 15);
-        if ripple {
-            // On the probe, where the slow groups carry the ripple whole.
-            m = ripple_linear(&m, &coarse, Fit::Tcp);
-        }
-        let fitted = levenberg_marquardt(m, &tcp_free, &coarse, Fit::Tcp, 20);
-        if mode_best.as_ref().is_none_or(|b| fitted.1 < b.1) {
-            mode_best = Some(fitted);
+    for &(best, _) in &pool {
+        for mode_hz in [40.0, 90.0, 200.0, 500.0] {
+            let mut c = best;
+            c.v[Slot::ModeHz as usize] = mode_hz;
+            let (mut m, _) = levenberg_marquardt(c, &MODE, &coarse, Fit::Tcp, 15);
+            if ripple {
+                // On the probe, where the slow groups carry the ripple whole.
+                m = ripple_linear(&m, &coarse, Fit::Tcp);
+            }
+            let fitted = levenberg_marquardt(m, &tcp_free, &coarse, Fit::Tcp, 20);
+            if mode_best.as_ref().is_none_or(|b| fitted.1 < b.1) {
+                mode_best = Some(fitted);
+            }
         }
     }
     let (c, _) = mode_best.ok_or(FitError::NoModeStart)?;
@@ -554,8 +599,10 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
     let mut all: Vec<Slot> = SERVO.iter().chain(&MODE).copied().collect();
     all.extend(encoder_slots.iter().chain(&probe_slots));
     let (c, _) = levenberg_marquardt(c, &all, &fine, Fit::Both, 30);
-    let encoder_rms_nm = rms(&fine.residuals(&c, Fit::Encoder)) * 1e3;
-    let tcp_rms_nm = rms(&fine.residuals(&c, Fit::Tcp)) * 1e3;
+    // Reported over the whole of the fine sample's groups.
+    let whole = Sample::new(dataset, n.div_ceil(32), 2, f64::INFINITY, f64::INFINITY);
+    let encoder_rms_nm = rms(&whole.residuals(&c, Fit::Encoder)) * 1e3;
+    let tcp_rms_nm = rms(&whole.residuals(&c, Fit::Tcp)) * 1e3;
     let params = c.params();
     params.check().map_err(|error| FitError::AxisUnusable { error, params: Box::new(params) })?;
     Ok(AxisFit { params, encoder_rms_nm, tcp_rms_nm })

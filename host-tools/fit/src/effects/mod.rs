@@ -175,7 +175,20 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
     let mut sorted = vpeak.clone();
     sorted.sort_by(f64::total_cmp);
     let limit = sorted.get(sorted.len() / 5).copied().unwrap_or(0.0).max(100.0);
-    let slow: Vec<&GroupInputs> = inputs.iter().zip(&vpeak).filter(|(_, v)| **v <= limit).map(|(g, _)| g).collect();
+    // Every 4th sample of each window (2 kHz): the slow groups' ripple lies below 150 Hz.
+    const STRIDE: usize = 4;
+    let slow: Vec<(Vec<i32>, Vec<f64>, Vec<f64>)> = inputs
+        .iter()
+        .zip(&vpeak)
+        .filter(|(_, v)| **v <= limit)
+        .map(|(g, _)| {
+            let pos_nm: Vec<i32> = g.pos_nm[g.start..].iter().step_by(STRIDE).copied().collect();
+            let theta: Vec<f64> = g.theta[g.start..].iter().step_by(STRIDE).copied().collect();
+            let target: Vec<f64> = g.target.iter().step_by(STRIDE).copied().collect();
+            let target = project_out_fundamental(&target, &theta);
+            (pos_nm, theta, target)
+        })
+        .collect();
     let sse_of = |turns_per_nm: u32| -> f64 {
         let kinds = [
             TermInput::PositionSine { turns_per_nm, phase_turns: 0 },
@@ -183,12 +196,10 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
         ];
         let stats: Vec<Stats> = slow
             .iter()
-            .map(|g| {
-                let cols: Vec<Vec<f64>> = kinds
-                    .iter()
-                    .map(|k| project_out_fundamental(&term_input(k, &g.pos_nm)[g.start..], &g.theta[g.start..]))
-                    .collect();
-                Stats::from_columns(&cols, &g.target)
+            .map(|(pos_nm, theta, target)| {
+                let cols: Vec<Vec<f64>> =
+                    kinds.iter().map(|k| project_out_fundamental(&term_input(k, pos_nm), theta)).collect();
+                Stats::from_columns(&cols, target)
             })
             .collect();
         let refs: Vec<&Stats> = stats.iter().collect();
@@ -201,10 +212,12 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
         let best = (0..pitches_um.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
         pitches_um[best]
     };
-    // 1-10 um in 4% steps, then the best step's neighbourhood in 0.1% steps: the phase over
-    // the groups' travel (a few pitches) must be right to a few degrees for the axis fit.
+    // 1-10 um in 4% steps, then the best step's neighbourhood in 0.1% steps, then in 0.01%:
+    // the phase over the groups' travel (a few pitches) must be right to a few degrees for
+    // the axis fit.
     let coarse_um = best_of((0..60).map(|i| 1.04f64.powi(i)).collect());
-    best_of((-40..=40).map(|i| coarse_um * 1.001f64.powi(i)).collect())
+    let fine_um = best_of((-40..=40).map(|i| coarse_um * 1.001f64.powi(i)).collect());
+    best_of((-10..=10).map(|i| fine_um * 1.0001f64.powi(i)).collect())
 }
 
 /// Prepares `fit --effect` for the named effects: fits their terms and returns the dataset

@@ -17,6 +17,9 @@ step "layering: no import cycle between the top-level modules of any crate"
 cargo --locked xtask layering >/dev/null
 step "clippy (root workspace)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
+step "clippy (the firmware apps, each a workspace of its own; the QEMU app also as bring-up)"
+(cd firmware/qemu-app && cargo clippy --locked -- -D warnings && cargo clippy --locked --features bringup -- -D warnings)
+(cd firmware/stm32h7-app && cargo clippy --locked -- -D warnings)
 step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"
 cargo --locked xtask firmware --locked
 step "core library for RISC-V (riscv32imac-unknown-none-elf)"

@@ -73,23 +73,26 @@ fn dac_codes_are_bit_identical_to_the_host_core() {
 }
 
 /// The servo-axis twin (single-precision simulation of the axis in the tick) gives the same
-/// DAC codes in the firmware as in the host core, bit for bit, with each of its effects (each
-/// a separately compiled instance of its step), the compensator learning at low priority.
+/// DAC codes in the firmware as in the host core, bit for bit, with each of its effects, each
+/// pair and all three (each a separately compiled instance of its step), the compensator
+/// learning at low priority without a late model result.
 #[test]
 fn the_axis_twin_is_bit_identical_to_the_host_core() {
     use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
     let _serial = sts_hil_tests::serial();
     let axis = sts_twin_core::axis::default_machine();
+    let friction = Some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 });
+    let hysteresis = Some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 });
+    let ripple = Some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_383, phase_turns: 1 << 29 });
+    // Each effect alone, each pair and all three (a machine has several at once).
     let variants = [
-        AxisParams {
-            friction: Some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 }),
-            ..axis
-        },
-        AxisParams { hysteresis: Some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 }), ..axis },
-        AxisParams {
-            ripple: Some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_383, phase_turns: 1 << 29 }),
-            ..axis
-        },
+        AxisParams { friction, ..axis },
+        AxisParams { hysteresis, ..axis },
+        AxisParams { ripple, ..axis },
+        AxisParams { friction, hysteresis, ..axis },
+        AxisParams { friction, ripple, ..axis },
+        AxisParams { hysteresis, ripple, ..axis },
+        AxisParams { friction, hysteresis, ripple, ..axis },
     ];
     let inputs: Vec<InputSlot> = (0..8000).map(input).collect();
     for (i, params) in variants.into_iter().enumerate() {
@@ -101,11 +104,15 @@ fn the_axis_twin_is_bit_identical_to_the_host_core() {
         let mut hil = boot();
         configure(&mut hil, Some(p));
         let outputs = hil.hil().run_open_loop(&inputs).expect("stream");
+        let counters = status(&mut hil).counters;
         hil.shutdown().unwrap();
         assert_eq!(outputs.len(), expected.len());
         for (k, (got, want)) in outputs.iter().zip(&expected).enumerate() {
             assert_eq!(got, want, "{params:?}: tick {k} differs");
         }
+        // The twin's simulation and learning, at low priority, keep up with the model period.
+        assert_eq!((counters.model_late, counters.axis_resets), (0, 0), "{params:?}: {counters:?}");
+        assert!(counters.model_updates > 0, "{params:?}: {counters:?}");
         // The compensator's learned correction is in the output: microns on the 3 um, 40 Hz
         // command beside the program's own fundamental.
         let mut plain = SimCoprocessor::boot(&[]);

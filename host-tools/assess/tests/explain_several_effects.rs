@@ -61,7 +61,7 @@ fn pairs_and_triples(triples: usize) -> Vec<Vec<&'static str>> {
             sets.push(vec![*a, *b]);
         }
     }
-    let mut rng = ChaCha8Rng::seed_from_u64(0x7219_1e5);
+    let mut rng = ChaCha8Rng::seed_from_u64(0x0721_91e5);
     let mut drawn: Vec<Vec<&'static str>> = Vec::new();
     while drawn.len() < triples {
         let mut t: Vec<&'static str> = EFFECT_NAMES.sample(&mut rng, 3).copied().collect();
@@ -98,7 +98,8 @@ fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
 fn run_sets(s: &Sets) {
     let clean = measure(s.paper_grid, Vec::new(), 1);
     let config = FitConfig { max_epochs: s.epochs, ..FitConfig::default() };
-    let clean_rms_um = fit(&clean, "clean machine", &config, &mut |_| {}).expect("clean fit").validation.waveform_rms_um;
+    let clean_rms_um =
+        fit(&clean, "clean machine", &config, &mut |_| {}).expect("clean fit").validation.waveform_rms_um;
     println!("clean twin: held-out waveform RMS {:.2} nm", clean_rms_um * 1e3);
 
     let (mut cases, mut all_named, mut named_or_absorbed, mut within_2x) = (0usize, 0usize, 0usize, 0usize);
@@ -136,7 +137,10 @@ fn run_sets(s: &Sets) {
                 if wrong.is_empty() {
                     String::new()
                 } else {
-                    format!("; named but not hidden: {}", wrong.iter().map(|w| w.as_str()).collect::<Vec<_>>().join(", "))
+                    format!(
+                        "; named but not hidden: {}",
+                        wrong.iter().map(|w| w.as_str()).collect::<Vec<_>>().join(", ")
+                    )
                 }
             );
         }
@@ -154,7 +158,10 @@ fn run_sets(s: &Sets) {
         pct(named_or_absorbed),
         pct(within_2x)
     );
-    assert!(named_or_absorbed as f64 >= 0.8 * cases as f64, "effects named in only {named_or_absorbed} of {cases} sets");
+    assert!(
+        named_or_absorbed as f64 >= 0.8 * cases as f64,
+        "effects named in only {named_or_absorbed} of {cases} sets"
+    );
     assert!(within_2x as f64 >= 0.8 * cases as f64, "final twin within 2x clean in only {within_2x} of {cases} sets");
 }
 

@@ -550,7 +550,8 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
         // Stable sort: the first of equals (the grid's order) is kept.
         pool.sort_by(|a, b| a.1.total_cmp(&b.1));
         pool.truncate(keep);
-        pool = pool.into_iter().map(|(c, _)| levenberg_marquardt(c, &free, &coarse, Fit::Encoder, iterations)).collect();
+        pool =
+            pool.into_iter().map(|(c, _)| levenberg_marquardt(c, &free, &coarse, Fit::Encoder, iterations)).collect();
     }
     if effects.friction {
         // The Stribeck velocity from a grid too, from the best servo: a local fit from one

@@ -47,6 +47,7 @@
 //! against that error would hide every effect it is asked to find.
 
 mod candidates;
+pub mod structure;
 
 use std::f64::consts::PI;
 
@@ -118,6 +119,12 @@ pub struct Diagnosis {
     pub repeatability: Repeatability,
     /// When some groups do not repeat: which, and why no effect's term can explain that part.
     pub not_repeating: Option<String>,
+    /// Where the residual lies (trend, fundamental, harmonics, the rest and its strongest
+    /// line), whatever the candidates explain.
+    pub structure: structure::Structure,
+    /// When no candidate explains the residual yet it stands well above the data's floor:
+    /// where it lies, in words, instead of the nearest wrong effect.
+    pub unexplained: Option<String>,
 }
 
 /// Everything a candidate may use about one group (last-second window plus whole-group
@@ -418,7 +425,111 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         NOT_REPEATING_MIN_UM * 1e3
     );
     let not_repeating = repeatability.describe(|i| (ctx[i].sample.info.freq_hz, ctx[i].sample.info.amp_um));
-    Diagnosis { verdict, ranking, residual_rms_um, model_cv_rms_um, summary, test, repeatability, not_repeating }
+    let structure = structure::split(ctx);
+    // A line that holds most of what lies beyond the command's harmonics is not the sensors'
+    // noise even where it sets the floor (it does not repeat with the command's period).
+    let dominant_line = structure.line.as_ref().filter(|l| {
+        l.rms_um > NOT_REPEATING_MIN_UM && l.rms_um * l.rms_um >= DOMINANT_LINE_SHARE * structure.rest.rms_um.powi(2)
+    });
+    let unexplained = if verdict != "none" {
+        None
+    } else if residual_rms_um > UNEXPLAINED_OVER_FLOOR * floor_um.max(NOT_REPEATING_MIN_UM) {
+        Some(describe_unexplained(&structure, residual_rms_um, floor_um, ctx))
+    } else {
+        dominant_line.map(|l| {
+            format!(
+                "a line at {:.0} Hz holds {:.1} nm, {:.0}% of what lies beyond the command's harmonics and trends ({:.1} nm): a vibration the command does not drive (a source on the machine or its floor), which no twin driven by the command can predict{}",
+                l.freq_hz,
+                l.rms_um * 1e3,
+                100.0 * (l.rms_um / structure.rest.rms_um).powi(2).min(1.0),
+                structure.rest.rms_um * 1e3,
+                if l.rms_um * l.rms_um >= 0.5 * floor_um * floor_um { "; it is most of the data's floor here" } else { "" }
+            )
+        })
+    };
+    Diagnosis {
+        verdict,
+        ranking,
+        residual_rms_um,
+        model_cv_rms_um,
+        summary,
+        test,
+        repeatability,
+        not_repeating,
+        structure,
+        unexplained,
+    }
+}
+
+/// Share of the power beyond the command's harmonics and trends that makes the strongest
+/// line there worth a report.
+pub const DOMINANT_LINE_SHARE: f64 = 0.5;
+
+/// A residual this many times the data's floor (or [`NOT_REPEATING_MIN_UM`]) that no
+/// candidate explains is reported as structure left unexplained.
+pub const UNEXPLAINED_OVER_FLOOR: f64 = 2.0;
+
+/// Where an unexplained residual lies, in words: its parts above half the floor, largest
+/// first, each with the groups where it is largest.
+fn describe_unexplained(s: &structure::Structure, residual_rms_um: f64, floor_um: f64, ctx: &[GroupCtx]) -> String {
+    let at = |part: &structure::Part| -> String {
+        part.largest
+            .iter()
+            .map(|&(i, rms_um)| {
+                let info = &ctx[i].sample.info;
+                format!("{} Hz {} um: {:.1} nm", info.freq_hz, info.amp_um, rms_um * 1e3)
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
+    };
+    let mut parts: Vec<(f64, String)> = vec![
+        (
+            s.fundamental.rms_um,
+            format!(
+                "at the command frequency {:.1} nm (largest at {})",
+                s.fundamental.rms_um * 1e3,
+                at(&s.fundamental)
+            ),
+        ),
+        (
+            s.harmonics.rms_um,
+            format!(
+                "in its harmonics 2f-{}f {:.1} nm (largest at {})",
+                structure::MAX_HARMONIC,
+                s.harmonics.rms_um * 1e3,
+                at(&s.harmonics)
+            ),
+        ),
+        (
+            s.trend.rms_um,
+            format!(
+                "in a trend (mean and slope over each group) {:.1} nm (largest at {})",
+                s.trend.rms_um * 1e3,
+                at(&s.trend)
+            ),
+        ),
+        (
+            s.rest.rms_um,
+            format!(
+                "elsewhere {:.1} nm{}",
+                s.rest.rms_um * 1e3,
+                s.line.as_ref().map_or(String::new(), |l| format!(
+                    ", its strongest line at {:.0} Hz ({:.1} nm)",
+                    l.freq_hz,
+                    l.rms_um * 1e3
+                ))
+            ),
+        ),
+    ];
+    parts.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let shown: Vec<String> = parts.into_iter().filter(|(rms, _)| *rms > 0.5 * floor_um).map(|(_, text)| text).collect();
+    format!(
+        "the residual (RMS {:.1} nm) is {:.1}x the data's floor ({:.1} nm), but no candidate explains it; it lies {}: an effect outside the library's candidates, or one of them in a form they do not model",
+        residual_rms_um * 1e3,
+        residual_rms_um / floor_um.max(NOT_REPEATING_MIN_UM),
+        floor_um * 1e3,
+        if shown.is_empty() { "nowhere in particular".to_string() } else { shown.join(", ") }
+    )
 }
 
 #[cfg(test)]

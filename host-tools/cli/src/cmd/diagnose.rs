@@ -54,6 +54,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 "not_repeating_groups": d.repeatability.not_repeating.iter().map(|&i| dataset.manifest.groups.get(i).map_or_else(String::new, |g| g.file.clone())).collect::<Vec<_>>(),
                 "note": d.not_repeating,
             },
+            "structure": d.structure,
+            "unexplained": d.unexplained,
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
@@ -61,6 +63,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         println!("{}", d.summary);
         if let Some(text) = &d.not_repeating {
             println!("note: {text}");
+        }
+        if let Some(text) = &d.unexplained {
+            println!("unexplained: {text}");
         }
         println!("ranking (explained fraction of the held-out residual; * of the residual without each group's fundamental):");
         for (i, r) in d.ranking.iter().enumerate() {

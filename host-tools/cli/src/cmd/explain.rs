@@ -101,6 +101,7 @@ fn json(e: &Explanation) -> serde_json::Value {
         "waveform_rms_um": e.waveform_rms_um,
         "floor_um": e.last.repeatability.floor_um,
         "last_diagnosis": e.last.summary,
+        "unexplained": e.last.unexplained,
         "test": e.last.test,
     })
 }
@@ -127,6 +128,9 @@ fn print_ladder(e: &Explanation) {
     println!("{}", e.last.summary);
     if let Some(text) = &e.last.not_repeating {
         println!("note: {text}");
+    }
+    if let Some(text) = &e.last.unexplained {
+        println!("unexplained: {text}");
     }
     println!(
         "final: held-out waveform RMS {:.1} nm; the data's floor (what does not repeat from period to period) {:.1} nm",

@@ -54,7 +54,7 @@ pub fn render(name: &str, e: &Explanation) -> String {
         esc(&e.stop.describe()),
         esc(&e.last.summary)
     );
-    if let Some(note) = &e.last.not_repeating {
+    for note in [&e.last.not_repeating, &e.last.unexplained].into_iter().flatten() {
         let _ = write!(h, "<p>{}</p>", esc(note));
     }
     let _ = write!(

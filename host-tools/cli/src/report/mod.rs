@@ -109,6 +109,9 @@ pub fn render(input: &ReportInput) -> String {
         if let Some(text) = &d.not_repeating {
             let _ = write!(h, "<p id=\"not-repeating\"><b>Not repeating:</b> {}</p>", esc(text));
         }
+        if let Some(text) = &d.unexplained {
+            let _ = write!(h, "<p id=\"unexplained\"><b>Unexplained:</b> {}</p>", esc(text));
+        }
         h.push_str("<table id=\"ranking\"><tr><th>rank</th><th class=\"l\">effect</th><th>explained (held out)</th><th>p-value</th><th class=\"l\">parameters</th><th class=\"l\">evidence</th></tr>");
         for (i, r) in d.ranking.iter().enumerate() {
             let params: Vec<String> = r.params.iter().map(|(k, v)| format!("{k} = {}", tick_label(*v))).collect();

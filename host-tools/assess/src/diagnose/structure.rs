@@ -1,0 +1,168 @@
+//! Where the residual lies, whatever the candidates say: each group's window split by least
+//! squares into a trend (mean and slope), the command's fundamental, its harmonics 2f-7f and
+//! the rest, and the rest's strongest spectral line pooled over the groups. When no candidate
+//! explains the residual yet it stands above the data's floor, this is what the user is shown
+//! instead of the nearest wrong effect.
+
+use rustfft::num_complex::Complex;
+use rustfft::FftPlanner;
+use serde::Serialize;
+
+use sts_analysis::lsq::{solve, Stats};
+
+use super::GroupCtx;
+
+/// Highest harmonic of the command frequency fitted.
+pub const MAX_HARMONIC: usize = 7;
+/// A line is not reported within this distance of a group's harmonic, Hz.
+const HARMONIC_GUARD_HZ: f64 = 1.5;
+
+/// One part of the residual: its RMS over all groups and the groups where it is largest.
+#[derive(Clone, Debug, Serialize)]
+pub struct Part {
+    /// RMS over every group's window, um.
+    pub rms_um: f64,
+    /// The groups where it is largest, largest first (at most three): their index among the
+    /// diagnosed groups and the part's RMS there, um.
+    pub largest: Vec<(usize, f64)>,
+}
+
+/// The residual's strongest line outside the command's harmonics.
+#[derive(Clone, Debug, Serialize)]
+pub struct Line {
+    /// Its frequency, Hz (to the windows' resolution).
+    pub freq_hz: f64,
+    /// Its RMS, pooled over the groups, um.
+    pub rms_um: f64,
+}
+
+/// The residual split by where it lies.
+#[derive(Clone, Debug, Serialize)]
+pub struct Structure {
+    /// Mean and slope over each window.
+    pub trend: Part,
+    /// The command frequency.
+    pub fundamental: Part,
+    /// Harmonics 2f to 7f of the command frequency.
+    pub harmonics: Part,
+    /// What is left: lines at other frequencies, steps, noise.
+    pub rest: Part,
+    /// The rest's strongest line (none when the windows are too short).
+    pub line: Option<Line>,
+}
+
+/// A group's parts' sums of squares, in the order trend, fundamental, harmonics, rest; and
+/// the rest itself.
+fn split_group(residual: &[f64], theta: &[f64]) -> ([f64; 4], Vec<f64>) {
+    let n = residual.len();
+    let mid = (n as f64 - 1.0) / 2.0;
+    let mut columns: Vec<Vec<f64>> = vec![vec![1.0; n], (0..n).map(|k| (k as f64 - mid) / n.max(1) as f64).collect()];
+    for h in 1..=MAX_HARMONIC {
+        columns.push(theta.iter().map(|t| (h as f64 * t).sin()).collect());
+        columns.push(theta.iter().map(|t| (h as f64 * t).cos()).collect());
+    }
+    let b = solve(&[&Stats::from_columns(&columns, residual)]);
+    let part = |range: std::ops::Range<usize>| -> Vec<f64> {
+        (0..n).map(|k| range.clone().map(|j| b.get(j).copied().unwrap_or(0.0) * columns[j][k]).sum()).collect()
+    };
+    let (trend, fundamental, harmonics) = (part(0..2), part(2..4), part(4..columns.len()));
+    let rest: Vec<f64> = (0..n).map(|k| residual[k] - trend[k] - fundamental[k] - harmonics[k]).collect();
+    let ss = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>();
+    ([ss(&trend), ss(&fundamental), ss(&harmonics), ss(&rest)], rest)
+}
+
+/// The strongest line of the rests' pooled power spectrum (Hann window, each group's own
+/// harmonics left out), with its RMS.
+fn strongest_line(rests: &[(Vec<f64>, f64)], sample_rate_hz: f64) -> Option<Line> {
+    let n = rests.iter().map(|(r, _)| r.len()).min()?;
+    if n < 64 {
+        return None;
+    }
+    let fft = FftPlanner::<f64>::new().plan_fft_forward(n);
+    let hann: Vec<f64> = (0..n).map(|k| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * k as f64 / n as f64).cos()).collect();
+    // A sine of RMS a gives |X| = a * sqrt(2) * sum(hann) / 2 at its bin.
+    let gain = hann.iter().sum::<f64>() / std::f64::consts::SQRT_2;
+    let bin_hz = sample_rate_hz / n as f64;
+    let mut power = vec![0.0; n / 2];
+    let mut counted = vec![0usize; n / 2];
+    for (rest, freq_hz) in rests {
+        let mut buf: Vec<Complex<f64>> = rest[..n].iter().zip(&hann).map(|(x, w)| Complex::new(x * w, 0.0)).collect();
+        fft.process(&mut buf);
+        for (bin, p) in power.iter_mut().enumerate().skip(1) {
+            let f = bin as f64 * bin_hz;
+            let near_harmonic =
+                (1..=MAX_HARMONIC).any(|h| (f - h as f64 * freq_hz).abs() <= HARMONIC_GUARD_HZ.max(bin_hz));
+            if !near_harmonic {
+                *p += buf[bin].norm_sqr();
+                counted[bin] += 1;
+            }
+        }
+    }
+    let (bin, p) = power
+        .iter()
+        .zip(&counted)
+        .enumerate()
+        .filter(|(_, (_, c))| **c > 0)
+        .map(|(bin, (p, c))| (bin, p / *c as f64))
+        .max_by(|a, b| a.1.total_cmp(&b.1))?;
+    Some(Line { freq_hz: bin as f64 * bin_hz, rms_um: p.sqrt() / gain })
+}
+
+/// Splits the residual of every group.
+pub fn split(ctx: &[GroupCtx]) -> Structure {
+    let per_group: Vec<([f64; 4], Vec<f64>, usize)> = ctx
+        .iter()
+        .map(|c| {
+            let (ss, rest) = split_group(&c.residual, &c.theta);
+            (ss, rest, c.residual.len())
+        })
+        .collect();
+    let total_n: usize = per_group.iter().map(|g| g.2).sum::<usize>().max(1);
+    let part = |i: usize| -> Part {
+        let rms_um = (per_group.iter().map(|g| g.0[i]).sum::<f64>() / total_n as f64).sqrt();
+        let mut by_group: Vec<(usize, f64)> =
+            per_group.iter().enumerate().map(|(g, p)| (g, (p.0[i] / p.2.max(1) as f64).sqrt())).collect();
+        by_group.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+        by_group.truncate(3);
+        Part { rms_um, largest: by_group }
+    };
+    let rests: Vec<(Vec<f64>, f64)> =
+        per_group.iter().zip(ctx).map(|(g, c)| (g.1.clone(), c.sample.targets.freq_hz)).collect();
+    let sample_rate_hz = ctx.first().map_or(0.0, |c| c.sample_rate_hz);
+    Structure {
+        trend: part(0),
+        fundamental: part(1),
+        harmonics: part(2),
+        rest: part(3),
+        line: strongest_line(&rests, sample_rate_hz),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_part_lands_where_it_was_put() {
+        let fs = 8000.0;
+        let f0 = 20.0;
+        let theta: Vec<f64> = (0..8000).map(|k| 2.0 * std::f64::consts::PI * f0 * k as f64 / fs).collect();
+        let residual: Vec<f64> = theta
+            .iter()
+            .enumerate()
+            .map(|(k, t)| {
+                let line = 0.02 * (2.0 * std::f64::consts::PI * 137.0 * k as f64 / fs).sin();
+                0.05 + 0.1 * (t + 0.3).sin() + 0.03 * (3.0 * t).cos() + line
+            })
+            .collect();
+        let (ss, rest) = split_group(&residual, &theta);
+        let rms = |s: f64| (s / 8000.0).sqrt();
+        assert!((rms(ss[0]) - 0.05).abs() < 1e-3, "trend {}", rms(ss[0]));
+        assert!((rms(ss[1]) - 0.1 / 2f64.sqrt()).abs() < 1e-3, "fundamental {}", rms(ss[1]));
+        assert!((rms(ss[2]) - 0.03 / 2f64.sqrt()).abs() < 1e-3, "harmonics {}", rms(ss[2]));
+        assert!((rms(ss[3]) - 0.02 / 2f64.sqrt()).abs() < 1e-3, "rest {}", rms(ss[3]));
+        let line = strongest_line(&[(rest, f0)], fs).expect("a line");
+        assert_eq!(line.freq_hz, 137.0);
+        assert!((line.rms_um - 0.02 / 2f64.sqrt()).abs() < 2e-3, "{line:?}");
+    }
+}

@@ -147,6 +147,9 @@ fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u6
             );
         }
     }
+    if let Some(text) = &d.unexplained {
+        println!("    unexplained: {text}");
+    }
     let step_dependence_nm = if refit { step_dependence_nm(&effects, 100 + seed) } else { 0.0 };
     Outcome {
         verdict: d.verdict,

@@ -523,8 +523,14 @@ fn describe_unexplained(s: &structure::Structure, residual_rms_um: f64, floor_um
     ];
     parts.sort_by(|a, b| b.0.total_cmp(&a.0));
     let shown: Vec<String> = parts.into_iter().filter(|(rms, _)| *rms > 0.5 * floor_um).map(|(_, text)| text).collect();
+    // Almost all at the command frequency: what the amplitude and phase formulas are for.
+    let cause = if s.fundamental.rms_um.powi(2) >= 0.8 * residual_rms_um.powi(2) {
+        "the twin's amplitude and phase formulas do not reproduce those groups (a fit with more epochs or a larger complexity may), or an effect changes the response there in a way no candidate models"
+    } else {
+        "an effect outside the library's candidates, or one of them in a form they do not model"
+    };
     format!(
-        "the residual (RMS {:.1} nm) is {:.1}x the data's floor ({:.1} nm), but no candidate explains it; it lies {}: an effect outside the library's candidates, or one of them in a form they do not model",
+        "the residual (RMS {:.1} nm) is {:.1}x the data's floor ({:.1} nm), but no candidate explains it; it lies {}: {cause}",
         residual_rms_um * 1e3,
         residual_rms_um / floor_um.max(NOT_REPEATING_MIN_UM),
         floor_um * 1e3,

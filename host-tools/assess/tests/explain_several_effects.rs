@@ -179,7 +179,7 @@ fn ci_sets() {
 
 /// The full run (see the module docs for the command).
 #[test]
-#[ignore = "long: every pair and random triples, several seeds each (about an hour per seed)"]
+#[ignore = "long: every pair and random triples, several seeds each (about 20 minutes per seed)"]
 fn full_sets() {
     let all = pairs_and_triples(env_u64("STS_SETS_TRIPLES", 10) as usize);
     let sets = match std::env::var("STS_SETS_ONLY") {

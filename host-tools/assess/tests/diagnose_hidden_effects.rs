@@ -20,6 +20,10 @@
 //!   cargo test --release -p sts-assess --test diagnose_hidden_effects -- --ignored --nocapture
 //! ```
 //!
+//! Each effect of the emulator is a case, and a structural mode inside the test band
+//! (`structural-mode-in-band`, a resonance between the test's frequencies) is one more; its
+//! right verdict is `structural-mode`.
+//!
 //! `STS_SUITE_EFFECTS=coulomb-friction,force-ripple` runs only those hidden effects (`none`
 //! for the clean cases), e.g. to refit many seeds of the slow ones; `STS_SUITE_FIRST_SEED=10`
 //! starts at seed 10 (to split a run over several processes).
@@ -109,14 +113,35 @@ fn step_dependence_nm(effects: &[EffectSpec], seed: u64) -> f64 {
     (sum / n.max(1) as f64).sqrt() * 1e3
 }
 
+/// The case of a structural mode inside the test band (the other cases are named by their
+/// effect); its right verdict is `structural-mode`.
+const IN_BAND_MODE: &str = "structural-mode-in-band";
+
+/// The verdict that names a case's hidden effect.
+fn expected_verdict(case: &str) -> &str {
+    if case == IN_BAND_MODE {
+        "structural-mode"
+    } else {
+        case
+    }
+}
+
 fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u64, refit: bool) -> Outcome {
     let effects = match effect {
+        Some(IN_BAND_MODE) => {
+            // Between the test's second and last frequencies, so that the test sees both sides.
+            let freqs = &MeasureConfig::default().freqs_hz;
+            let mut rng = ChaCha8Rng::seed_from_u64(0xba4d_0000 + seed);
+            vec![EffectSpec::random_in_band_mode(freqs[1] * 1.5, freqs[freqs.len() - 1] * 0.85, &mut rng)
+                .expect("in-band mode")]
+        }
         Some(name) => {
             let mut rng = ChaCha8Rng::seed_from_u64(0x5eed_0000 + seed);
             vec![EffectSpec::random(name, &mut rng).expect("known effect")]
         }
         None => Vec::new(),
     };
+    let effect = effect.map(expected_verdict);
     let data = measure(suite, effects.clone(), 100 + seed);
     let (d, before_rms_um) = match suite.workflow {
         Workflow::Reference => {
@@ -139,11 +164,12 @@ fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u6
     if effect.is_some_and(|e| e != d.verdict) {
         for r in d.ranking.iter().take(3) {
             println!(
-                "    missed: {} explains {:.1}% (p = {:.1e}, significant {})",
+                "    missed: {} explains {:.1}% (p = {:.1e}, significant {}) [{}]",
                 r.effect,
                 r.explained_fraction * 100.0,
                 r.p_value,
-                r.significant
+                r.significant,
+                r.params.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect::<Vec<_>>().join(", ")
             );
         }
     }
@@ -174,16 +200,21 @@ fn run_suite(suite: &Suite) {
         }
     );
 
+    // Rows: the hidden effects (a structural mode above the band and one inside it);
+    // columns: the verdicts.
     let mut labels: Vec<&str> = EFFECT_NAMES.to_vec();
     labels.push("none");
-    let mut confusion = vec![vec![0usize; labels.len()]; labels.len()];
+    let mut rows: Vec<&str> = EFFECT_NAMES.to_vec();
+    rows.insert(3, IN_BAND_MODE);
+    rows.push("none");
+    let mut confusion = vec![vec![0usize; labels.len()]; rows.len()];
     // Lab workflow: `none` where the twin fitted on the data already predicts it within 1.5x
     // of the clean twin's error (the formulas absorbed the effect), per hidden effect.
-    let mut absorbed = vec![0usize; labels.len()];
+    let mut absorbed = vec![0usize; rows.len()];
     let mut falls: Vec<(String, u64, f64, f64, f64, f64, usize)> = Vec::new();
     // Seeds outermost, so that a partial run still covers every effect.
     for seed in suite.first_seed..suite.first_seed + suite.seeds {
-        for (row, truth) in labels.iter().enumerate() {
+        for (row, truth) in rows.iter().enumerate() {
             if !suite.only.is_empty() && !suite.only.iter().any(|o| o == truth) {
                 continue;
             }
@@ -209,7 +240,7 @@ fn run_suite(suite: &Suite) {
                 ));
             }
             println!(
-                "{truth:<22} seed {seed:>2}: verdict {:<22} twin's RMS {:.1} nm{}{}",
+                "{truth:<24} seed {seed:>2}: verdict {:<22} twin's RMS {:.1} nm{}{}",
                 o.verdict,
                 o.reference_rms_um * 1e3,
                 o.refit_rms_um.map_or(String::new(), |r| format!(", refit held-out RMS {:.1} nm", r * 1e3)),
@@ -220,17 +251,21 @@ fn run_suite(suite: &Suite) {
 
     println!("\nconfusion matrix (rows: hidden effect, columns: verdict; {} seeds each)", suite.seeds);
     let short: Vec<String> = labels.iter().map(|l| l.chars().take(8).collect()).collect();
-    println!("{:<22} {}", "", short.iter().map(|s| format!("{s:>9}")).collect::<String>());
-    for (i, l) in labels.iter().enumerate() {
-        println!("{l:<22} {}", confusion[i].iter().map(|n| format!("{n:>9}")).collect::<String>());
+    println!("{:<24} {}", "", short.iter().map(|s| format!("{s:>9}")).collect::<String>());
+    for (i, l) in rows.iter().enumerate() {
+        println!("{l:<24} {}", confusion[i].iter().map(|n| format!("{n:>9}")).collect::<String>());
     }
+    let right = |i: usize| {
+        let col = labels.iter().position(|l| *l == expected_verdict(rows[i])).unwrap_or(labels.len() - 1);
+        confusion[i][col] + absorbed[i]
+    };
     let mut all_ok = true;
     let run = |l: &str| suite.only.is_empty() || suite.only.iter().any(|o| o == l);
-    for (i, l) in labels.iter().enumerate() {
+    for (i, l) in rows.iter().enumerate() {
         if !run(l) {
             continue;
         }
-        let rate = (confusion[i][i] + absorbed[i]) as f64 / suite.seeds as f64;
+        let rate = right(i) as f64 / suite.seeds as f64;
         let need = if *l == "none" { 0.95 } else { 0.90 };
         println!(
             "{l:<22} correct {:>5.1}% (target {:.0}%){}",
@@ -276,8 +311,8 @@ fn run_suite(suite: &Suite) {
         );
         fall_ok &= met;
     }
-    let total: usize = (0..labels.len()).map(|i| confusion[i][i] + absorbed[i]).sum();
-    let cases = labels.iter().filter(|l| run(l)).count() as u64 * suite.seeds;
+    let total: usize = (0..rows.len()).map(right).sum();
+    let cases = rows.iter().filter(|l| run(l)).count() as u64 * suite.seeds;
     println!("\noverall: {total}/{cases} correct; every refit's error fell by at least 50% and ended within 1.5x clean ({unpredictable} of {} hunting, 1.5x not asserted): {fall_ok}", falls.len());
     if suite.seeds >= 20 {
         assert!(all_ok, "a per-effect rate is below its target");
@@ -286,7 +321,7 @@ fn run_suite(suite: &Suite) {
         assert!(total as f64 >= 0.9 * cases as f64, "only {total} of {cases} verdicts right");
         if run("none") {
             assert_eq!(
-                confusion[labels.len() - 1][labels.len() - 1],
+                confusion[rows.len() - 1][labels.len() - 1],
                 suite.seeds as usize,
                 "clean data must give `none`"
             );

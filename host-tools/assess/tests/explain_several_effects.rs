@@ -30,7 +30,7 @@ use sts_fit::{fit, FitConfig};
 
 /// Effects a refitted formula can carry: a linear change of the response at the command
 /// frequency. `none` for them is right where the twin ends near the clean one's error.
-const ABSORBABLE: [&str; 3] = ["loop-delay", "structural-mode", "sensor-gain"];
+const ABSORBABLE: [&str; 4] = ["loop-delay", "setpoint-delay", "structural-mode", "sensor-gain"];
 
 struct Sets {
     /// The sets, each with its draw index (its position in the full list, so that a set run
@@ -55,7 +55,7 @@ fn measure(paper_grid: bool, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
     sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
 }
 
-/// Every pair of the eight effects, then `triples` distinct triples drawn with a fixed seed.
+/// Every pair of the effects, then `triples` distinct triples drawn with a fixed seed.
 fn pairs_and_triples(triples: usize) -> Vec<Vec<&'static str>> {
     let mut sets = Vec::new();
     for (i, a) in EFFECT_NAMES.iter().enumerate() {

@@ -17,18 +17,19 @@ use std::fmt;
 use std::str::FromStr;
 
 /// The canonical effect names, used by the whole tool.
-pub const EFFECT_NAMES: [&str; 8] = [
+pub const EFFECT_NAMES: [&str; 9] = [
     "coulomb-friction",
     "presliding-hysteresis",
     "structural-mode",
     "loop-delay",
+    "setpoint-delay",
     "thermal-drift",
     "force-ripple",
     "axis-coupling",
     "sensor-gain",
 ];
 
-/// One of the eight physical effects.
+/// One of the nine physical effects.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum EffectKind {
     /// `coulomb-friction`: Coulomb friction with a Stribeck peak on the Z slide.
@@ -39,6 +40,9 @@ pub enum EffectKind {
     StructuralMode,
     /// `loop-delay`: extra delay in the servo loop's force output.
     LoopDelay,
+    /// `setpoint-delay`: the position command reaches the servo loop late (the whole response
+    /// late, the loop itself unchanged).
+    SetpointDelay,
     /// `thermal-drift`: thermal growth of the tool side, drifting with machine time.
     ThermalDrift,
     /// `force-ripple`: a position-periodic error (encoder interpolation error).
@@ -85,6 +89,8 @@ const MODE: &[ParamDef] = &[
     p("acc_shape", 1.0, -2.0, 2.0, "modal displacement at the accelerometer relative to the TCP"),
 ];
 const DELAY: &[ParamDef] = &[p("delay_us", 250.0, 0.0, 600.0, "extra delay of the force command, us")];
+const SETPOINT_DELAY: &[ParamDef] =
+    &[p("delay_us", 250.0, 0.0, 5000.0, "extra delay of the position command ahead of the servo loop, us")];
 const THERMAL: &[ParamDef] = &[
     p("rise_k", 0.8, -10.0, 10.0, "temperature rise of the heat source at equilibrium, K"),
     p("tau_s", 900.0, 1.0, 1e6, "thermal time constant, s"),
@@ -108,11 +114,12 @@ const GAIN: &[ParamDef] = &[
 
 impl EffectKind {
     /// All effects, in the order of [`EFFECT_NAMES`].
-    pub const ALL: [EffectKind; 8] = [
+    pub const ALL: [EffectKind; 9] = [
         EffectKind::CoulombFriction,
         EffectKind::PreslidingHysteresis,
         EffectKind::StructuralMode,
         EffectKind::LoopDelay,
+        EffectKind::SetpointDelay,
         EffectKind::ThermalDrift,
         EffectKind::ForceRipple,
         EffectKind::AxisCoupling,
@@ -136,6 +143,7 @@ impl EffectKind {
             EffectKind::PreslidingHysteresis => HYSTERESIS,
             EffectKind::StructuralMode => MODE,
             EffectKind::LoopDelay => DELAY,
+            EffectKind::SetpointDelay => SETPOINT_DELAY,
             EffectKind::ThermalDrift => THERMAL,
             EffectKind::ForceRipple => RIPPLE,
             EffectKind::AxisCoupling => COUPLING,
@@ -230,6 +238,24 @@ impl EffectSpec {
         self.kind.params().iter().zip(&self.values).map(|(d, v)| (d.key, *v))
     }
 
+    /// Draws a structural mode inside the band `lo_hz..hi_hz` of the measurement test: a
+    /// resonance of the error against frequency, with a small modal gain (a large one would
+    /// make the machine useless at that frequency).
+    pub fn random_in_band_mode<R: Rng + ?Sized>(lo_hz: f64, hi_hz: f64, rng: &mut R) -> Result<Self, EffectError> {
+        let mut spec = Self::new(EffectKind::StructuralMode);
+        let mut u = |lo: f64, hi: f64| lo + (hi - lo) * rng.random::<f64>();
+        let draws = [
+            ("freq_hz", u(lo_hz, hi_hz)),
+            ("damping", u(0.03, 0.1)),
+            ("tcp_gain", u(0.004, 0.012)),
+            ("acc_shape", u(0.6, 1.2)),
+        ];
+        for (key, value) in draws {
+            spec.set(key, value)?;
+        }
+        Ok(spec)
+    }
+
     /// Draws plausible hidden-effect parameters for the named effect: strong enough to leave
     /// a signature in the measurement test, within what real machines show.
     pub fn random<R: Rng + ?Sized>(name: &str, rng: &mut R) -> Result<Self, EffectError> {
@@ -251,6 +277,7 @@ impl EffectSpec {
                 ("acc_shape", u(0.6, 1.2)),
             ],
             EffectKind::LoopDelay => vec![("delay_us", u(150.0, 450.0))],
+            EffectKind::SetpointDelay => vec![("delay_us", u(100.0, 500.0))],
             EffectKind::ThermalDrift => {
                 let sign = if u(0.0, 1.0) < 0.5 { -1.0 } else { 1.0 };
                 vec![("rise_k", u(0.5, 1.5)), ("tau_s", u(300.0, 1800.0)), ("um_per_k", sign * u(0.6, 1.5))]

@@ -144,6 +144,8 @@ pub struct Machine {
     tick: u64,
     start_s: f64,
     output_delay_substeps: usize,
+    /// Extra delay of the position command ahead of the loop (`setpoint-delay`), ticks.
+    setpoint_delay_ticks: f64,
     force_history: [f64; HISTORY],
     cmd_history: [f64; HISTORY],
     servo_cmd_prev: [f64; 2],
@@ -197,6 +199,7 @@ impl Machine {
         let mut fx = Effects { acc_gain: 1.0, probe_gain: 1.0, ..Effects::default() };
         let mut extra_mode: Option<(f64, f64, f64, f64)> = None;
         let mut extra_delay_us = 0.0;
+        let mut setpoint_delay_ticks = 0.0;
         for e in effects {
             match e.kind() {
                 EffectKind::CoulombFriction => {
@@ -218,6 +221,7 @@ impl Machine {
                     extra_mode = Some((e.get("freq_hz"), e.get("damping"), e.get("tcp_gain"), e.get("acc_shape")))
                 }
                 EffectKind::LoopDelay => extra_delay_us = e.get("delay_us"),
+                EffectKind::SetpointDelay => setpoint_delay_ticks = e.get("delay_us") * 1e-6 / TICK_S,
                 EffectKind::ThermalDrift => fx.thermal = Some((e.get("rise_k"), e.get("tau_s"), e.get("um_per_k"))),
                 EffectKind::ForceRipple => {
                     fx.ripple = Some((
@@ -325,6 +329,7 @@ impl Machine {
             tick: 0,
             start_s: options.start_s,
             output_delay_substeps,
+            setpoint_delay_ticks,
             force_history: [0.0; HISTORY],
             cmd_history: [0.0; HISTORY],
             servo_cmd_prev: [0.0; 2],
@@ -509,8 +514,22 @@ impl Machine {
         let slot = (self.tick as usize) % HISTORY;
         self.cmd_history[slot] = input.z_cmd_um;
         let delay = p.servo.command_delay_ticks as u64;
-        let delayed_cmd =
-            if self.tick >= delay { self.cmd_history[((self.tick - delay) as usize) % HISTORY] } else { 0.0 };
+        let at = |ticks_back: u64| {
+            if self.tick >= ticks_back {
+                self.cmd_history[((self.tick - ticks_back) as usize) % HISTORY]
+            } else {
+                0.0
+            }
+        };
+        let delayed_cmd = if self.setpoint_delay_ticks > 0.0 {
+            // Between the two ticks around the late instant (the command is smooth).
+            let whole = self.setpoint_delay_ticks.floor();
+            let frac = self.setpoint_delay_ticks - whole;
+            let back = delay + whole as u64;
+            at(back) * (1.0 - frac) + at(back + 1) * frac
+        } else {
+            at(delay)
+        };
         let added_pulses = if input.analog_enabled { ain_pulses } else { 0 };
         let r_um = delayed_cmd + added_pulses as f64 * itf.pulse_nm * 1e-3;
         let s = &p.servo;

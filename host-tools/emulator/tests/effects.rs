@@ -118,6 +118,29 @@ fn loop_delay_shifts_phase_growing_with_frequency() {
 }
 
 #[test]
+fn setpoint_delay_makes_the_whole_response_late() {
+    // The command reaches the loop late, the loop unchanged: the response keeps its
+    // amplitude and lags by 360 f tau degrees more at every frequency (half a tick of delay
+    // interpolated between ticks, 312.5 us).
+    let figures = |f: f64, effects: &[&str]| {
+        let g = group(f, 5.0, effects);
+        sts_emulator::analysis::group_figures(&g, f, 4.0, 6.0)
+    };
+    for f in [5.0, 20.0, 40.0] {
+        let (c, d) = (figures(f, &[]), figures(f, &["setpoint-delay:delay_us=312.5"]));
+        let shift = d.tcp_lag_deg - c.tcp_lag_deg;
+        let want = 360.0 * f * 312.5e-6;
+        assert!((shift - want).abs() < 0.01 * want + 0.01, "{f} Hz: lag {shift} deg, want {want}");
+        assert!(
+            (d.tcp_amp_um / c.tcp_amp_um - 1.0).abs() < 2e-4,
+            "{f} Hz: amplitude {} vs {}",
+            d.tcp_amp_um,
+            c.tcp_amp_um
+        );
+    }
+}
+
+#[test]
 fn thermal_drift_makes_mean_error_trend_with_start_s() {
     let spec: EffectSpec = "thermal-drift:rise_k=1,tau_s=600,um_per_k=1".parse().unwrap();
     let config = MeasureConfig { effects: vec![spec], ..MeasureConfig::default() };

@@ -89,6 +89,14 @@ pub enum FitError {
         #[source]
         source: TargetError,
     },
+    /// An effect term's coefficient does not fit the firmware's fixed point.
+    #[error("--effect {effect}: a coefficient of {value_um} um does not fit the firmware's term (at most 2147 um); the measurement does not show that effect in a usable form")]
+    TermOutOfRange {
+        /// The effect.
+        effect: String,
+        /// The coefficient, um per unit input.
+        value_um: f64,
+    },
     /// The effects need more per-tick terms than a program holds.
     #[error("--effect: {needed} per-tick terms needed, the program holds at most {MAX_TERMS}")]
     TooManyTerms {

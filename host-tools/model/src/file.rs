@@ -16,11 +16,12 @@ use crate::{ModelError, ModelFileError};
 
 /// The names of the physical effects a model can carry and diagnose can name, in the
 /// library's order (the `--effect` names of `fit` and `measure`).
-pub const EFFECTS: [&str; 8] = [
+pub const EFFECTS: [&str; 9] = [
     "coulomb-friction",
     "presliding-hysteresis",
     "structural-mode",
     "loop-delay",
+    "setpoint-delay",
     "thermal-drift",
     "force-ripple",
     "axis-coupling",

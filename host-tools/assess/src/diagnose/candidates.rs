@@ -1,11 +1,11 @@
-//! The eight candidate effects: regressors of the residual, cross-validated by group.
+//! The nine candidate effects: regressors of the residual, cross-validated by group.
 
 use std::f64::consts::PI;
 
 use rayon::prelude::*;
 
 use sts_analysis::bases::laguerre;
-use sts_analysis::lsq::{solve, Stats};
+use sts_analysis::lsq::{least_squares, solve, Stats};
 use sts_analysis::sine::line_amp;
 use sts_model::EFFECTS;
 
@@ -30,6 +30,8 @@ pub enum Candidate {
     Mode,
     /// `loop-delay`.
     Delay,
+    /// `setpoint-delay`.
+    SetpointDelay,
     /// `thermal-drift`.
     Thermal,
     /// `force-ripple`.
@@ -41,11 +43,12 @@ pub enum Candidate {
 }
 
 /// All candidates.
-pub const ALL: [Candidate; 8] = [
+pub const ALL: [Candidate; 9] = [
     Candidate::Friction,
     Candidate::Hysteresis,
     Candidate::Mode,
     Candidate::Delay,
+    Candidate::SetpointDelay,
     Candidate::Thermal,
     Candidate::Ripple,
     Candidate::Coupling,
@@ -165,7 +168,8 @@ impl Candidate {
 
     /// Whether its signature reaches beyond each group's fundamental (harmonics, steps,
     /// trends, other lines), so that a twin's formulas cannot absorb all of it. A structural
-    /// mode, a loop delay and a sensor's gain change the fundamental only.
+    /// mode, a delay (in the loop or ahead of it) and a sensor's gain change the fundamental
+    /// only.
     pub fn beyond_fundamental(self) -> bool {
         matches!(
             self,
@@ -178,8 +182,9 @@ impl Candidate {
         match self {
             Candidate::Friction => friction(ctx, folds),
             Candidate::Hysteresis => hysteresis(ctx, folds),
-            Candidate::Mode => fundamental_shape(ctx, folds, self),
-            Candidate::Delay => fundamental_shape(ctx, folds, self),
+            Candidate::Mode => mode(ctx, folds),
+            Candidate::Delay => loop_delay(ctx, folds),
+            Candidate::SetpointDelay => setpoint_delay(ctx, folds),
             Candidate::Thermal => thermal(ctx, folds),
             Candidate::Ripple => ripple(ctx, folds),
             Candidate::Coupling => coupling(ctx, folds),
@@ -250,9 +255,134 @@ fn hysteresis(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     }
 }
 
-/// Structural mode (in-phase and quadrature acceleration, frequency squared) or loop delay
-/// (jerk and snap: frequency cubed and to the fourth).
-fn fundamental_shape(ctx: &[GroupCtx], folds: usize, which: Candidate) -> Evaluated {
+/// A group's component at the command frequency over the window as a phasor `P`:
+/// `x(t) ~ Re(P e^(j theta))` (`x = Re(P) cos theta - Im(P) sin theta`), with its mean fitted too.
+fn phasor(theta: &[f64], x: &[f64]) -> (f64, f64) {
+    let rows: Vec<[f64; 3]> = theta
+        .iter()
+        .map(|t| {
+            let (s, c) = t.sin_cos();
+            [s, c, 1.0]
+        })
+        .collect();
+    least_squares(&rows, x).map_or((0.0, 0.0), |f| (f.coefficients[1], -f.coefficients[0]))
+}
+
+/// Complex product.
+fn cmul(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
+    (a.0 * b.0 - a.1 * b.1, a.0 * b.1 + a.1 * b.0)
+}
+
+/// The weights on `[sin theta, cos theta]` of the signal `Re(Q e^(j theta))` and of its
+/// quadrature `Re(j Q e^(j theta))`.
+fn sine_weights(q: (f64, f64)) -> [Vec<f64>; 2] {
+    [vec![-q.1, q.0], vec![-q.0, -q.1]]
+}
+
+/// Per group: the statistics of `[sin theta, cos theta]` against the residual, from which
+/// every variant of a candidate that lives at the command frequency is mixed
+/// ([`Stats::mixed`]).
+fn fundamental_stats(ctx: &[GroupCtx]) -> Vec<Stats> {
+    ctx.par_iter()
+        .map(|c| {
+            let s: Vec<f64> = c.theta.iter().map(|t| t.sin()).collect();
+            let co: Vec<f64> = c.theta.iter().map(|t| t.cos()).collect();
+            c.stats(&[s, co])
+        })
+        .collect()
+}
+
+/// Highest command frequency of the test, Hz.
+fn band_top_hz(ctx: &[GroupCtx]) -> f64 {
+    ctx.iter().map(|c| c.sample.info.freq_hz).fold(0.0, f64::max)
+}
+
+/// A structural mode between slide and tool, inside the test band or above it: the tool
+/// moves by `g H(f) x_slide` with `H = r^2 / (1 - r^2 + 2 j zeta r)`, `r = f / f_mode`
+/// (a second-order resonance driven by the slide's acceleration), `g` complex (two linear
+/// coefficients: the modal gain on `H`, and the acceleration's quadrature for how the
+/// accelerometer's view of the mode moved the twin's own prediction). A grid of mode
+/// frequencies (inside the band in 4% steps, and above it) times damping ratios; `H` is normalised to `(f / 40 Hz)^2` far below the mode,
+/// where it reduces to an error in phase with the acceleration.
+fn mode(ctx: &[GroupCtx], folds: usize) -> Evaluated {
+    let top_hz = band_top_hz(ctx);
+    // Inside the band up to 0.9 of its top, so that groups above a resonance show it; at the
+    // very top a mode and the peaking of a loop with less phase margin (`loop-delay`) look
+    // alike on the probe.
+    let mut freqs: Vec<f64> = (0..).map(|i| 3.0 * 1.04f64.powi(i)).take_while(|f| *f < 0.9 * top_hz).collect();
+    freqs.extend([2.0, 3.0, 5.0, 10.0, 30.0].iter().map(|k| k * top_hz));
+    const ZETAS: [f64; 6] = [0.02, 0.04, 0.07, 0.12, 0.2, 0.35];
+    let base = fundamental_stats(ctx);
+    let slide: Vec<(f64, f64)> = ctx.par_iter().map(|c| phasor(&c.theta, &c.data.z_enc_um[c.start..])).collect();
+    let variants: Vec<(f64, f64)> = freqs.iter().flat_map(|f| ZETAS.iter().map(move |z| (*f, *z))).collect();
+    let response = |c: &GroupCtx, (f_mode, zeta): (f64, f64)| {
+        let r = c.sample.info.freq_hz / f_mode;
+        let norm = (F_REF_HZ / f_mode).powi(2);
+        let den = (1.0 - r * r, 2.0 * zeta * r);
+        let mag2 = den.0 * den.0 + den.1 * den.1;
+        (r * r * den.0 / mag2 / norm, -r * r * den.1 / mag2 / norm)
+    };
+    let stats: Vec<Vec<Stats>> = variants
+        .par_iter()
+        .map(|v| {
+            ctx.iter()
+                .zip(&base)
+                .zip(&slide)
+                .map(|((c, b), p)| {
+                    // The mode's response, and the acceleration's quadrature (the old twin's
+                    // prediction moved by what the accelerometer sees of the mode).
+                    let w2 = (c.sample.info.freq_hz / F_REF_HZ).powi(2);
+                    let [in_phase, _] = sine_weights(cmul(response(c, *v), *p));
+                    let [_, quadrature] = sine_weights((w2 * p.0, w2 * p.1));
+                    b.mixed(&[in_phase, quadrature])
+                })
+                .collect()
+        })
+        .collect();
+    let (improvements, best, theta) = cross_validate(&stats, folds);
+    let (f_mode, zeta) = variants[best];
+    let g = theta.first().copied().unwrap_or(0.0).hypot(theta.get(1).copied().unwrap_or(0.0));
+    let in_band = f_mode < top_hz;
+    if in_band {
+        // The tool's extra motion at the resonance per unit of slide motion.
+        let peak = g * (F_REF_HZ / f_mode).powi(-2) / (2.0 * zeta);
+        Evaluated {
+            improvements,
+            params: vec![
+                ("freq_hz".into(), f_mode),
+                ("damping".into(), zeta),
+                ("peak_error_per_um".into(), peak),
+            ],
+            evidence: format!(
+                "the error resonates against frequency at about {f_mode:.1} Hz inside the test band (damping ratio about {zeta:.2}): it grows towards that frequency, turns its phase by half a turn through it, and stays at about {:.2}% of the stroke above it (at the resonance {:.1}%): a structural mode between slide and tool that the measurement test excites",
+                g * (F_REF_HZ / f_mode).powi(-2) * 100.0,
+                peak * 100.0
+            ),
+            testable: true,
+        }
+    } else {
+        // Transient line: the residual's strongest line above 100 Hz in each group's first 0.25 s.
+        let line_hz = transient_line_hz(ctx);
+        Evaluated {
+            improvements,
+            params: vec![
+                ("extra_error_at_40hz_per_um".into(), g),
+                ("freq_hz".into(), f_mode),
+                ("ringing_line_hz".into(), line_hz),
+            ],
+            evidence: format!(
+                "an extra error in phase with the acceleration, growing with the frequency squared ({:.2}% of the stroke at 40 Hz), and the start of each group rings at about {:.0} Hz: a structural mode between slide and tool, above the test band",
+                g * 100.0,
+                line_hz
+            ),
+            testable: true,
+        }
+    }
+}
+
+/// Loop delay: less phase margin, the closed loop's response changing as the frequency cubed
+/// (jerk) and to the fourth (snap) at the bottom of the band.
+fn loop_delay(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     let columns: Vec<Vec<Vec<f64>>> = ctx
         .iter()
         .map(|c| {
@@ -260,47 +390,63 @@ fn fundamental_shape(ctx: &[GroupCtx], folds: usize, which: Candidate) -> Evalua
             let a = cmd_amp(c);
             let s: Vec<f64> = c.theta.iter().map(|t| t.sin()).collect();
             let co: Vec<f64> = c.theta.iter().map(|t| t.cos()).collect();
-            match which {
-                Candidate::Mode => {
-                    vec![s.iter().map(|v| a * w * w * v).collect(), co.iter().map(|v| a * w * w * v).collect()]
-                }
-                _ => {
-                    vec![co.iter().map(|v| a * w.powi(3) * v).collect(), s.iter().map(|v| a * w.powi(4) * v).collect()]
-                }
-            }
+            vec![co.iter().map(|v| a * w.powi(3) * v).collect(), s.iter().map(|v| a * w.powi(4) * v).collect()]
         })
         .collect();
     let stats: Vec<Vec<Stats>> = vec![ctx.iter().zip(&columns).map(|(c, cols)| c.stats(cols)).collect()];
     let (improvements, _, theta) = cross_validate(&stats, folds);
-    // Transient line: the residual's strongest line above 100 Hz in each group's first 0.25 s.
-    let line_hz = transient_line_hz(ctx);
-    match which {
-        Candidate::Mode => {
-            let g = theta.first().copied().unwrap_or(0.0).hypot(theta.get(1).copied().unwrap_or(0.0));
-            Evaluated {
-                improvements,
-                params: vec![("extra_error_at_40hz_per_um".into(), g), ("ringing_line_hz".into(), line_hz)],
-                evidence: format!(
-                    "an extra error in phase with the acceleration, growing with the frequency squared ({:.2}% of the stroke at 40 Hz), and the start of each group rings at about {:.0} Hz: a structural mode between slide and tool",
-                    g * 100.0,
-                    line_hz
-                ),
-                testable: true,
-            }
-        }
-        _ => {
-            let lead = theta.first().copied().unwrap_or(0.0);
-            let phase_deg_at_40 = (lead.abs() / 1.0).atan().to_degrees();
-            Evaluated {
-                improvements,
-                params: vec![("jerk_coefficient_at_40hz_per_um".into(), lead), ("snap_coefficient_at_40hz_per_um".into(), theta.get(1).copied().unwrap_or(0.0))],
-                evidence: format!(
-                    "the phase of the error shifts increasingly towards the highest frequencies (about {:.2} deg per um of stroke at 40 Hz, as the frequency cubed) while low frequencies are untouched: less phase margin from an extra delay in the servo loop",
-                    phase_deg_at_40
-                ),
-                testable: true,
-            }
-        }
+    let lead = theta.first().copied().unwrap_or(0.0);
+    let phase_deg_at_40 = lead.abs().atan().to_degrees();
+    Evaluated {
+        improvements,
+        params: vec![
+            ("jerk_coefficient_at_40hz_per_um".into(), lead),
+            ("snap_coefficient_at_40hz_per_um".into(), theta.get(1).copied().unwrap_or(0.0)),
+        ],
+        evidence: format!(
+            "the phase of the error shifts increasingly towards the highest frequencies (about {:.2} deg per um of stroke at 40 Hz, as the frequency cubed) while low frequencies are untouched: less phase margin from an extra delay in the servo loop",
+            phase_deg_at_40
+        ),
+        testable: true,
+    }
+}
+
+/// Setpoint delay: the whole response late by `tau`, the loop unchanged. The tool's motion
+/// `y(t)` becomes `y(t - tau)`, so the error gains `Re((e^(-j w tau) - 1) Y e^(j theta))`, `Y`
+/// the measured tool motion's phasor: at the bottom of the band in quadrature with the motion
+/// and in proportion to the frequency (where a loop delay grows as its cube). A grid of delays
+/// with one free scale (a negative one: the setpoint now arrives earlier).
+fn setpoint_delay(ctx: &[GroupCtx], folds: usize) -> Evaluated {
+    let delays_us: Vec<f64> = (0..32).map(|i| 20.0 * 1.18f64.powi(i)).collect();
+    let base = fundamental_stats(ctx);
+    let tool: Vec<(f64, f64)> = ctx.par_iter().map(|c| phasor(&c.theta, &c.data.z_tcp_um[c.start..])).collect();
+    let stats: Vec<Vec<Stats>> = delays_us
+        .par_iter()
+        .map(|tau_us| {
+            ctx.iter()
+                .zip(&base)
+                .zip(&tool)
+                .map(|((c, b), y)| {
+                    let phi = 2.0 * PI * c.sample.info.freq_hz * tau_us * 1e-6;
+                    let late = cmul((phi.cos() - 1.0, -phi.sin()), *y);
+                    b.mixed(&sine_weights(late)[..1])
+                })
+                .collect()
+        })
+        .collect();
+    let (improvements, best, theta) = cross_validate(&stats, folds);
+    let delay_us = delays_us[best] * theta.first().copied().unwrap_or(0.0);
+    let lag_deg_at_40 = 360.0 * F_REF_HZ * delay_us * 1e-6;
+    Evaluated {
+        improvements,
+        params: vec![("delay_us".into(), delay_us), ("phase_lag_at_40hz_deg".into(), lag_deg_at_40)],
+        evidence: format!(
+            "the whole response is {:.0} us {} ({:.2} deg at 40 Hz): an error in quadrature with the motion, growing in proportion to the frequency from the slowest groups on, the servo's own response unchanged: a delay ahead of the servo loop (the setpoint or the command path), not inside it",
+            delay_us.abs(),
+            if delay_us >= 0.0 { "late" } else { "early" },
+            lag_deg_at_40.abs()
+        ),
+        testable: true,
     }
 }
 

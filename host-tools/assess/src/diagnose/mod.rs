@@ -2,7 +2,7 @@
 //!
 //! The residual (measured minus predicted dynamic error, the model's firmware program as
 //! `compare` computes it, over each group's last second) is explained in turn by each of the
-//! eight candidate effects of the library, each a small physical model that is linear in its
+//! nine candidate effects of the library, each a small physical model that is linear in its
 //! coefficients given a few shape parameters (chosen from a grid):
 //!
 //! | effect | what explains the residual |
@@ -67,7 +67,7 @@ pub use sts_model::EFFECTS;
 
 /// Smallest held-out explained fraction of a verdict.
 pub const MIN_EXPLAINED: f64 = 0.25;
-/// Family-wise significance level of the sign tests (eight candidates, two statistics).
+/// Family-wise significance level of the sign tests (over every score and both statistics).
 pub const ALPHA: f64 = 0.02;
 /// Statistics the sign test is run with per candidate.
 const STATISTICS: usize = 2;

@@ -10,6 +10,7 @@
 //! | `coulomb-friction`, `presliding-hysteresis`, `force-ripple` | one servo-axis twin ([`axis`], [`sts_twin_core::axis`]): the controller, slide, mode and the effects simulated from the command, identified on the encoder and probe readings |
 //! | `thermal-drift` | `offset + decay exp(-t / tau)` over machine time |
 //! | `axis-coupling` | X acceleration gain and the spindle's once-per-revolution sine |
+//! | `setpoint-delay` | a Laguerre bank on the command velocity: the axis's linear response to the command (the delay and the servo's own lag) |
 //! | `structural-mode`, `loop-delay` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
 //! | `sensor-gain` | a probe gain (estimated on the slowest groups) is taken out of the readings and recorded in the model file, so that `compare` and `diagnose` read data as the fit did; an accelerometer gain is carried by the refitted formulas |
 //!
@@ -32,9 +33,11 @@ use std::path::Path;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sts_dataset::{Dataset, GroupData};
-use sts_twin_core::program::{TermInput, TickTerm};
+use sts_twin_core::program::{TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
 
+use sts_analysis::bases::laguerre;
 use sts_analysis::lsq::{solve, Stats};
+use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_analysis::targets;
 use sts_model::EFFECTS;
 use sts_model::{hex_encode, ModelFile};
@@ -276,6 +279,10 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
                 let (term, params) = fit_drift(dataset, &inputs, fs);
                 (vec![term], params, "offset + decay * exp(-t / tau) over machine time".to_string())
             }
+            "setpoint-delay" => {
+                let (term, params) = fit_setpoint_delay(dataset, &inputs)?;
+                (vec![term], params, "the axis's linear response to the command velocity (a Laguerre bank): the setpoint's delay and the servo's own lag, so that the formulas fit only what is left".to_string())
+            }
             "axis-coupling" => {
                 let (term, params) = fit_coupling(dataset, &inputs)?;
                 (vec![term], params, "X acceleration gain and spindle once-per-revolution sine (the bus carries both; a machine without them sends zero)".to_string())
@@ -478,6 +485,49 @@ fn project_out_fundamental_keep_mean(y: &[f64], theta: &[f64]) -> Vec<f64> {
     let st = Stats::from_columns(&[s.clone(), c.clone(), vec![1.0; y.len()]], y);
     let th = solve(&[&st]);
     y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k]).collect()
+}
+
+/// A setpoint delay makes the whole response late: the error gains `cmd(t - tau) - cmd(t)`,
+/// a linear filter of the command velocity. A Laguerre bank on the velocity (the velocity
+/// sign's input with a smoothing wider than any velocity of the measurement, so linear over
+/// it and bounded beyond) is fitted by least squares on the whole dynamic error; it takes
+/// the delay and the servo's own velocity lag, and the formulas fit what is left.
+fn fit_setpoint_delay(dataset: &Dataset, inputs: &[GroupInputs]) -> Result<(TickTerm, Vec<(String, f64)>), FitError> {
+    let fastest = inputs
+        .iter()
+        .flat_map(|gi| gi.pos_nm.windows(5).map(|w| (i64::from(w[4]) - i64::from(w[0])).abs()))
+        .max()
+        .unwrap_or(0);
+    // A quarter above the fastest measured, within the 32-bit division's range.
+    let smooth = ((fastest as f64 * 1.25).ceil() as i32).clamp(1, VELOCITY_SMOOTH_32_BIT_LIMIT - 1);
+    let kind = TermInput::VelocitySign { smooth_nm_per_4_ticks: smooth };
+    let stats: Vec<Stats> = dataset
+        .groups
+        .par_iter()
+        .zip(inputs.par_iter())
+        .map(|(g, gi)| {
+            let cols = laguerre(&term_input(&kind, &gi.pos_nm), gi.start, POLE, LAGUERRE_STAGES);
+            let de: Vec<f64> = (gi.start..g.len()).map(|k| g.z_tcp_um[k] - g.z_cmd_um[k]).collect();
+            Stats::from_columns(&cols, &de)
+        })
+        .collect();
+    let theta = solve(&stats.iter().collect::<Vec<_>>());
+    let mut gains_pm = [0i32; LAGUERRE_STAGES];
+    for (g, t) in gains_pm.iter_mut().zip(&theta) {
+        let pm = (t * 1e6).round();
+        if pm.is_nan() || pm.abs() >= f64::from(i32::MAX) {
+            return Err(FitError::TermOutOfRange { effect: "setpoint-delay".into(), value_um: *t });
+        }
+        *g = pm as i32;
+    }
+    // The bank's gain at zero frequency gives the response's lag behind a steady velocity:
+    // every stage passes a constant `u` as `sqrt(1 - a^2) / (1 - a)`.
+    let dc = (1.0 - POLE * POLE).sqrt() / (1.0 - POLE);
+    let um_per_unit = theta.iter().sum::<f64>() * dc;
+    let um_per_s_per_unit = f64::from(smooth) * 1e-3 / (4.0 / SERVO_RATE_HZ);
+    let lag_us = -um_per_unit / um_per_s_per_unit * 1e6;
+    let term = TickTerm::Laguerre { input: kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm };
+    Ok((term, vec![("velocity_lag_us".into(), lag_us), ("velocity_scale_nm_per_4_ticks".into(), f64::from(smooth))]))
 }
 
 fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> Result<(TickTerm, Vec<(String, f64)>), FitError> {

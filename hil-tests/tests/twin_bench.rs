@@ -282,6 +282,19 @@ fn bench_twin_tick_drift_and_coupling() {
     assert!(matches!(program_with(&[dahl(), axis_coupling()]).validate(), Err(ProgramError::TickBudget { .. })));
 }
 
+/// An in-band structural mode as `fit --effect structural-mode` makes it: the resonance
+/// (f32 state) beside the velocity bank of the axis's linear response.
+fn resonance() -> TickTerm {
+    TickTerm::Resonance { freq_hz: 18.2, damping: 0.04, gain: -0.0092 }
+}
+
+#[test]
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn bench_twin_tick_linear_response() {
+    bench("+ Resonance", &[resonance()]);
+    bench("+ 1 Laguerre bank (velocity sign) + Resonance", &[velocity_sign(), resonance()]);
+}
+
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_twin_tick_axis() {

@@ -7,6 +7,7 @@ pub mod features;
 pub mod lsq;
 pub mod repeat;
 pub mod resample;
+pub mod response;
 pub mod samples;
 pub mod score;
 pub mod sine;

@@ -8,7 +8,7 @@
 
 mod foreign;
 
-use foreign::{Foreign, Lugre};
+use foreign::{Foreign, Lugre, ToolMode};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use sts_model::replay::turns_u32;
@@ -303,5 +303,186 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
         }
     }
     let _ = std::fs::remove_dir_all(&dir);
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// A new-physics case: name, machine, seed, its effects (each by the verdicts that name it),
+/// and what is asserted.
+type Run = (&'static str, Foreign, u64, &'static [&'static [&'static str]], Expect);
+
+/// What the new-physics test asserts of a case.
+#[derive(Clone, Copy, PartialEq)]
+enum Expect {
+    /// Every effect named (reference and `explain`), the refit and `explain` within bounds.
+    All,
+    /// The first named right; the rest as `All`.
+    First,
+    /// Printed only (a known limit, in the docs).
+    Observed,
+}
+
+/// The new physics on the foreign machine: a tool-post mode inside the test band, a setpoint
+/// that reaches the controller two ticks late, and two effects at once (the mode with LuGre
+/// friction; the mode with the late setpoint), each through the reference workflow (the
+/// clean machine's twin, `diagnose`, `fit --effect`, `explain --model`) and the lab's (a twin
+/// fitted on the data, `diagnose`, `explain` from nothing).
+#[test]
+fn an_in_band_mode_and_a_late_setpoint_are_named_and_carried() {
+    let dir: PathBuf =
+        Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("foreign-new-physics-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let clean = Foreign::default();
+    let mode = ToolMode { freq_hz: 17.0, damping: 0.04, modal_kg: 0.05, share: 0.01 };
+    let lugre =
+        Lugre { coulomb_n: 3.0, static_n: 4.0, stribeck_mps: 3e-4, sigma0_n_per_m: 1.5e6, sigma1_ns_per_m: 300.0 };
+    let late_s = 2.0 / foreign::RATE_HZ;
+    const MODE: &[&str] = &["structural-mode"];
+    const DELAY: &[&str] = &["setpoint-delay"];
+    const FRICTION: &[&str] = &["presliding-hysteresis", "coulomb-friction"];
+    // Name, machine, seed, its effects (each by the verdicts that name it), and what is
+    // asserted. The in-band mode's term carries the axis's whole linear response beside the
+    // resonance (a velocity bank), a late setpoint included, so after the mode nothing of the
+    // delay is left to name: `explain` must name the first right. The mode with LuGre
+    // friction is printed, not asserted: the axis twin leaves LuGre at 2.5x the clean twin's
+    // error (the test above), and under that friction the mode's grid finds no resonance.
+    let runs: [Run; 5] = [
+        ("clean", clean, 1, &[], Expect::All),
+        ("tool-mode", Foreign { tool_mode: Some(mode), ..clean }, 7, &[MODE], Expect::All),
+        ("setpoint-delay", Foreign { setpoint_delay_s: late_s, ..clean }, 8, &[DELAY], Expect::All),
+        (
+            "mode-and-delay",
+            Foreign { tool_mode: Some(mode), setpoint_delay_s: late_s, ..clean },
+            9,
+            &[MODE, DELAY],
+            Expect::First,
+        ),
+        (
+            "mode-and-friction",
+            Foreign { tool_mode: Some(mode), friction: Some(lugre), ..clean },
+            10,
+            &[MODE, FRICTION],
+            Expect::Observed,
+        ),
+    ];
+    // The observed cases cost CI a minute for nothing asserted: `STS_FOREIGN_OBSERVED=1`
+    // runs them (BENCHMARKS.md).
+    let observed = std::env::var_os("STS_FOREIGN_OBSERVED").is_some();
+    let runs: Vec<Run> = runs.into_iter().filter(|r| r.4 != Expect::Observed || observed).collect();
+    std::thread::scope(|s| {
+        for (name, machine, seed, _, _) in &runs {
+            let d = dir.join(name);
+            s.spawn(move || machine.measure(&d, &FREQS_HZ, &AMPS_UM, DURATION_S, *seed));
+        }
+    });
+    let m0 = dir.join("twin.json");
+    sts_twin(&["fit", path(&dir.join("clean")), "--out", path(&m0), "--quiet"]);
+    let clean_rms_um = held_out_rms_um(&m0);
+    println!("clean machine: twin's held-out RMS {:.1} nm", clean_rms_um * 1e3);
+    let names = |effects: &[&[&str]], verdict: &str| effects.iter().any(|e| e.contains(&verdict));
+    let mut failures = Vec::new();
+    for (name, _, _, effects, expect) in &runs[1..] {
+        let data = dir.join(name);
+        let mut failures_here = Vec::new();
+        // Reference workflow: the first named effect must be one of the machine's, and the
+        // refit with it must at least halve the error.
+        let before_um =
+            sts_twin(&["compare", path(&data), "--model", path(&m0), "--json"])["waveform_rms_um"].as_f64().unwrap();
+        let d = sts_twin(&["diagnose", path(&data), "--model", path(&m0), "--json"]);
+        let verdict = d["verdict"].as_str().unwrap().to_string();
+        let refit = dir.join(format!("twin-{name}.json"));
+        let after_um = if names(effects, &verdict) {
+            sts_twin(&["fit", path(&data), "--effect", &verdict, "--out", path(&refit), "--quiet"]);
+            held_out_rms_um(&refit)
+        } else {
+            f64::NAN
+        };
+        println!(
+            "{name:<17} clean twin {:.1} nm; verdict {verdict} ({:.0}%, p = {:.1e}, {}; then {}); refit held-out {:.1} nm ({:.2}x clean)",
+            before_um * 1e3,
+            d["ranking"][0]["explained_fraction"].as_f64().unwrap() * 100.0,
+            d["ranking"][0]["p_value"].as_f64().unwrap(),
+            d["ranking"][0]["params"],
+            d["ranking"].as_array().unwrap()[1..3]
+                .iter()
+                .map(|r| format!("{} {:.0}%", r["effect"], r["explained_fraction"].as_f64().unwrap() * 100.0))
+                .collect::<Vec<_>>()
+                .join(", "),
+            after_um * 1e3,
+            after_um / clean_rms_um
+        );
+        if !names(effects, &verdict) {
+            failures_here.push(format!("{name}: reference verdict {verdict}: {}", d["summary"]));
+        } else if after_um.is_nan() || after_um > 0.5 * before_um {
+            failures_here.push(format!(
+                "{name}: the refit with {verdict} left {:.1} of {:.1} nm",
+                after_um * 1e3,
+                before_um * 1e3
+            ));
+        }
+        // `explain` from the clean twin: the effects named, ending within 1.5x the clean
+        // twin's error.
+        let explained = dir.join(format!("explained-{name}.json"));
+        let ex = sts_twin(&["explain", path(&data), "--model", path(&m0), "--out", path(&explained), "--json"]);
+        let named: Vec<String> =
+            ex["steps"].as_array().unwrap().iter().map(|s| s["effect"].as_str().unwrap().to_string()).collect();
+        let final_um = ex["waveform_rms_um"].as_f64().unwrap();
+        println!(
+            "{:<17} explain from the clean twin: {} -> {:.1} nm ({:.2}x clean), stop {}",
+            "",
+            named.join(", "),
+            final_um * 1e3,
+            final_um / clean_rms_um,
+            ex["verdict"]
+        );
+        let all_named = effects.iter().all(|e| named.iter().any(|n| e.contains(&n.as_str())));
+        let first_right = named.first().is_some_and(|n| names(effects, n));
+        if !first_right || (*expect == Expect::All && !all_named) || final_um > 1.5 * clean_rms_um {
+            failures_here.push(format!("{name}: explain named {named:?}, ended at {:.1} nm", final_um * 1e3));
+        }
+        // The lab's workflow: a twin fitted on the data, diagnosed on it; then `explain` from
+        // nothing. A verdict must name one of the effects, or the formulas absorbed them (the
+        // own twin within 1.5x the clean twin's error); explain must end there too.
+        let own = dir.join(format!("own-{name}.json"));
+        sts_twin(&["fit", path(&data), "--out", path(&own), "--quiet"]);
+        let own_um = held_out_rms_um(&own);
+        let lab = sts_twin(&["diagnose", path(&data), "--model", path(&own), "--json"]);
+        let lab_verdict = lab["verdict"].as_str().unwrap();
+        let ex_lab =
+            sts_twin(&["explain", path(&data), "--out", path(&dir.join(format!("lab-{name}.json"))), "--json"]);
+        let lab_named: Vec<String> =
+            ex_lab["steps"].as_array().unwrap().iter().map(|s| s["effect"].as_str().unwrap().to_string()).collect();
+        let lab_final_um = ex_lab["waveform_rms_um"].as_f64().unwrap();
+        println!(
+            "{:<17} lab: own twin {:.1} nm, verdict {lab_verdict}; explain: {} -> {:.1} nm ({:.2}x clean), stop {}",
+            "",
+            own_um * 1e3,
+            lab_named.join(", "),
+            lab_final_um * 1e3,
+            lab_final_um / clean_rms_um,
+            ex_lab["verdict"]
+        );
+        let absorbed = lab_verdict == "none" && own_um <= 1.5 * clean_rms_um;
+        if !(names(effects, lab_verdict) || absorbed) || lab_final_um > 1.5 * clean_rms_um {
+            failures_here.push(format!(
+                "{name}: lab workflow: verdict {lab_verdict} (own twin {:.1} nm), explain ended at {:.1} nm: {}",
+                own_um * 1e3,
+                lab_final_um * 1e3,
+                lab["summary"]
+            ));
+        }
+        if *expect == Expect::Observed {
+            for f in failures_here {
+                println!("{:<17} observed, not asserted: {f}", "");
+            }
+        } else {
+            failures.extend(failures_here);
+        }
+    }
+    // `STS_FOREIGN_KEEP=1` keeps the measurements and twins for a look with the CLI.
+    if std::env::var_os("STS_FOREIGN_KEEP").is_none() {
+        let _ = std::fs::remove_dir_all(&dir);
+    } else {
+        println!("kept in {}", dir.display());
+    }
     assert!(failures.is_empty(), "{failures:#?}");
 }

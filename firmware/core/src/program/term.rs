@@ -86,6 +86,19 @@ pub enum TickTerm {
     /// ([`crate::axis::compensate`]) and synthesises the correction's third harmonic in this
     /// term's slot (its fundamental joins the program's).
     Axis(AxisParams),
+    /// A structural mode between slide and tool: `gain * H(s) x` with the second-order
+    /// high-pass `H = s^2 / (s^2 + 2 zeta w s + w^2)` of the command position `x` (the mode
+    /// driven by the slide's acceleration), stepped every tick in f32
+    /// (`synth::resonance`). A mode inside the measurement's band, whose resonance the
+    /// amplitude and phase formulas cannot follow.
+    Resonance {
+        /// The mode's natural frequency, Hz.
+        freq_hz: f32,
+        /// Its damping ratio (underdamped).
+        damping: f32,
+        /// Tool motion per unit of the high-passed command.
+        gain: f32,
+    },
 }
 
 /// Stages of a [`TickTerm::Laguerre`] filter bank.
@@ -128,6 +141,7 @@ impl TickTerm {
             Self::Drift { tau_ticks, .. } => tau_ticks >= 256,
             Self::AxisCoupling { .. } => true,
             Self::Axis(params) => params.check().is_ok(),
+            Self::Resonance { freq_hz, damping, gain } => crate::synth::resonance_params_ok(freq_hz, damping, gain),
             Self::Laguerre { input, pole_q30, .. } => {
                 let input_ok = match input {
                     TermInput::VelocitySign { smooth_nm_per_4_ticks } => smooth_nm_per_4_ticks >= 1,
@@ -208,6 +222,10 @@ pub mod tick_cost {
     /// 97 since the servo-axis term joined the kernels, so that pair, 802, is refused; 100
     /// alone since the axis twin's command store).
     pub const AXIS_COUPLING: u32 = 100;
+    /// A resonance: its f32 state update and one saturating conversion (84 measured alone,
+    /// 95 beside a velocity-sign bank: 787 in all; 131 alone when the output went through a
+    /// 64-bit conversion, a library call).
+    pub const RESONANCE: u32 = 96;
 }
 
 impl TickTerm {
@@ -224,6 +242,7 @@ impl TickTerm {
             Self::Axis(_) => HARMONIC + AXIS_COMMANDS,
             Self::Drift { .. } => DRIFT,
             Self::AxisCoupling { .. } => AXIS_COUPLING,
+            Self::Resonance { .. } => RESONANCE,
             Self::Laguerre { input, pole_q30, ref gains_pm } => {
                 let bank = match input {
                     TermInput::VelocitySign { smooth_nm_per_4_ticks }

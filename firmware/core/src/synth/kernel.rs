@@ -9,6 +9,7 @@
 //! instructions on a Cortex-M4), each checked bit for bit against the plain 64-bit form it
 //! replaces. A term's f64 set-up runs when it starts ([`KernelState::start`]), not per tick.
 
+use super::resonance::Resonance;
 use super::TickInput;
 use crate::axis::{AxisModel, AxisState};
 use crate::math::{div_1e6, harmonic_pm, isqrt_u64, sin_q31};
@@ -74,6 +75,8 @@ pub(super) struct KernelState {
     primed: bool,
     /// A servo-axis twin's coefficients (computed when the term starts) and state.
     pub(super) axis: Option<(AxisModel, AxisState)>,
+    /// A resonance's coefficients (computed when the term starts) and state.
+    resonance: Option<Resonance>,
 }
 
 impl KernelState {
@@ -88,6 +91,7 @@ impl KernelState {
         minus_two_pole_q30: 0,
         primed: false,
         axis: None,
+        resonance: None,
     };
 
     /// The state a kernel term starts from at machine time `ticks`. Out of line: its 64-bit
@@ -111,6 +115,7 @@ impl KernelState {
             TickTerm::Axis(ref params) => {
                 state.axis = AxisModel::new(params).ok().map(|model| (model, AxisState::INITIAL))
             }
+            TickTerm::Resonance { .. } => state.resonance = Resonance::new(term),
             _ => {}
         }
         state
@@ -126,7 +131,8 @@ impl KernelState {
             rest.resets = state.resets;
             (model, rest)
         });
-        Self { stages: self.stages.rested(), pos_hist: [0; 4], dahl_q30: 0, primed: false, axis, ..self }
+        let resonance = self.resonance.map(Resonance::rested);
+        Self { stages: self.stages.rested(), pos_hist: [0; 4], dahl_q30: 0, primed: false, axis, resonance, ..self }
     }
 }
 
@@ -238,6 +244,10 @@ pub(super) fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput
         TickTerm::Laguerre { input: kind, pole_q30, gains_pm } => laguerre_pm(kind, *pole_q30, gains_pm, st, input),
         TickTerm::Axis(_) => match &mut st.axis {
             Some((model, axis)) => i64::from(model.step(axis, input.cmd_pos_nm)),
+            None => 0,
+        },
+        TickTerm::Resonance { .. } => match &mut st.resonance {
+            Some(resonance) => resonance.step(input.cmd_pos_nm),
             None => 0,
         },
     }

@@ -21,7 +21,8 @@
 //! The modules, one concept each:
 //! - `ramp`: a value moving linearly to its target (`Ramp`);
 //! - `kernel`: the kernel terms (drift, axis coupling, Laguerre banks on the velocity sign,
-//!   the Dahl state or a position sine, the servo-axis twin) and their state;
+//!   the Dahl state or a position sine, the servo-axis twin, a resonance) and their state;
+//! - `resonance`: a structural mode's motion of the tool from the command (`Resonance`);
 //! - `harmonics`: [`SynthTargets`] and the harmonic bank (`Harmonics`), with the fade of
 //!   the harmonics that go;
 //! - here, the synthesiser ([`Synth`]) with its double buffer: two banks and two kernel
@@ -30,12 +31,16 @@
 mod harmonics;
 mod kernel;
 mod ramp;
+mod resonance;
 
 // The conversions and the sine, at the paths they had before `math` gathered them.
 pub use crate::math::{deg_to_turns, sin_q31, um_to_pm};
 pub use crate::program::{laguerre_stages_are_narrow, NARROW_POLE_MAX_Q30, VELOCITY_SMOOTH_32_BIT_LIMIT};
 pub use harmonics::SynthTargets;
 pub use kernel::DRIFT_STEP_TICKS;
+pub use resonance::{
+    resonance_params_ok, Resonance, RESONANCE_DAMPING_RANGE, RESONANCE_FREQ_RANGE_HZ, RESONANCE_GAIN_MAX,
+};
 
 use crate::program::{ModelOutput, TickTerm, MAX_TERMS};
 use harmonics::Harmonics;

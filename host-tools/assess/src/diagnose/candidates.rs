@@ -5,7 +5,8 @@ use std::f64::consts::PI;
 use rayon::prelude::*;
 
 use sts_analysis::bases::laguerre;
-use sts_analysis::lsq::{least_squares, solve, Stats};
+use sts_analysis::lsq::{solve, Stats};
+use sts_analysis::response::{delay, mode_high_pass, mul, phasor, sine_weights, velocity_bank, Complex};
 use sts_analysis::sine::line_amp;
 use sts_model::EFFECTS;
 
@@ -118,6 +119,38 @@ fn cross_validate(stats: &[Vec<Stats>], folds: usize) -> (Vec<f64>, usize, Vec<f
         for g in (0..n).filter(|g| g % folds == fold) {
             let s = &stats[v][g];
             improvements[g] = s.residual_ss() - s.sse(&theta);
+        }
+    }
+    let all: Vec<usize> = (0..n).collect();
+    let (v, theta) = best_variant(&all);
+    (improvements, v, theta)
+}
+
+/// [`cross_validate`] of what the variants' columns add to nuisance columns that every
+/// variant has first: per held-out group, `SS(r - nuisance fit) - SS(r - variant fit)`, both
+/// fitted on the other folds. Returns the improvements, the variant chosen on all groups and
+/// its theta (the nuisance coefficients first).
+fn cross_validate_beyond(nuisance: &[Stats], stats: &[Vec<Stats>], folds: usize) -> (Vec<f64>, usize, Vec<f64>) {
+    let n = nuisance.len();
+    let mut improvements = vec![0.0; n];
+    let best_variant = |groups: &[usize]| -> (usize, Vec<f64>) {
+        let mut best = (0usize, Vec::new(), f64::INFINITY);
+        for (v, st) in stats.iter().enumerate() {
+            let train: Vec<&Stats> = groups.iter().map(|&g| &st[g]).collect();
+            let theta = solve(&train);
+            let sse: f64 = train.iter().map(|s| s.sse(&theta)).sum();
+            if sse < best.2 {
+                best = (v, theta, sse);
+            }
+        }
+        (best.0, best.1)
+    };
+    for fold in 0..folds {
+        let train: Vec<usize> = (0..n).filter(|g| g % folds != fold).collect();
+        let base_theta = solve(&train.iter().map(|&g| &nuisance[g]).collect::<Vec<_>>());
+        let (v, theta) = best_variant(&train);
+        for g in (0..n).filter(|g| g % folds == fold) {
+            improvements[g] = nuisance[g].sse(&base_theta) - stats[v][g].sse(&theta);
         }
     }
     let all: Vec<usize> = (0..n).collect();
@@ -255,30 +288,6 @@ fn hysteresis(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     }
 }
 
-/// A group's component at the command frequency over the window as a phasor `P`:
-/// `x(t) ~ Re(P e^(j theta))` (`x = Re(P) cos theta - Im(P) sin theta`), with its mean fitted too.
-fn phasor(theta: &[f64], x: &[f64]) -> (f64, f64) {
-    let rows: Vec<[f64; 3]> = theta
-        .iter()
-        .map(|t| {
-            let (s, c) = t.sin_cos();
-            [s, c, 1.0]
-        })
-        .collect();
-    least_squares(&rows, x).map_or((0.0, 0.0), |f| (f.coefficients[1], -f.coefficients[0]))
-}
-
-/// Complex product.
-fn cmul(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
-    (a.0 * b.0 - a.1 * b.1, a.0 * b.1 + a.1 * b.0)
-}
-
-/// The weights on `[sin theta, cos theta]` of the signal `Re(Q e^(j theta))` and of its
-/// quadrature `Re(j Q e^(j theta))`.
-fn sine_weights(q: (f64, f64)) -> [Vec<f64>; 2] {
-    [vec![-q.1, q.0], vec![-q.0, -q.1]]
-}
-
 /// Per group: the statistics of `[sin theta, cos theta]` against the residual, from which
 /// every variant of a candidate that lives at the command frequency is mixed
 /// ([`Stats::mixed`]).
@@ -316,11 +325,9 @@ fn mode(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     let slide: Vec<(f64, f64)> = ctx.par_iter().map(|c| phasor(&c.theta, &c.data.z_enc_um[c.start..])).collect();
     let variants: Vec<(f64, f64)> = freqs.iter().flat_map(|f| ZETAS.iter().map(move |z| (*f, *z))).collect();
     let response = |c: &GroupCtx, (f_mode, zeta): (f64, f64)| {
-        let r = c.sample.info.freq_hz / f_mode;
+        let h = mode_high_pass(c.sample.info.freq_hz, f_mode, zeta);
         let norm = (F_REF_HZ / f_mode).powi(2);
-        let den = (1.0 - r * r, 2.0 * zeta * r);
-        let mag2 = den.0 * den.0 + den.1 * den.1;
-        (r * r * den.0 / mag2 / norm, -r * r * den.1 / mag2 / norm)
+        (h.0 / norm, h.1 / norm)
     };
     let stats: Vec<Vec<Stats>> = variants
         .par_iter()
@@ -332,14 +339,51 @@ fn mode(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                     // The mode's response, and the acceleration's quadrature (the old twin's
                     // prediction moved by what the accelerometer sees of the mode).
                     let w2 = (c.sample.info.freq_hz / F_REF_HZ).powi(2);
-                    let [in_phase, _] = sine_weights(cmul(response(c, *v), *p));
+                    let [in_phase, _] = sine_weights(mul(response(c, *v), *p));
                     let [_, quadrature] = sine_weights((w2 * p.0, w2 * p.1));
                     b.mixed(&[in_phase, quadrature])
                 })
                 .collect()
         })
         .collect();
-    let (improvements, best, theta) = cross_validate(&stats, folds);
+    let plain = cross_validate(&stats, folds);
+    // The same mode beyond a smooth linear response of the axis (a velocity bank on the
+    // command, as `fit` carries it): a twin fitted on this data has followed a resonance
+    // with its formulas as far as they could, and left a residual that a mode alone does not
+    // fit. The credit is what the mode adds to the bank, held out.
+    let bank: Vec<Vec<Vec<f64>>> = ctx
+        .par_iter()
+        .map(|c| {
+            let x = phasor(&c.theta, &c.data.z_cmd_um[c.start..]);
+            let stages: [Complex; LAGUERRE_STAGES] = velocity_bank(c.sample.info.freq_hz, x, 1e3, LAGUERRE_POLE);
+            stages.iter().map(|s| sine_weights(*s)[0].clone()).collect()
+        })
+        .collect();
+    let bank_stats: Vec<Stats> = base.iter().zip(&bank).map(|(b, w)| b.mixed(w)).collect();
+    let both: Vec<Vec<Stats>> = variants
+        .par_iter()
+        .map(|v| {
+            ctx.iter()
+                .zip(&base)
+                .zip(&slide)
+                .zip(&bank)
+                .map(|(((c, b), p), w)| {
+                    let mut columns = w.clone();
+                    columns.push(sine_weights(mul(response(c, *v), *p))[0].clone());
+                    b.mixed(&columns)
+                })
+                .collect()
+        })
+        .collect();
+    let beyond = cross_validate_beyond(&bank_stats, &both, folds);
+    let beyond_bank = beyond.0.iter().sum::<f64>() > plain.0.iter().sum::<f64>();
+    let (improvements, best, theta) = if beyond_bank {
+        let (improvements, best, theta) = beyond;
+        // The mode's coefficient is the last.
+        (improvements, best, vec![theta.last().copied().unwrap_or(0.0), 0.0])
+    } else {
+        plain
+    };
     let (f_mode, zeta) = variants[best];
     let g = theta.first().copied().unwrap_or(0.0).hypot(theta.get(1).copied().unwrap_or(0.0));
     let in_band = f_mode < top_hz;
@@ -428,7 +472,8 @@ fn setpoint_delay(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                 .zip(&tool)
                 .map(|((c, b), y)| {
                     let phi = 2.0 * PI * c.sample.info.freq_hz * tau_us * 1e-6;
-                    let late = cmul((phi.cos() - 1.0, -phi.sin()), *y);
+                    let d = delay(phi);
+                    let late = mul((d.0 - 1.0, d.1), *y);
                     b.mixed(&sine_weights(late)[..1])
                 })
                 .collect()

@@ -240,10 +240,14 @@ fn sums_of_squares(groups: &[GroupCtx]) -> (f64, usize) {
 }
 
 /// A group's held-out reduction `d` of its residual's sum of squares `ss`, relative to that
-/// sum (the group's explained fraction; 0 for a group without residual).
+/// sum (the group's explained fraction; 0 for a group without residual), at least -1. It
+/// is at most 1 by construction; below, a group with next to no residual would let one
+/// small misprediction outweigh every other group (a 6 Hz group at 0.6 of 35 groups once
+/// gave -15.8 against +0.9 elsewhere), and the bound is odd-symmetric, so the sign-flip
+/// test stays valid.
 fn relative_improvement(d: f64, ss: f64) -> f64 {
     if ss > 0.0 {
-        d / ss
+        (d / ss).max(-1.0)
     } else {
         0.0
     }

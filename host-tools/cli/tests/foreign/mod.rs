@@ -1,6 +1,7 @@
 //! A machine that is not our emulator: a two-mass Z slide under a cascaded servo (P position
 //! loop, PI velocity loop on a filtered encoder difference, partial velocity feedforward),
-//! with LuGre friction, written here from textbook equations and nothing of `sts-emulator`
+//! with LuGre friction, a lightly damped tool-post mode (a modal mass on the carrier) and a
+//! late setpoint as options, written here from textbook equations and nothing of `sts-emulator`
 //! or of the twin's own axis model (which is a PID with its friction a static map). Its
 //! measurements are written as a lab would export them: CSV files by hand, columns in another
 //! order, CRLF line ends, other decimals, no ADC scale in the manifest.
@@ -24,6 +25,18 @@ pub struct Lugre {
     pub stribeck_mps: f64,
     pub sigma0_n_per_m: f64,
     pub sigma1_ns_per_m: f64,
+}
+
+/// A lightly damped mode of the tool post inside the test band: a modal mass on a spring
+/// and damper riding on the tool carrier (`m r'' + c r' + k r = -m x2''`, `r` its motion
+/// against the carrier), reacting on the carrier; the tool tip and the accelerometer see
+/// `share` of it (their mode-shape value relative to the modal mass's).
+#[derive(Clone, Copy, Debug)]
+pub struct ToolMode {
+    pub freq_hz: f64,
+    pub damping: f64,
+    pub modal_kg: f64,
+    pub share: f64,
 }
 
 /// The foreign machine's parameters.
@@ -56,6 +69,11 @@ pub struct Foreign {
     /// The recorder's rate, Hz (the servo's or another).
     pub record_hz: f64,
     pub friction: Option<Lugre>,
+    /// A mode of the tool post, if any.
+    pub tool_mode: Option<ToolMode>,
+    /// How late the position command reaches the controller (an interpolator or bus ahead
+    /// of the loop), s; the recorded command is the one sent.
+    pub setpoint_delay_s: f64,
 }
 
 impl Default for Foreign {
@@ -83,12 +101,14 @@ impl Default for Foreign {
             probe_gain: 1.0,
             record_hz: RATE_HZ,
             friction: None,
+            tool_mode: None,
+            setpoint_delay_s: 0.0,
         }
     }
 }
 
 /// Continuous state: slide and carrier position (m) and velocity, motor force (N), bristle
-/// deflection (m).
+/// deflection (m), the tool mode's motion against the carrier (m) and its velocity.
 #[derive(Clone, Copy, Default)]
 struct State {
     x1: f64,
@@ -97,6 +117,8 @@ struct State {
     v2: f64,
     force: f64,
     z: f64,
+    r: f64,
+    vr: f64,
 }
 
 impl Foreign {
@@ -114,14 +136,31 @@ impl Foreign {
     fn derivative(&self, s: &State, force_cmd: f64) -> State {
         let (friction, dz) = self.friction_n(s);
         let spring = self.coupling_n_per_m * (s.x2 - s.x1) + self.coupling_ns_per_m * (s.v2 - s.v1);
+        // The tool mode's spring and damper pull the carrier as they push the modal mass.
+        let (mode_n, stiffness, damping, modal_kg) = match self.tool_mode {
+            Some(m) => {
+                let w = 2.0 * PI * m.freq_hz;
+                let (k, c) = (m.modal_kg * w * w, 2.0 * m.damping * m.modal_kg * w);
+                (k * s.r + c * s.vr, k, c, m.modal_kg)
+            }
+            None => (0.0, 0.0, 0.0, 1.0),
+        };
+        let a2 = (-spring + mode_n) / self.carrier_kg;
         State {
             x1: s.v1,
             v1: (s.force - friction - self.drag_ns_per_m * s.v1 + spring) / self.slide_kg,
             x2: s.v2,
-            v2: -spring / self.carrier_kg,
+            v2: a2,
             force: (force_cmd - s.force) / self.current_tau_s,
             z: dz,
+            r: s.vr,
+            vr: if self.tool_mode.is_some() { -(stiffness * s.r + damping * s.vr) / modal_kg - a2 } else { 0.0 },
         }
+    }
+
+    /// The share of the tool mode that the tool tip and the accelerometer see.
+    fn mode_share(&self) -> f64 {
+        self.tool_mode.map_or(0.0, |m| m.share)
     }
 
     fn rk4(&self, s: &State, force_cmd: f64, dt: f64) -> State {
@@ -132,6 +171,8 @@ impl Foreign {
             v2: a.v2 + h * b.v2,
             force: a.force + h * b.force,
             z: a.z + h * b.z,
+            r: a.r + h * b.r,
+            vr: a.vr + h * b.vr,
         };
         let k1 = self.derivative(s, force_cmd);
         let k2 = self.derivative(&add(s, &k1, dt / 2.0), force_cmd);
@@ -145,6 +186,8 @@ impl Foreign {
             (&mut out.v2, (k1.v2, (k2.v2, (k3.v2, k4.v2)))),
             (&mut out.force, (k1.force, (k2.force, (k3.force, k4.force)))),
             (&mut out.z, (k1.z, (k2.z, (k3.z, k4.z)))),
+            (&mut out.r, (k1.r, (k2.r, (k3.r, k4.r)))),
+            (&mut out.vr, (k1.vr, (k2.vr, (k3.vr, k4.vr)))),
         ] {
             *o += dt / 6.0 * (a + 2.0 * b + 2.0 * c + d);
         }
@@ -165,7 +208,8 @@ impl Foreign {
         let (mut enc_prev, mut vel_est, mut integral, mut cmd_prev) = (0.0, 0.0, 0.0, 0.0);
         let mut pending = vec![0.0; self.delay_ticks.max(1)];
         let alpha = 1.0 - (-2.0 * PI * self.vel_filter_hz * ts).exp();
-        let command = |t: f64| amp_um * 1e-6 * (2.0 * PI * freq_hz * t).sin();
+        // At rest before the start (a late setpoint reaches back there).
+        let command = |t: f64| if t < 0.0 { 0.0 } else { amp_um * 1e-6 * (2.0 * PI * freq_hz * t).sin() };
         let encoder = |x: f64| (x / (self.encoder_um * 1e-6)).round() * self.encoder_um * 1e-6;
         let records = (duration_s * self.record_hz).round() as usize;
         // The sensors' noise has a density: per sample it grows with the recorder's bandwidth
@@ -176,12 +220,15 @@ impl Foreign {
             if i % record_every == 0 {
                 out[0].push(command(t) * 1e6);
                 out[1].push(encoder(s.x1) * 1e6);
-                out[2].push(self.probe_gain * s.x2 * 1e6 + noise_scale * self.probe_noise_um * noise.gaussian());
-                out[3].push(self.derivative(&s, pending[0]).v2 + noise_scale * self.acc_noise_mps2 * noise.gaussian());
+                let tool_m = s.x2 + self.mode_share() * s.r;
+                out[2].push(self.probe_gain * tool_m * 1e6 + noise_scale * self.probe_noise_um * noise.gaussian());
+                let d = self.derivative(&s, pending[0]);
+                let tool_mps2 = d.v2 + self.mode_share() * d.vr;
+                out[3].push(tool_mps2 + noise_scale * self.acc_noise_mps2 * noise.gaussian());
             }
             if i % SUBSTEPS == 0 {
                 // The controller: velocity from the encoder's difference, filtered.
-                let (cmd, enc) = (command(t), encoder(s.x1));
+                let (cmd, enc) = (command(t - self.setpoint_delay_s), encoder(s.x1));
                 vel_est += alpha * ((enc - enc_prev) / ts - vel_est);
                 enc_prev = enc;
                 let vel_cmd = self.kpp_per_s * (cmd - enc) + self.vff * (cmd - cmd_prev) / ts;

@@ -10,8 +10,9 @@
 //! | `coulomb-friction`, `presliding-hysteresis`, `force-ripple` | one servo-axis twin ([`axis`], [`sts_twin_core::axis`]): the controller, slide, mode and the effects simulated from the command, identified on the encoder and probe readings |
 //! | `thermal-drift` | `offset + decay exp(-t / tau)` over machine time |
 //! | `axis-coupling` | X acceleration gain and the spindle's once-per-revolution sine |
-//! | `setpoint-delay` | a Laguerre bank on the command velocity: the axis's linear response to the command (the delay and the servo's own lag) |
-//! | `structural-mode`, `loop-delay` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
+//! | `setpoint-delay` | a Laguerre bank on the command velocity: the axis's linear response to the command (the delay and the servo's own lag) ([`linear`]) |
+//! | `structural-mode` inside the band | a resonance (the second-order high-pass of the command) beside a Laguerre bank on the command velocity ([`linear`]) |
+//! | `structural-mode` above the band, `loop-delay` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
 //! | `sensor-gain` | a probe gain (estimated on the slowest groups) is taken out of the readings and recorded in the model file, so that `compare` and `diagnose` read data as the fit did; an accelerometer gain is carried by the refitted formulas |
 //!
 //! How: the terms are fitted first: drift and coupling on what the formulas can never explain
@@ -26,6 +27,7 @@
 //! effect's estimated parameters; the terms are in the program itself.
 
 pub mod axis;
+mod linear;
 
 use std::f64::consts::PI;
 use std::path::Path;
@@ -33,16 +35,17 @@ use std::path::Path;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sts_dataset::{Dataset, GroupData};
-use sts_twin_core::program::{TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
+use sts_twin_core::program::{TermInput, TickTerm};
 
-use sts_analysis::bases::laguerre;
 use sts_analysis::lsq::{solve, Stats};
-use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_analysis::targets;
 use sts_model::EFFECTS;
 use sts_model::{hex_encode, ModelFile};
 
 use crate::FitError;
+
+/// The effects the servo-axis twin carries.
+const AXIS_EFFECTS: [&str; 3] = ["coulomb-friction", "presliding-hysteresis", "force-ripple"];
 
 /// Laguerre pole of the effect terms (the same as the diagnosis's).
 pub const POLE: f64 = 0.93;
@@ -268,6 +271,24 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
     let mut terms = Vec::new();
     let mut records = Vec::new();
     let mut axis_names: Vec<String> = Vec::new();
+    // An in-band mode brings its own velocity bank, which a setpoint delay then shares (two
+    // banks and a resonance would exceed the tick's budget). With a servo-axis twin, which
+    // simulates the axis's whole linear response itself (a late setpoint in its command
+    // delay), the mode keeps its resonance only, and the axis is identified on readings
+    // without it (the axis's own mode lies above the band).
+    let has_axis = names.iter().any(|n| AXIS_EFFECTS.contains(&n.as_str()));
+    let in_band_mode = if names.iter().any(|n| n == "structural-mode") {
+        linear::fit_mode(dataset, &inputs)?.map(|(mode_terms, params)| {
+            let kept = if has_axis {
+                mode_terms.into_iter().filter(|t| matches!(t, TickTerm::Resonance { .. })).collect()
+            } else {
+                mode_terms
+            };
+            (kept, params)
+        })
+    } else {
+        None
+    };
     for name in names {
         let (new_terms, params, note) = match name.as_str() {
             "coulomb-friction" | "presliding-hysteresis" | "force-ripple" => {
@@ -279,10 +300,37 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
                 let (term, params) = fit_drift(dataset, &inputs, fs);
                 (vec![term], params, "offset + decay * exp(-t / tau) over machine time".to_string())
             }
+            "setpoint-delay" if has_axis => (
+                Vec::new(),
+                Vec::new(),
+                "carried by the servo-axis twin, which simulates the axis from the command (its command delay)".to_string(),
+            ),
+            "setpoint-delay" if in_band_mode.is_some() => (
+                Vec::new(),
+                Vec::new(),
+                "carried by the in-band structural mode's velocity bank (the axis's linear response to the command)".to_string(),
+            ),
             "setpoint-delay" => {
-                let (term, params) = fit_setpoint_delay(dataset, &inputs)?;
+                let (term, params) = linear::fit_setpoint_delay(dataset, &inputs)?;
                 (vec![term], params, "the axis's linear response to the command velocity (a Laguerre bank): the setpoint's delay and the servo's own lag, so that the formulas fit only what is left".to_string())
             }
+            "structural-mode" => match &in_band_mode {
+                Some((mode_terms, params)) if has_axis => (
+                    mode_terms.clone(),
+                    params.clone(),
+                    "a mode inside the measurement's band: a resonance term (the second-order high-pass of the command at the mode's frequency and damping) beside the servo-axis twin, which is identified on the readings without it".to_string(),
+                ),
+                Some((mode_terms, params)) => (
+                    mode_terms.clone(),
+                    params.clone(),
+                    "a mode inside the measurement's band: a resonance term (the second-order high-pass of the command at the mode's frequency and damping) beside a Laguerre bank on the command velocity for the rest of the axis's linear response, fitted together".to_string(),
+                ),
+                None => (
+                    Vec::new(),
+                    Vec::new(),
+                    "a mode above the measurement's band: a linear change of the response at the command frequency, carried by the refitted amplitude and phase formulas".to_string(),
+                ),
+            },
             "axis-coupling" => {
                 let (term, params) = fit_coupling(dataset, &inputs)?;
                 (vec![term], params, "X acceleration gain and spindle once-per-revolution sine (the bus carries both; a machine without them sends zero)".to_string())
@@ -293,7 +341,30 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         terms.extend(new_terms);
     }
     if !axis_names.is_empty() {
-        let (term, axis_records) = fit_axis(dataset, &inputs, &axis_names)?;
+        let (term, axis_records) = match in_band_mode.as_ref().map(|(t, _)| t.as_slice()) {
+            Some(resonance) if !resonance.is_empty() => {
+                // The probe without the in-band mode's motion.
+                let mut without = dataset.clone();
+                without.groups.par_iter_mut().zip(dataset.manifest.groups.par_iter()).for_each(|(g, info)| {
+                    let out = terms_output(resonance, g, info.start_s, fs);
+                    for (z, o) in g.z_tcp_um.iter_mut().zip(out) {
+                        *z -= o;
+                    }
+                });
+                let inputs: Vec<GroupInputs> = without
+                    .manifest
+                    .groups
+                    .par_iter()
+                    .zip(without.groups.par_iter())
+                    .map(|(info, g)| {
+                        group_inputs(g, fs, info.freq_hz)
+                            .map_err(|source| FitError::Targets { file: info.file.clone(), source })
+                    })
+                    .collect::<Result<_, FitError>>()?;
+                fit_axis(&without, &inputs, &axis_names)?
+            }
+            _ => fit_axis(dataset, &inputs, &axis_names)?,
+        };
         terms.push(term);
         records.extend(axis_records);
     }
@@ -485,49 +556,6 @@ fn project_out_fundamental_keep_mean(y: &[f64], theta: &[f64]) -> Vec<f64> {
     let st = Stats::from_columns(&[s.clone(), c.clone(), vec![1.0; y.len()]], y);
     let th = solve(&[&st]);
     y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k]).collect()
-}
-
-/// A setpoint delay makes the whole response late: the error gains `cmd(t - tau) - cmd(t)`,
-/// a linear filter of the command velocity. A Laguerre bank on the velocity (the velocity
-/// sign's input with a smoothing wider than any velocity of the measurement, so linear over
-/// it and bounded beyond) is fitted by least squares on the whole dynamic error; it takes
-/// the delay and the servo's own velocity lag, and the formulas fit what is left.
-fn fit_setpoint_delay(dataset: &Dataset, inputs: &[GroupInputs]) -> Result<(TickTerm, Vec<(String, f64)>), FitError> {
-    let fastest = inputs
-        .iter()
-        .flat_map(|gi| gi.pos_nm.windows(5).map(|w| (i64::from(w[4]) - i64::from(w[0])).abs()))
-        .max()
-        .unwrap_or(0);
-    // A quarter above the fastest measured, within the 32-bit division's range.
-    let smooth = ((fastest as f64 * 1.25).ceil() as i32).clamp(1, VELOCITY_SMOOTH_32_BIT_LIMIT - 1);
-    let kind = TermInput::VelocitySign { smooth_nm_per_4_ticks: smooth };
-    let stats: Vec<Stats> = dataset
-        .groups
-        .par_iter()
-        .zip(inputs.par_iter())
-        .map(|(g, gi)| {
-            let cols = laguerre(&term_input(&kind, &gi.pos_nm), gi.start, POLE, LAGUERRE_STAGES);
-            let de: Vec<f64> = (gi.start..g.len()).map(|k| g.z_tcp_um[k] - g.z_cmd_um[k]).collect();
-            Stats::from_columns(&cols, &de)
-        })
-        .collect();
-    let theta = solve(&stats.iter().collect::<Vec<_>>());
-    let mut gains_pm = [0i32; LAGUERRE_STAGES];
-    for (g, t) in gains_pm.iter_mut().zip(&theta) {
-        let pm = (t * 1e6).round();
-        if pm.is_nan() || pm.abs() >= f64::from(i32::MAX) {
-            return Err(FitError::TermOutOfRange { effect: "setpoint-delay".into(), value_um: *t });
-        }
-        *g = pm as i32;
-    }
-    // The bank's gain at zero frequency gives the response's lag behind a steady velocity:
-    // every stage passes a constant `u` as `sqrt(1 - a^2) / (1 - a)`.
-    let dc = (1.0 - POLE * POLE).sqrt() / (1.0 - POLE);
-    let um_per_unit = theta.iter().sum::<f64>() * dc;
-    let um_per_s_per_unit = f64::from(smooth) * 1e-3 / (4.0 / SERVO_RATE_HZ);
-    let lag_us = -um_per_unit / um_per_s_per_unit * 1e6;
-    let term = TickTerm::Laguerre { input: kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm };
-    Ok((term, vec![("velocity_lag_us".into(), lag_us), ("velocity_scale_nm_per_4_ticks".into(), f64::from(smooth))]))
 }
 
 fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> Result<(TickTerm, Vec<(String, f64)>), FitError> {

@@ -163,6 +163,9 @@ pub enum ExplainError {
     Assess(#[from] AssessError),
 }
 
+/// Significant candidates a rung tries, strongest first, before it stops.
+const MAX_TRIES: usize = 3;
+
 /// Runs the loop on `dataset`, from `base` or from a twin fitted on the data.
 pub fn explain(
     dataset: &Dataset,
@@ -189,12 +192,19 @@ pub fn explain(
         let names: Vec<String> = records.iter().map(|r| r.effect.clone()).collect();
         progress(ExplainProgress::Diagnosing { effects: &names });
         let d = diagnose(dataset, &model)?;
+        // The significant candidates the twin does not carry yet, strongest first: when the
+        // first brings no gain (or cannot be added), the next may (a weaker effect named first
+        // ahead of a stronger one that its term would carry, say).
+        let tries: Vec<usize> = (0..d.ranking.len())
+            .filter(|&i| d.ranking[i].significant && !names.contains(&d.ranking[i].effect))
+            .take(MAX_TRIES)
+            .collect();
         let stop = if d.verdict == "none" {
             Some(Stop::None)
-        } else if names.contains(&d.verdict) {
+        } else if tries.is_empty() {
             Some(Stop::AlreadyCarried { effect: d.verdict.clone() })
         } else if steps.len() >= config.max_effects {
-            Some(Stop::MaxEffects { next: d.verdict.clone() })
+            Some(Stop::MaxEffects { next: d.ranking[tries[0]].effect.clone() })
         } else {
             None
         };
@@ -213,29 +223,38 @@ pub fn explain(
         if let Some(stop) = stop {
             return done(stop, d, steps, model, records);
         }
-        let named = &d.ranking[0];
-        let mut with: Vec<String> = names.clone();
-        with.push(d.verdict.clone());
-        progress(ExplainProgress::Refitting { effects: &with });
-        let refit = prepare(dataset, &with).and_then(|prepared| {
-            let m = fit(&prepared.dataset, description, &config.fit, &mut |_| {})?;
-            Ok((prepared.attach(m)?, prepared.records))
-        });
-        let (next_model, next_records) = match refit {
-            Ok(r) => r,
-            Err(e) => {
-                let stop = Stop::CannotAdd { effect: d.verdict.clone(), reason: e.to_string() };
-                return done(stop, d, steps, model, records);
-            }
-        };
-        let after_um = next_model.validation.waveform_rms_um;
-        if after_um.is_nan() || after_um >= rms_um {
-            let stop = Stop::NoGain { effect: d.verdict.clone(), waveform_rms_um: after_um };
-            return done(stop, d, steps, model, records);
+        let mut first_failure: Option<Stop> = None;
+        let mut added = None;
+        for &i in &tries {
+            let named = &d.ranking[i];
+            let mut with: Vec<String> = names.clone();
+            with.push(named.effect.clone());
+            progress(ExplainProgress::Refitting { effects: &with });
+            let refit = prepare(dataset, &with).and_then(|prepared| {
+                let m = fit(&prepared.dataset, description, &config.fit, &mut |_| {})?;
+                Ok((prepared.attach(m)?, prepared.records))
+            });
+            let failure = match refit {
+                Err(e) => Stop::CannotAdd { effect: named.effect.clone(), reason: e.to_string() },
+                Ok((m, _)) if m.validation.waveform_rms_um.is_nan() || m.validation.waveform_rms_um >= rms_um => {
+                    Stop::NoGain { effect: named.effect.clone(), waveform_rms_um: m.validation.waveform_rms_um }
+                }
+                Ok(r) => {
+                    added = Some((i, r));
+                    break;
+                }
+            };
+            first_failure.get_or_insert(failure);
         }
-        let params = next_records.iter().find(|r| r.effect == d.verdict).map_or_else(Vec::new, |r| r.params.clone());
+        let Some((i, (next_model, next_records))) = added else {
+            let stop = first_failure.unwrap_or(Stop::None);
+            return done(stop, d, steps, model, records);
+        };
+        let named = &d.ranking[i];
+        let after_um = next_model.validation.waveform_rms_um;
+        let params = next_records.iter().find(|r| r.effect == named.effect).map_or_else(Vec::new, |r| r.params.clone());
         steps.push(Step {
-            effect: d.verdict.clone(),
+            effect: named.effect.clone(),
             explained_fraction: named.explained_fraction,
             p_value: named.p_value,
             evidence: named.evidence.clone(),

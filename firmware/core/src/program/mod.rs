@@ -44,8 +44,9 @@ pub use builder::ProgramBuilder;
 pub use builtin::{paper_program, PAPER_PROGRAM_ID};
 pub use eval::{EvalError, ModelOutput};
 pub use term::{
-    laguerre_stages_are_narrow, tick_cost, TermInput, TickTerm, LAGUERRE_STAGES, MAX_HARMONIC_ORDER,
-    NARROW_POLE_MAX_Q30, TICK_BUDGET_INSTRUCTIONS, VELOCITY_SMOOTH_32_BIT_LIMIT,
+    laguerre_stages_are_narrow, resonance_params_ok, tick_cost, TermInput, TickTerm, LAGUERRE_STAGES,
+    MAX_HARMONIC_ORDER, NARROW_POLE_MAX_Q30, RESONANCE_DAMPING_RANGE, RESONANCE_FREQ_RANGE_HZ, RESONANCE_GAIN_MAX,
+    TICK_BUDGET_INSTRUCTIONS, VELOCITY_SMOOTH_32_BIT_LIMIT,
 };
 pub use validate::ProgramError;
 

@@ -30,6 +30,24 @@ pub fn laguerre_stages_are_narrow(pole_q30: i32, gains_pm: &[i32; LAGUERRE_STAGE
 /// a 64-bit division (a library call) does it.
 pub const VELOCITY_SMOOTH_32_BIT_LIMIT: i32 = 1 << 17;
 
+/// Lowest and highest mode frequency a [`TickTerm::Resonance`] may have, Hz (well inside the
+/// tick's Nyquist frequency, and far enough from zero that the poles are resolved in f32).
+pub const RESONANCE_FREQ_RANGE_HZ: (f32, f32) = (0.5, 1000.0);
+/// Lowest and highest damping ratio of a [`TickTerm::Resonance`] (underdamped: the closed
+/// forms of `synth::resonance`).
+pub const RESONANCE_DAMPING_RANGE: (f32, f32) = (0.005, 0.95);
+/// Largest gain magnitude of a [`TickTerm::Resonance`] (tool motion per unit of the
+/// high-passed command).
+pub const RESONANCE_GAIN_MAX: f32 = 20.0;
+
+/// Whether a resonance's parameters are within the ranges the closed forms and f32 hold.
+pub fn resonance_params_ok(freq_hz: f32, damping: f32, gain: f32) -> bool {
+    (RESONANCE_FREQ_RANGE_HZ.0..=RESONANCE_FREQ_RANGE_HZ.1).contains(&freq_hz)
+        && (RESONANCE_DAMPING_RANGE.0..=RESONANCE_DAMPING_RANGE.1).contains(&damping)
+        && gain.is_finite()
+        && gain.abs() <= RESONANCE_GAIN_MAX
+}
+
 /// Highest harmonic order a [`TickTerm::Harmonic`] may have.
 pub const MAX_HARMONIC_ORDER: u8 = 15;
 
@@ -141,7 +159,7 @@ impl TickTerm {
             Self::Drift { tau_ticks, .. } => tau_ticks >= 256,
             Self::AxisCoupling { .. } => true,
             Self::Axis(params) => params.check().is_ok(),
-            Self::Resonance { freq_hz, damping, gain } => crate::synth::resonance_params_ok(freq_hz, damping, gain),
+            Self::Resonance { freq_hz, damping, gain } => resonance_params_ok(freq_hz, damping, gain),
             Self::Laguerre { input, pole_q30, .. } => {
                 let input_ok = match input {
                     TermInput::VelocitySign { smooth_nm_per_4_ticks } => smooth_nm_per_4_ticks >= 1,

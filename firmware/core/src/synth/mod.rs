@@ -38,9 +38,7 @@ pub use crate::math::{deg_to_turns, sin_q31, um_to_pm};
 pub use crate::program::{laguerre_stages_are_narrow, NARROW_POLE_MAX_Q30, VELOCITY_SMOOTH_32_BIT_LIMIT};
 pub use harmonics::SynthTargets;
 pub use kernel::DRIFT_STEP_TICKS;
-pub use resonance::{
-    resonance_params_ok, Resonance, RESONANCE_DAMPING_RANGE, RESONANCE_FREQ_RANGE_HZ, RESONANCE_GAIN_MAX,
-};
+pub use resonance::Resonance;
 
 use crate::program::{ModelOutput, TickTerm, MAX_TERMS};
 use harmonics::Harmonics;

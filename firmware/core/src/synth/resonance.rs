@@ -12,18 +12,10 @@
 //! the same code on host and target gives the same bits. The coefficients come from f64
 //! closed forms (libm, once when the term starts).
 
-use crate::program::TickTerm;
+use crate::program::{resonance_params_ok, TickTerm};
 
 /// Servo tick, s.
 const TICK_S: f64 = 1.0 / 8000.0;
-
-/// Lowest and highest mode frequency a term may have, Hz (well inside the tick's Nyquist
-/// frequency, and far enough from zero that the poles are resolved in f32).
-pub const RESONANCE_FREQ_RANGE_HZ: (f32, f32) = (0.5, 1000.0);
-/// Lowest and highest damping ratio (underdamped: the closed forms below).
-pub const RESONANCE_DAMPING_RANGE: (f32, f32) = (0.005, 0.95);
-/// Largest gain magnitude (tool motion per unit of the high-passed command).
-pub const RESONANCE_GAIN_MAX: f32 = 20.0;
 
 /// A resonance's coefficients and state.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -102,14 +94,6 @@ impl Resonance {
         // bounded.
         i64::from((self.gain_pm_per_nm * q) as i32)
     }
-}
-
-/// Whether a resonance's parameters are within the ranges the closed forms and f32 hold.
-pub fn resonance_params_ok(freq_hz: f32, damping: f32, gain: f32) -> bool {
-    (RESONANCE_FREQ_RANGE_HZ.0..=RESONANCE_FREQ_RANGE_HZ.1).contains(&freq_hz)
-        && (RESONANCE_DAMPING_RANGE.0..=RESONANCE_DAMPING_RANGE.1).contains(&damping)
-        && gain.is_finite()
-        && gain.abs() <= RESONANCE_GAIN_MAX
 }
 
 #[cfg(test)]

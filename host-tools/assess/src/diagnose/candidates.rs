@@ -96,33 +96,34 @@ pub fn dahl(x: &[f64], x0_um: f64) -> Vec<f64> {
         .collect()
 }
 
+/// The variant whose least-squares fit over `groups` leaves the least, and its theta.
+fn best_variant(stats: &[Vec<Stats>], groups: &[usize]) -> (usize, Vec<f64>) {
+    let mut best = (0usize, Vec::new(), f64::INFINITY);
+    for (v, st) in stats.iter().enumerate() {
+        let train: Vec<&Stats> = groups.iter().map(|&g| &st[g]).collect();
+        let theta = solve(&train);
+        let sse: f64 = train.iter().map(|s| s.sse(&theta)).sum();
+        if sse < best.2 {
+            best = (v, theta, sse);
+        }
+    }
+    (best.0, best.1)
+}
+
 /// Cross-validation over grid variants: `stats[v][g]` for variant v, group g.
 /// Returns per-group held-out improvements, the variant chosen on all groups and its theta.
 fn cross_validate(stats: &[Vec<Stats>], folds: usize) -> (Vec<f64>, usize, Vec<f64>) {
     let n = stats.first().map_or(0, |s| s.len());
     let mut improvements = vec![0.0; n];
-    let best_variant = |groups: &[usize]| -> (usize, Vec<f64>) {
-        let mut best = (0usize, Vec::new(), f64::INFINITY);
-        for (v, st) in stats.iter().enumerate() {
-            let train: Vec<&Stats> = groups.iter().map(|&g| &st[g]).collect();
-            let theta = solve(&train);
-            let sse: f64 = train.iter().map(|s| s.sse(&theta)).sum();
-            if sse < best.2 {
-                best = (v, theta, sse);
-            }
-        }
-        (best.0, best.1)
-    };
     for fold in 0..folds {
         let train: Vec<usize> = (0..n).filter(|g| g % folds != fold).collect();
-        let (v, theta) = best_variant(&train);
+        let (v, theta) = best_variant(stats, &train);
         for g in (0..n).filter(|g| g % folds == fold) {
             let s = &stats[v][g];
             improvements[g] = s.residual_ss() - s.sse(&theta);
         }
     }
-    let all: Vec<usize> = (0..n).collect();
-    let (v, theta) = best_variant(&all);
+    let (v, theta) = best_variant(stats, &(0..n).collect::<Vec<_>>());
     (improvements, v, theta)
 }
 
@@ -133,28 +134,15 @@ fn cross_validate(stats: &[Vec<Stats>], folds: usize) -> (Vec<f64>, usize, Vec<f
 fn cross_validate_beyond(nuisance: &[Stats], stats: &[Vec<Stats>], folds: usize) -> (Vec<f64>, usize, Vec<f64>) {
     let n = nuisance.len();
     let mut improvements = vec![0.0; n];
-    let best_variant = |groups: &[usize]| -> (usize, Vec<f64>) {
-        let mut best = (0usize, Vec::new(), f64::INFINITY);
-        for (v, st) in stats.iter().enumerate() {
-            let train: Vec<&Stats> = groups.iter().map(|&g| &st[g]).collect();
-            let theta = solve(&train);
-            let sse: f64 = train.iter().map(|s| s.sse(&theta)).sum();
-            if sse < best.2 {
-                best = (v, theta, sse);
-            }
-        }
-        (best.0, best.1)
-    };
     for fold in 0..folds {
         let train: Vec<usize> = (0..n).filter(|g| g % folds != fold).collect();
         let base_theta = solve(&train.iter().map(|&g| &nuisance[g]).collect::<Vec<_>>());
-        let (v, theta) = best_variant(&train);
+        let (v, theta) = best_variant(stats, &train);
         for g in (0..n).filter(|g| g % folds == fold) {
             improvements[g] = nuisance[g].sse(&base_theta) - stats[v][g].sse(&theta);
         }
     }
-    let all: Vec<usize> = (0..n).collect();
-    let (v, theta) = best_variant(&all);
+    let (v, theta) = best_variant(stats, &(0..n).collect::<Vec<_>>());
     (improvements, v, theta)
 }
 

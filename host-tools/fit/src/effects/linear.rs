@@ -185,7 +185,7 @@ pub(super) fn fit_mode(
     let theta = solve(&stats.iter().collect::<Vec<_>>());
     let gain = theta[LAGUERRE_STAGES];
     let resonance = TickTerm::Resonance { freq_hz: mode_hz as f32, damping: zeta as f32, gain: gain as f32 };
-    if !sts_twin_core::synth::resonance_params_ok(mode_hz as f32, zeta as f32, gain as f32) {
+    if !sts_twin_core::program::resonance_params_ok(mode_hz as f32, zeta as f32, gain as f32) {
         return Err(FitError::TermOutOfRange { effect: "structural-mode".into(), value_um: gain });
     }
     let bank = bank_term(kind, &theta[..LAGUERRE_STAGES], "structural-mode")?;

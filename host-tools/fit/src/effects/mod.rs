@@ -128,6 +128,20 @@ fn group_inputs(group: &GroupData, fs: f64, freq_hz: f64) -> Result<GroupInputs,
     })
 }
 
+/// Every group's inputs, or the first group whose targets cannot be measured.
+fn all_group_inputs(dataset: &Dataset) -> Result<Vec<GroupInputs>, FitError> {
+    let fs = dataset.manifest.sample_rate_hz;
+    dataset
+        .manifest
+        .groups
+        .par_iter()
+        .zip(dataset.groups.par_iter())
+        .map(|(info, g)| {
+            group_inputs(g, fs, info.freq_hz).map_err(|source| FitError::Targets { file: info.file.clone(), source })
+        })
+        .collect()
+}
+
 /// The window the terms are fitted on: after the start transient (0.5 s) to the end.
 fn skip_start(len: usize, fs: f64) -> usize {
     ((0.5 * fs) as usize).min(len.saturating_sub(1))
@@ -259,15 +273,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         return Ok(prepared);
     }
     let fs = dataset.manifest.sample_rate_hz;
-    let inputs: Vec<GroupInputs> = dataset
-        .manifest
-        .groups
-        .par_iter()
-        .zip(dataset.groups.par_iter())
-        .map(|(info, g)| {
-            group_inputs(g, fs, info.freq_hz).map_err(|source| FitError::Targets { file: info.file.clone(), source })
-        })
-        .collect::<Result<_, FitError>>()?;
+    let inputs = all_group_inputs(dataset)?;
     let mut terms = Vec::new();
     let mut records = Vec::new();
     let mut axis_names: Vec<String> = Vec::new();
@@ -351,17 +357,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
                         *z -= o;
                     }
                 });
-                let inputs: Vec<GroupInputs> = without
-                    .manifest
-                    .groups
-                    .par_iter()
-                    .zip(without.groups.par_iter())
-                    .map(|(info, g)| {
-                        group_inputs(g, fs, info.freq_hz)
-                            .map_err(|source| FitError::Targets { file: info.file.clone(), source })
-                    })
-                    .collect::<Result<_, FitError>>()?;
-                fit_axis(&without, &inputs, &axis_names)?
+                fit_axis(&without, &all_group_inputs(&without)?, &axis_names)?
             }
             _ => fit_axis(dataset, &inputs, &axis_names)?,
         };

@@ -128,6 +128,53 @@ fn the_axis_twin_is_bit_identical_to_the_host_core() {
     }
 }
 
+/// An in-band structural mode as `fit --effect structural-mode` carries it (a resonance in
+/// f32 beside a Laguerre bank on the command velocity) and a late setpoint (the bank alone):
+/// the same DAC codes in the firmware as in the host core, bit for bit, the resonance's
+/// output in them.
+#[test]
+fn the_linear_response_terms_are_bit_identical_to_the_host_core() {
+    use sts_twin_core::program::TermInput;
+    let _serial = sts_hil_tests::serial();
+    let bank = TickTerm::Laguerre {
+        input: TermInput::VelocitySign { smooth_nm_per_4_ticks: 1800 },
+        pole_q30: (0.93 * (1u64 << 30) as f64).round() as i32,
+        gains_pm: [-120_000, 80_000, -45_000, 30_000, -20_000, 12_000, -6_000, 3_000],
+    };
+    // A mode at 38 Hz near the tone's 40 Hz, so that its output is large.
+    let resonance = TickTerm::Resonance { freq_hz: 38.0, damping: 0.05, gain: 0.02 };
+    let inputs: Vec<InputSlot> = (0..8000).map(input).collect();
+    for (i, terms) in [vec![bank, resonance], vec![bank], vec![resonance]].into_iter().enumerate() {
+        let mut p = program(71 + i as u32, 2.0);
+        for t in &terms {
+            p.terms.push(*t).unwrap();
+        }
+        let mut sim = SimCoprocessor::boot(&[]);
+        configure(&mut sim, Some(p.clone()));
+        let expected: Vec<OutputSlot> = inputs.iter().map(|i| sim.tick(i).unwrap()).collect();
+        let mut hil = boot();
+        configure(&mut hil, Some(p));
+        let outputs = hil.hil().run_open_loop(&inputs).expect("stream");
+        let counters = status(&mut hil).counters;
+        hil.shutdown().unwrap();
+        assert_eq!(outputs.len(), expected.len());
+        for (k, (got, want)) in outputs.iter().zip(&expected).enumerate() {
+            assert_eq!(got, want, "{terms:?}: tick {k} differs");
+        }
+        assert_eq!(counters.model_late, 0, "{terms:?}: {counters:?}");
+        // The terms are in the output: without them the same core predicts otherwise.
+        let mut plain = SimCoprocessor::boot(&[]);
+        configure(&mut plain, Some(program(71 + i as u32, 2.0)));
+        let most = inputs
+            .iter()
+            .zip(&expected)
+            .map(|(i, e)| (i64::from(e.de_pred_pm) - i64::from(plain.tick(i).unwrap().de_pred_pm)).abs())
+            .max()
+            .unwrap();
+        assert!(most > 10_000, "{terms:?}: the terms add at most {most} pm");
+    }
+}
+
 /// b) and c): a new program changes the predictions; a malformed one is rejected and the old
 /// one stays in force.
 #[test]

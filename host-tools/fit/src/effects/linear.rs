@@ -25,7 +25,7 @@ use sts_analysis::lsq::{least_squares, solve, Stats};
 use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_analysis::response::{mode_high_pass, mul, phasor, velocity_bank, Complex};
 use sts_dataset::Dataset;
-use sts_twin_core::program::{TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
+use sts_twin_core::program::{resonance_params_ok, TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
 use sts_twin_core::synth::Resonance;
 
 use super::{term_input, GroupInputs, POLE};
@@ -169,6 +169,10 @@ pub(super) fn fit_mode(
         })
         .collect();
     let (mode_hz, zeta) = best_of(&fine);
+    // A band reaching past what the term holds (a mode above 1 kHz): the formulas carry it.
+    if !resonance_params_ok(mode_hz as f32, zeta as f32, 1.0) {
+        return Ok(None);
+    }
     // The bank and the resonance (unit gain, the firmware's own filter) on the samples.
     let unit = TickTerm::Resonance { freq_hz: mode_hz as f32, damping: zeta as f32, gain: 1.0 };
     let stats: Vec<Stats> = inputs
@@ -176,8 +180,11 @@ pub(super) fn fit_mode(
         .enumerate()
         .map(|(i, gi)| {
             let mut cols = laguerre(&term_input(&kind, &gi.pos_nm), gi.start, POLE, LAGUERRE_STAGES);
-            let mut resonance = Resonance::new(&unit).expect("grid parameters are valid");
-            let q: Vec<f64> = gi.pos_nm.iter().map(|p| resonance.step(*p) as f64 * 1e-6).collect();
+            // Valid parameters (checked above) always give a resonance.
+            let q: Vec<f64> = match Resonance::new(&unit) {
+                Some(mut resonance) => gi.pos_nm.iter().map(|p| resonance.step(*p) as f64 * 1e-6).collect(),
+                None => vec![0.0; gi.pos_nm.len()],
+            };
             cols.push(q[gi.start..].to_vec());
             Stats::from_columns(&cols, &dynamic_error(dataset, i, gi))
         })
@@ -185,7 +192,7 @@ pub(super) fn fit_mode(
     let theta = solve(&stats.iter().collect::<Vec<_>>());
     let gain = theta[LAGUERRE_STAGES];
     let resonance = TickTerm::Resonance { freq_hz: mode_hz as f32, damping: zeta as f32, gain: gain as f32 };
-    if !sts_twin_core::program::resonance_params_ok(mode_hz as f32, zeta as f32, gain as f32) {
+    if !resonance_params_ok(mode_hz as f32, zeta as f32, gain as f32) {
         return Err(FitError::TermOutOfRange { effect: "structural-mode".into(), value_um: gain });
     }
     let bank = bank_term(kind, &theta[..LAGUERRE_STAGES], "structural-mode")?;

@@ -1,0 +1,53 @@
+//! `fit --effect` for the effects of the axis's linear response: an in-band structural mode
+//! (a resonance term beside a velocity bank) and a late setpoint (the bank), identified on
+//! emulator measurements whose parameters are known.
+
+use sts_emulator::MeasureConfig;
+use sts_fit::effects::prepare;
+use sts_twin_core::program::TickTerm;
+
+fn measure(effects: &[&str]) -> sts_dataset::Dataset {
+    let config = MeasureConfig {
+        effects: effects.iter().map(|e| e.parse().expect("effect")).collect(),
+        duration_s: 3.0,
+        seed: 5,
+        ..MeasureConfig::default()
+    };
+    sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
+}
+
+fn param(records: &[sts_fit::effects::EffectRecord], effect: &str, key: &str) -> f64 {
+    let record = records.iter().find(|r| r.effect == effect).expect("record");
+    record.params.iter().find(|(k, _)| k == key).map(|(_, v)| *v).expect("parameter")
+}
+
+#[test]
+fn an_in_band_mode_is_identified_and_carried_by_a_resonance() {
+    let data = measure(&["structural-mode:freq_hz=22,damping=0.05,tcp_gain=0.008,acc_shape=1"]);
+    let prepared = prepare(&data, &["structural-mode".to_string()]).expect("prepare");
+    let kinds: Vec<bool> = prepared.terms.iter().map(|t| matches!(t, TickTerm::Resonance { .. })).collect();
+    assert_eq!(kinds, [false, true], "a velocity bank, then the resonance: {:?}", prepared.terms);
+    let freq_hz = param(&prepared.records, "structural-mode", "freq_hz");
+    let damping = param(&prepared.records, "structural-mode", "damping");
+    let gain = param(&prepared.records, "structural-mode", "tcp_gain").abs();
+    println!("identified: {freq_hz:.2} Hz, damping {damping:.4}, modal gain {gain:.5} (true 22, 0.05, 0.008)");
+    assert!((freq_hz / 22.0 - 1.0).abs() < 0.03, "frequency {freq_hz} Hz");
+    assert!((damping / 0.05 - 1.0).abs() < 0.3, "damping {damping}");
+    assert!((gain / 0.008 - 1.0).abs() < 0.15, "modal gain {gain}");
+    // A mode above the band stays with the formulas.
+    let above = measure(&["structural-mode:freq_hz=250,damping=0.03,tcp_gain=0.8,acc_shape=1"]);
+    assert!(prepare(&above, &["structural-mode".to_string()]).expect("prepare").terms.is_empty());
+}
+
+#[test]
+fn a_late_setpoint_shows_as_the_velocity_banks_lag() {
+    let lag_us = |effects: &[&str]| {
+        let prepared = prepare(&measure(effects), &["setpoint-delay".to_string()]).expect("prepare");
+        assert!(matches!(prepared.terms.as_slice(), [TickTerm::Laguerre { .. }]), "{:?}", prepared.terms);
+        param(&prepared.records, "setpoint-delay", "velocity_lag_us")
+    };
+    // The bank's lag is the whole response's; a setpoint 300 us late adds 300 us to it.
+    let added = lag_us(&["setpoint-delay:delay_us=300"]) - lag_us(&[]);
+    println!("lag added by a setpoint 300 us late: {added:.1} us");
+    assert!((added - 300.0).abs() < 15.0, "lag added {added} us");
+}

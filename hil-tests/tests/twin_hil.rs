@@ -6,8 +6,8 @@ use std::time::Duration;
 use sts_rig::{expect_ack, Coprocessor, HilCoprocessor, SimCoprocessor};
 use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::program::TickTerm;
-use sts_twin_core::wire::{encode_frame, Rejection, Request, Response, MAX_ENCODED_FRAME};
+use sts_twin_core::program::{Program, TickTerm};
+use sts_twin_core::wire::{encode_frame, Rejection, Request, Response, Status, MAX_ENCODED_FRAME};
 
 use sts_hil_tests::tone_input as input;
 use sts_hil_tests::twin::{boot, configure, params, program, status};
@@ -72,6 +72,38 @@ fn dac_codes_are_bit_identical_to_the_host_core() {
     hil.shutdown().unwrap();
 }
 
+/// Runs `program` on `inputs` in the host core and in the firmware under QEMU, asserts that
+/// every tick's output is the same bit for bit (`what` names the case), and returns the
+/// host's outputs and the firmware's status.
+fn bit_identical_run(program: Program, inputs: &[InputSlot], what: &str) -> (Vec<OutputSlot>, Status) {
+    let mut sim = SimCoprocessor::boot(&[]);
+    configure(&mut sim, Some(program.clone()));
+    let expected: Vec<OutputSlot> = inputs.iter().map(|i| sim.tick(i).unwrap()).collect();
+    let mut hil = boot();
+    configure(&mut hil, Some(program));
+    let outputs = hil.hil().run_open_loop(inputs).expect("stream");
+    let fw = status(&mut hil);
+    hil.shutdown().unwrap();
+    assert_eq!(outputs.len(), expected.len());
+    for (k, (got, want)) in outputs.iter().zip(&expected).enumerate() {
+        assert_eq!(got, want, "{what}: tick {k} differs");
+    }
+    (expected, fw)
+}
+
+/// The largest difference, pm, between `outputs` and what the host core predicts on the same
+/// inputs with `without` (the program less the terms under test).
+fn most_added_pm(outputs: &[OutputSlot], without: Program, inputs: &[InputSlot]) -> i64 {
+    let mut plain = SimCoprocessor::boot(&[]);
+    configure(&mut plain, Some(without));
+    inputs
+        .iter()
+        .zip(outputs)
+        .map(|(i, o)| (i64::from(o.de_pred_pm) - i64::from(plain.tick(i).unwrap().de_pred_pm)).abs())
+        .max()
+        .unwrap_or(0)
+}
+
 /// The servo-axis twin (single-precision simulation of the axis in the tick) gives the same
 /// DAC codes in the firmware as in the host core, bit for bit, with each of its effects, each
 /// pair and all three (each a separately compiled instance of its step), the compensator
@@ -98,32 +130,14 @@ fn the_axis_twin_is_bit_identical_to_the_host_core() {
     for (i, params) in variants.into_iter().enumerate() {
         let mut p = program(61 + i as u32, 2.0);
         p.terms.push(TickTerm::Axis(params)).unwrap();
-        let mut sim = SimCoprocessor::boot(&[]);
-        configure(&mut sim, Some(p.clone()));
-        let expected: Vec<OutputSlot> = inputs.iter().map(|i| sim.tick(i).unwrap()).collect();
-        let mut hil = boot();
-        configure(&mut hil, Some(p));
-        let outputs = hil.hil().run_open_loop(&inputs).expect("stream");
-        let counters = status(&mut hil).counters;
-        hil.shutdown().unwrap();
-        assert_eq!(outputs.len(), expected.len());
-        for (k, (got, want)) in outputs.iter().zip(&expected).enumerate() {
-            assert_eq!(got, want, "{params:?}: tick {k} differs");
-        }
+        let (expected, fw) = bit_identical_run(p, &inputs, &format!("{params:?}"));
+        let counters = fw.counters;
         // The twin's simulation and learning, at low priority, keep up with the model period.
         assert_eq!((counters.model_late, counters.axis_resets), (0, 0), "{params:?}: {counters:?}");
         assert!(counters.model_updates > 0, "{params:?}: {counters:?}");
         // The compensator's learned correction is in the output: microns on the 3 um, 40 Hz
         // command beside the program's own fundamental.
-        let mut plain = SimCoprocessor::boot(&[]);
-        configure(&mut plain, Some(program(61 + i as u32, 2.0)));
-        let without: Vec<OutputSlot> = inputs.iter().map(|i| plain.tick(i).unwrap()).collect();
-        let most = expected
-            .iter()
-            .zip(&without)
-            .map(|(a, b)| (i64::from(a.de_pred_pm) - i64::from(b.de_pred_pm)).abs())
-            .max()
-            .unwrap();
+        let most = most_added_pm(&expected, program(61 + i as u32, 2.0), &inputs);
         assert!(most > 500_000, "{params:?}: the correction adds at most {most} pm");
     }
 }
@@ -149,28 +163,10 @@ fn the_linear_response_terms_are_bit_identical_to_the_host_core() {
         for t in &terms {
             p.terms.push(*t).unwrap();
         }
-        let mut sim = SimCoprocessor::boot(&[]);
-        configure(&mut sim, Some(p.clone()));
-        let expected: Vec<OutputSlot> = inputs.iter().map(|i| sim.tick(i).unwrap()).collect();
-        let mut hil = boot();
-        configure(&mut hil, Some(p));
-        let outputs = hil.hil().run_open_loop(&inputs).expect("stream");
-        let counters = status(&mut hil).counters;
-        hil.shutdown().unwrap();
-        assert_eq!(outputs.len(), expected.len());
-        for (k, (got, want)) in outputs.iter().zip(&expected).enumerate() {
-            assert_eq!(got, want, "{terms:?}: tick {k} differs");
-        }
-        assert_eq!(counters.model_late, 0, "{terms:?}: {counters:?}");
+        let (expected, fw) = bit_identical_run(p, &inputs, &format!("{terms:?}"));
+        assert_eq!(fw.counters.model_late, 0, "{terms:?}: {:?}", fw.counters);
         // The terms are in the output: without them the same core predicts otherwise.
-        let mut plain = SimCoprocessor::boot(&[]);
-        configure(&mut plain, Some(program(71 + i as u32, 2.0)));
-        let most = inputs
-            .iter()
-            .zip(&expected)
-            .map(|(i, e)| (i64::from(e.de_pred_pm) - i64::from(plain.tick(i).unwrap().de_pred_pm)).abs())
-            .max()
-            .unwrap();
+        let most = most_added_pm(&expected, program(71 + i as u32, 2.0), &inputs);
         assert!(most > 10_000, "{terms:?}: the terms add at most {most} pm");
     }
 }

@@ -56,6 +56,20 @@ pub fn mode_high_pass(freq_hz: f64, mode_hz: f64, zeta: f64) -> Complex {
     div((r * r, 0.0), (1.0 - r * r, 2.0 * zeta * r))
 }
 
+/// Damping ratios of the structural-mode grid.
+pub const MODE_DAMPINGS: [f64; 6] = [0.02, 0.04, 0.07, 0.12, 0.2, 0.35];
+
+/// The structural-mode grid of a test whose highest frequency is `top_hz`: `(mode frequency,
+/// damping)` pairs, frequencies inside the band from 3 Hz in 4% steps up to 0.9 of its top
+/// (so that groups above a resonance show it; at the very top a mode and the peaking of a
+/// loop with less phase margin look alike on the probe), and 2-30 times the top above it.
+/// `diagnose` names a mode and `fit --effect` carries one from the same grid.
+pub fn mode_grid(top_hz: f64) -> Vec<(f64, f64)> {
+    let mut freqs: Vec<f64> = (0..).map(|i| 3.0 * 1.04f64.powi(i)).take_while(|f| *f < 0.9 * top_hz).collect();
+    freqs.extend([2.0, 3.0, 5.0, 10.0, 30.0].iter().map(|k| k * top_hz));
+    freqs.iter().flat_map(|f| MODE_DAMPINGS.iter().map(move |z| (*f, *z))).collect()
+}
+
 /// The stage responses of a Laguerre bank (pole `pole`, `N` stages, as
 /// [`crate::bases::laguerre`]) at `freq_hz` on the command velocity over 4 servo ticks
 /// divided by `smooth_nm` (the firmware's velocity input, linear below the smoothing), for a

@@ -400,12 +400,13 @@ fn an_in_band_mode_and_a_late_setpoint_are_named_and_carried() {
             "{name:<17} clean twin {:.1} nm; {}; then {} -> {:.1} nm ({:.2}x clean), stop {}",
             before_um * 1e3,
             first.map_or("nothing named".to_string(), |s| format!(
-                "{} ({:.0}%, p = {:.1e}, {}) refitted {:.1} nm",
+                "{} ({:.0}%, p = {:.1e}: {}), refitted {:.1} nm with {}",
                 s["effect"],
                 s["explained_fraction"].as_f64().unwrap() * 100.0,
                 s["p_value"].as_f64().unwrap(),
-                s["params"],
-                after_um * 1e3
+                s["evidence"].as_str().unwrap(),
+                after_um * 1e3,
+                s["params"]
             )),
             named.join(", "),
             final_um * 1e3,

@@ -7,7 +7,9 @@ use sts_analysis::AnalysisError;
 use sts_model::{ModelError, EFFECTS};
 use sts_symreg::SymregError;
 use sts_twin_core::axis::{AxisError, AxisParams};
-use sts_twin_core::program::{ProgramError, MAX_TERMS};
+use sts_twin_core::program::{
+    ProgramError, MAX_TERMS, RESONANCE_DAMPING_RANGE, RESONANCE_FREQ_RANGE_HZ, RESONANCE_GAIN_MAX,
+};
 
 use crate::target::Target;
 
@@ -96,6 +98,19 @@ pub enum FitError {
         effect: String,
         /// The coefficient, um per unit input.
         value_um: f64,
+    },
+    /// An in-band mode's resonance is outside the firmware term's ranges.
+    #[error(
+        "--effect structural-mode: the mode at {freq_hz:.2} Hz, damping {damping:.3}, gain {gain} is outside what the firmware's resonance holds ({}-{} Hz, damping {}-{}, gain at most {}); the measurement does not show that mode in a usable form",
+        RESONANCE_FREQ_RANGE_HZ.0, RESONANCE_FREQ_RANGE_HZ.1, RESONANCE_DAMPING_RANGE.0, RESONANCE_DAMPING_RANGE.1, RESONANCE_GAIN_MAX
+    )]
+    ResonanceOutOfRange {
+        /// The mode's frequency, Hz.
+        freq_hz: f64,
+        /// Its damping ratio.
+        damping: f64,
+        /// Its gain.
+        gain: f64,
     },
     /// The effects need more per-tick terms than a program holds.
     #[error("--effect: {needed} per-tick terms needed, the program holds at most {MAX_TERMS}")]

@@ -15,7 +15,7 @@
 use crate::program::{resonance_params_ok, TickTerm};
 
 /// Servo tick, s.
-const TICK_S: f64 = 1.0 / 8000.0;
+const TICK_S: f64 = 1.0 / crate::SERVO_RATE_HZ as f64;
 
 /// A resonance's coefficients and state.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -6,7 +6,7 @@ use rayon::prelude::*;
 
 use sts_analysis::bases::laguerre;
 use sts_analysis::lsq::{solve, Stats};
-use sts_analysis::response::{delay, mode_high_pass, mul, phasor, sine_weights, velocity_bank, Complex};
+use sts_analysis::response::{delay, mode_grid, mode_high_pass, mul, phasor, sine_weights, velocity_bank, Complex};
 use sts_analysis::sine::line_amp;
 use sts_model::EFFECTS;
 
@@ -298,24 +298,21 @@ fn band_top_hz(ctx: &[GroupCtx]) -> f64 {
 /// moves by `g H(f) x_slide` with `H = r^2 / (1 - r^2 + 2 j zeta r)`, `r = f / f_mode`
 /// (a second-order resonance driven by the slide's acceleration), `g` complex (two linear
 /// coefficients: the modal gain on `H`, and the acceleration's quadrature for how the
-/// accelerometer's view of the mode moved the twin's own prediction). A grid of mode
-/// frequencies (inside the band in 4% steps, and above it) times damping ratios; `H` is normalised to `(f / 40 Hz)^2` far below the mode,
-/// where it reduces to an error in phase with the acceleration.
+/// accelerometer's view of the mode moved the twin's own prediction). On the grid of mode
+/// frequencies and damping ratios that `fit --effect` uses ([`mode_grid`]); `H` is normalised
+/// to `(f / 40 Hz)^2` far below the mode, where it reduces to an error in phase with the
+/// acceleration.
 fn mode(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     let top_hz = band_top_hz(ctx);
-    // Inside the band up to 0.9 of its top, so that groups above a resonance show it; at the
-    // very top a mode and the peaking of a loop with less phase margin (`loop-delay`) look
-    // alike on the probe.
-    let mut freqs: Vec<f64> = (0..).map(|i| 3.0 * 1.04f64.powi(i)).take_while(|f| *f < 0.9 * top_hz).collect();
-    freqs.extend([2.0, 3.0, 5.0, 10.0, 30.0].iter().map(|k| k * top_hz));
-    const ZETAS: [f64; 6] = [0.02, 0.04, 0.07, 0.12, 0.2, 0.35];
+    let variants = mode_grid(top_hz);
     let base = fundamental_stats(ctx);
-    let slide: Vec<(f64, f64)> = ctx.par_iter().map(|c| phasor(&c.theta, &c.data.z_enc_um[c.start..])).collect();
-    let variants: Vec<(f64, f64)> = freqs.iter().flat_map(|f| ZETAS.iter().map(move |z| (*f, *z))).collect();
-    let response = |c: &GroupCtx, (f_mode, zeta): (f64, f64)| {
+    let slide: Vec<Complex> = ctx.par_iter().map(|c| phasor(&c.theta, &c.data.z_enc_um[c.start..])).collect();
+    // The weights on `[sin, cos]` of the mode's motion of the tool on a slide of phasor `p`.
+    let mode_weights = |c: &GroupCtx, (f_mode, zeta): (f64, f64), p: Complex| {
         let h = mode_high_pass(c.sample.info.freq_hz, f_mode, zeta);
         let norm = (F_REF_HZ / f_mode).powi(2);
-        (h.0 / norm, h.1 / norm)
+        let [in_phase, _] = sine_weights(mul((h.0 / norm, h.1 / norm), p));
+        in_phase
     };
     let stats: Vec<Vec<Stats>> = variants
         .par_iter()
@@ -327,9 +324,8 @@ fn mode(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                     // The mode's response, and the acceleration's quadrature (the old twin's
                     // prediction moved by what the accelerometer sees of the mode).
                     let w2 = (c.sample.info.freq_hz / F_REF_HZ).powi(2);
-                    let [in_phase, _] = sine_weights(mul(response(c, *v), *p));
                     let [_, quadrature] = sine_weights((w2 * p.0, w2 * p.1));
-                    b.mixed(&[in_phase, quadrature])
+                    b.mixed(&[mode_weights(c, *v, *p), quadrature])
                 })
                 .collect()
         })
@@ -344,7 +340,13 @@ fn mode(ctx: &[GroupCtx], folds: usize) -> Evaluated {
         .map(|c| {
             let x = phasor(&c.theta, &c.data.z_cmd_um[c.start..]);
             let stages: [Complex; LAGUERRE_STAGES] = velocity_bank(c.sample.info.freq_hz, x, 1e3, LAGUERRE_POLE);
-            stages.iter().map(|s| sine_weights(*s)[0].clone()).collect()
+            stages
+                .iter()
+                .map(|s| {
+                    let [in_phase, _] = sine_weights(*s);
+                    in_phase
+                })
+                .collect()
         })
         .collect();
     let bank_stats: Vec<Stats> = base.iter().zip(&bank).map(|(b, w)| b.mixed(w)).collect();
@@ -357,7 +359,7 @@ fn mode(ctx: &[GroupCtx], folds: usize) -> Evaluated {
                 .zip(&bank)
                 .map(|(((c, b), p), w)| {
                     let mut columns = w.clone();
-                    columns.push(sine_weights(mul(response(c, *v), *p))[0].clone());
+                    columns.push(mode_weights(c, *v, *p));
                     b.mixed(&columns)
                 })
                 .collect()
@@ -451,7 +453,7 @@ fn loop_delay(ctx: &[GroupCtx], folds: usize) -> Evaluated {
 fn setpoint_delay(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     let delays_us: Vec<f64> = (0..32).map(|i| 20.0 * 1.18f64.powi(i)).collect();
     let base = fundamental_stats(ctx);
-    let tool: Vec<(f64, f64)> = ctx.par_iter().map(|c| phasor(&c.theta, &c.data.z_tcp_um[c.start..])).collect();
+    let tool: Vec<Complex> = ctx.par_iter().map(|c| phasor(&c.theta, &c.data.z_tcp_um[c.start..])).collect();
     let stats: Vec<Vec<Stats>> = delays_us
         .par_iter()
         .map(|tau_us| {

@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use sts_analysis::bases::laguerre;
 use sts_analysis::lsq::{least_squares, solve, Stats};
 use sts_analysis::resample::SERVO_RATE_HZ;
-use sts_analysis::response::{mode_high_pass, mul, phasor, velocity_bank, Complex};
+use sts_analysis::response::{mode_grid, mode_high_pass, mul, phasor, velocity_bank, Complex};
 use sts_dataset::Dataset;
 use sts_twin_core::program::{resonance_params_ok, TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
 use sts_twin_core::synth::Resonance;
@@ -82,21 +82,37 @@ fn bank_term(kind: TermInput, gains_um: &[f64], effect: &str) -> Result<TickTerm
     Ok(TickTerm::Laguerre { input: kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm })
 }
 
+/// Least squares of the whole dynamic error on the velocity bank's stages and, with a unit
+/// resonance, its output (the firmware's own filter) last: the coefficients, um per unit.
+fn fit_on_samples(
+    dataset: &Dataset,
+    inputs: &[GroupInputs],
+    kind: &TermInput,
+    resonance: Option<&TickTerm>,
+) -> Vec<f64> {
+    let stats: Vec<Stats> = inputs
+        .par_iter()
+        .enumerate()
+        .map(|(i, gi)| {
+            let mut cols = laguerre(&term_input(kind, &gi.pos_nm), gi.start, POLE, LAGUERRE_STAGES);
+            if let Some(mut r) = resonance.and_then(Resonance::new) {
+                // Stepped from the group's first tick, as the firmware does; the window after.
+                let out_um: Vec<f64> = gi.pos_nm.iter().map(|p| r.step(*p) as f64 * 1e-6).collect();
+                cols.push(out_um[gi.start..].to_vec());
+            }
+            Stats::from_columns(&cols, &dynamic_error(dataset, i, gi))
+        })
+        .collect();
+    solve(&stats.iter().collect::<Vec<_>>())
+}
+
 /// A setpoint delay: the velocity bank alone.
 pub(super) fn fit_setpoint_delay(
     dataset: &Dataset,
     inputs: &[GroupInputs],
 ) -> Result<(TickTerm, Vec<(String, f64)>), FitError> {
     let kind = velocity_input(inputs);
-    let stats: Vec<Stats> = inputs
-        .par_iter()
-        .enumerate()
-        .map(|(i, gi)| {
-            let cols = laguerre(&term_input(&kind, &gi.pos_nm), gi.start, POLE, LAGUERRE_STAGES);
-            Stats::from_columns(&cols, &dynamic_error(dataset, i, gi))
-        })
-        .collect();
-    let theta = solve(&stats.iter().collect::<Vec<_>>());
+    let theta = fit_on_samples(dataset, inputs, &kind, None);
     let term = bank_term(kind, &theta, "setpoint-delay")?;
     Ok((
         term,
@@ -106,9 +122,6 @@ pub(super) fn fit_setpoint_delay(
         ],
     ))
 }
-
-/// Damping ratios of the mode grid.
-const ZETAS: [f64; 6] = [0.02, 0.04, 0.07, 0.12, 0.2, 0.35];
 
 /// A structural mode inside the band: its frequency and damping from a grid (the error's
 /// phasors against the velocity bank beside the resonance), then the bank and the resonance
@@ -133,9 +146,8 @@ pub(super) fn fit_mode(
             (phasor(theta, &g.z_cmd_um[gi.start..]), phasor(theta, &dynamic_error(dataset, i, gi)))
         })
         .collect();
-    let mut modes: Vec<f64> = (0..).map(|i| 3.0 * 1.04f64.powi(i)).take_while(|f| *f < 0.9 * top_hz).collect();
-    modes.extend([2.0, 3.0, 5.0, 10.0, 30.0].iter().map(|k| k * top_hz));
-    let grid: Vec<(f64, f64)> = modes.iter().flat_map(|m| ZETAS.iter().map(move |z| (*m, *z))).collect();
+    // The grid `diagnose` names a mode from.
+    let grid = mode_grid(top_hz);
     let sse_at = |&(mode_hz, zeta): &(f64, f64)| -> f64 {
         let mut rows: Vec<[f64; LAGUERRE_STAGES + 1]> = Vec::with_capacity(2 * phasors.len());
         let mut y = Vec::with_capacity(2 * phasors.len());
@@ -173,27 +185,13 @@ pub(super) fn fit_mode(
     if !resonance_params_ok(mode_hz as f32, zeta as f32, 1.0) {
         return Ok(None);
     }
-    // The bank and the resonance (unit gain, the firmware's own filter) on the samples.
+    // The bank and the resonance (unit gain; valid, checked above) on the samples.
     let unit = TickTerm::Resonance { freq_hz: mode_hz as f32, damping: zeta as f32, gain: 1.0 };
-    let stats: Vec<Stats> = inputs
-        .par_iter()
-        .enumerate()
-        .map(|(i, gi)| {
-            let mut cols = laguerre(&term_input(&kind, &gi.pos_nm), gi.start, POLE, LAGUERRE_STAGES);
-            // Valid parameters (checked above) always give a resonance.
-            let q: Vec<f64> = match Resonance::new(&unit) {
-                Some(mut resonance) => gi.pos_nm.iter().map(|p| resonance.step(*p) as f64 * 1e-6).collect(),
-                None => vec![0.0; gi.pos_nm.len()],
-            };
-            cols.push(q[gi.start..].to_vec());
-            Stats::from_columns(&cols, &dynamic_error(dataset, i, gi))
-        })
-        .collect();
-    let theta = solve(&stats.iter().collect::<Vec<_>>());
-    let gain = theta[LAGUERRE_STAGES];
+    let theta = fit_on_samples(dataset, inputs, &kind, Some(&unit));
+    let gain = theta.get(LAGUERRE_STAGES).copied().unwrap_or(0.0);
     let resonance = TickTerm::Resonance { freq_hz: mode_hz as f32, damping: zeta as f32, gain: gain as f32 };
     if !resonance_params_ok(mode_hz as f32, zeta as f32, gain as f32) {
-        return Err(FitError::TermOutOfRange { effect: "structural-mode".into(), value_um: gain });
+        return Err(FitError::ResonanceOutOfRange { freq_hz: mode_hz, damping: zeta, gain });
     }
     let bank = bank_term(kind, &theta[..LAGUERRE_STAGES], "structural-mode")?;
     Ok(Some((

@@ -297,7 +297,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
     };
     for name in names {
         let (new_terms, params, note) = match name.as_str() {
-            "coulomb-friction" | "presliding-hysteresis" | "force-ripple" => {
+            n if AXIS_EFFECTS.contains(&n) => {
                 // One servo-axis twin carries all three (identified together below).
                 axis_names.push(name.clone());
                 continue;
@@ -350,13 +350,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         let (term, axis_records) = match in_band_mode.as_ref().map(|(t, _)| t.as_slice()) {
             Some(resonance) if !resonance.is_empty() => {
                 // The probe without the in-band mode's motion.
-                let mut without = dataset.clone();
-                without.groups.par_iter_mut().zip(dataset.manifest.groups.par_iter()).for_each(|(g, info)| {
-                    let out = terms_output(resonance, g, info.start_s, fs);
-                    for (z, o) in g.z_tcp_um.iter_mut().zip(out) {
-                        *z -= o;
-                    }
-                });
+                let (without, _) = without_terms(dataset, resonance);
                 fit_axis(&without, &all_group_inputs(&without)?, &axis_names)?
             }
             _ => fit_axis(dataset, &inputs, &axis_names)?,
@@ -367,31 +361,34 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
     if terms.len() > sts_twin_core::program::MAX_TERMS {
         return Err(FitError::TooManyTerms { needed: terms.len() });
     }
-    // The dataset without the terms' output, through the firmware's own synthesiser.
+    let (reduced, axis_resets) = without_terms(dataset, &terms);
+    // The firmware resets a diverging axis twin (counted, but its output swings to the bound
+    // first): one that diverges on the measurement's own motions is refused.
+    if let Some(i) = axis_resets.iter().position(|r| *r > 0) {
+        let axis = terms.iter().find_map(|t| if let TickTerm::Axis(p) = t { Some(Box::new(*p)) } else { None });
+        return Err(FitError::AxisDiverges { file: dataset.manifest.groups[i].file.clone(), axis });
+    }
+    Ok(Prepared { dataset: reduced, terms, records, probe_gain: None })
+}
+
+/// The dataset with `z_tcp_um` reduced by the terms' output (through the firmware's own
+/// synthesiser), and each group's count of axis-twin resets.
+fn without_terms(dataset: &Dataset, terms: &[TickTerm]) -> (Dataset, Vec<u32>) {
+    let fs = dataset.manifest.sample_rate_hz;
     let mut reduced = dataset.clone();
-    let program = sts_twin_core::program::Program {
-        terms: terms.iter().copied().collect(),
-        ..sts_twin_core::program::Program::empty(0)
-    };
-    let diverged: Vec<Option<String>> = reduced
+    let resets = reduced
         .groups
         .par_iter_mut()
         .zip(dataset.manifest.groups.par_iter())
         .map(|(g, info)| {
-            let (out, axis_resets) = terms_output_counted(&program.terms, g, info.start_s, fs);
+            let (out, axis_resets) = terms_output_counted(terms, g, info.start_s, fs);
             for (z, o) in g.z_tcp_um.iter_mut().zip(out) {
                 *z -= o;
             }
-            // The firmware resets a diverging axis twin (counted, but its output swings to the
-            // bound first): one that diverges on the measurement's own motions is refused.
-            (axis_resets > 0).then(|| info.file.clone())
+            axis_resets
         })
         .collect();
-    if let Some(file) = diverged.into_iter().flatten().next() {
-        let axis = terms.iter().find_map(|t| if let TickTerm::Axis(p) = t { Some(Box::new(*p)) } else { None });
-        return Err(FitError::AxisDiverges { file, axis });
-    }
-    Ok(Prepared { dataset: reduced, terms, records, probe_gain: None })
+    (reduced, resets)
 }
 
 /// The terms' output over a group, um, computed by the firmware's synthesiser.

@@ -16,6 +16,12 @@
 //! | `axis-coupling` | the `x_acc_mps2` column and the spindle angle's once-per-revolution sine |
 //! | `sensor-gain` | the probe reading itself (probe scale), or the model's own prediction (accelerometer scale) |
 //!
+//! **The probe's scale first.** Ahead of the candidates, the slowest groups' in-phase ratios
+//! of probe to command are read on the data itself ([`sts_analysis::probe_scale`]): a part
+//! of them that is the same at every stroke names `sensor-gain` first, since a twin fitted on
+//! such readings has learnt the scale as dynamics and every candidate is scored on readings it
+//! distorts (module `probe_check`).
+//!
 //! Coefficients are fitted on training groups and scored on held-out groups (k folds by
 //! group, round robin): the explained fraction is `1 - SS(residual - explained) / SS(residual)`
 //! summed over held-out groups. It uses only the dataset's columns (optional ones when
@@ -47,6 +53,7 @@
 //! against that error would hide every effect it is asked to find.
 
 mod candidates;
+mod probe_check;
 pub mod structure;
 
 use std::f64::consts::PI;
@@ -394,6 +401,12 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
             .then(b.explained_rms_um.total_cmp(&a.explained_rms_um))
             .then(a.effect.cmp(&b.effect))
     });
+    // A probe's scale error comes first: every candidate above is scored on readings it
+    // distorts, and a twin fitted on them has learnt it as dynamics.
+    if let Some(probe) = probe_check::probe_scale_error(ctx) {
+        ranking.retain(|r| r.effect != probe.effect);
+        ranking.insert(0, probe);
+    }
     // The significant rank first, so the first is the verdict if any is.
     let verdict = match ranking.first() {
         Some(best) if best.significant => best.effect.clone(),
@@ -419,14 +432,16 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         None => "no groups".to_string(),
     };
     let test = format!(
-        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold, on the residual and, for the {} whose signature reaches beyond the fundamental, also on the residual without each group's fundamental. A score is significant when it explains at least {:.0}% of its residual, its per-group reductions of that residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, of the reductions and of the reductions relative to each group's residual, p < {ALPHA}/{} = {:.2e}, Bonferroni over the {} scores and the 2 statistics), and the residual RMS it explains exceeds the data's own floor, the part of the error that does not repeat from one command period to the next (the lower quartile over the groups, {:.1} nm, and at least {:.0} nm). The verdict is the significant candidate that explains the most residual RMS, else none.",
+        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold, on the residual and, for the {} whose signature reaches beyond the fundamental, also on the residual without each group's fundamental. A score is significant when it explains at least {:.0}% of its residual, its per-group reductions of that residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, of the reductions and of the reductions relative to each group's residual, p < {ALPHA}/{} = {:.2e}, Bonferroni over the {} scores and the 2 statistics), and the residual RMS it explains exceeds the data's own floor, the part of the error that does not repeat from one command period to the next (the lower quartile over the groups, {:.1} nm, and at least {:.0} nm). The verdict is the significant candidate that explains the most residual RMS, else none. Ahead of them, the probe's scale is read on the slowest groups, where the servo follows the command: their in-phase ratios of probe to command as 1 + c + d / stroke; a c of at least {:.1}% and {} standard errors names sensor-gain first.",
         candidates::ALL.iter().filter(|c| c.beyond_fundamental()).count(),
         MIN_EXPLAINED * 100.0,
         scores_tested() * STATISTICS,
         significance_threshold(),
         scores_tested(),
         floor_um * 1e3,
-        NOT_REPEATING_MIN_UM * 1e3
+        NOT_REPEATING_MIN_UM * 1e3,
+        sts_analysis::probe_scale::SCALE_TOLERANCE * 100.0,
+        sts_analysis::probe_scale::SCALE_MIN_T
     );
     let not_repeating = repeatability.describe(|i| (ctx[i].sample.info.freq_hz, ctx[i].sample.info.amp_um));
     let structure = structure::split(ctx);

@@ -75,31 +75,11 @@ pub struct Prepared {
     pub probe_gain: Option<f64>,
 }
 
-/// A probe gain closer to one than this is not corrected.
-const PROBE_GAIN_TOLERANCE: f64 = 0.005;
-
 /// The probe's gain: the in-phase ratio of the probe reading to the command on the slowest
-/// groups (the lowest command frequency), over their second half, where the servo follows
-/// the command to a small fraction of a percent.
+/// groups, the part of it that is the same at every stroke ([`sts_analysis::probe_scale`]),
+/// 1 where the dataset has no motion there.
 fn probe_gain(dataset: &Dataset) -> f64 {
-    let slowest = dataset.manifest.groups.iter().map(|g| g.freq_hz).fold(f64::INFINITY, f64::min);
-    let (mut num, mut den) = (0.0, 0.0);
-    for (g, info) in dataset.groups.iter().zip(&dataset.manifest.groups) {
-        if info.freq_hz > slowest {
-            continue;
-        }
-        let half = &g.z_cmd_um[g.len() / 2..];
-        let mean = half.iter().sum::<f64>() / half.len().max(1) as f64;
-        for (c, t) in half.iter().zip(&g.z_tcp_um[g.len() / 2..]) {
-            num += (c - mean) * t;
-            den += (c - mean) * (c - mean);
-        }
-    }
-    if den > 0.0 && (num / den).is_finite() {
-        num / den
-    } else {
-        1.0
-    }
+    sts_analysis::probe_scale::probe_scale(dataset).map_or(1.0, |s| s.correction())
 }
 
 /// Per-group inputs of the term regressors (what the firmware sees), whole group.
@@ -252,7 +232,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         // A probe gain is taken out of the readings first (the twin models the tool, not the
         // probe); an accelerometer gain is carried by the refitted formulas.
         let gain = probe_gain(dataset);
-        let significant = (gain - 1.0).abs() >= PROBE_GAIN_TOLERANCE;
+        let significant = (gain - 1.0).abs() >= sts_analysis::probe_scale::SCALE_TOLERANCE;
         let others: Vec<String> = names.iter().filter(|n| *n != "sensor-gain").cloned().collect();
         let corrected = if significant {
             std::borrow::Cow::Owned(sts_model::replay::with_probe_gain(dataset, gain))

@@ -47,7 +47,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let plant = PlantParams::default();
     let model = match &args.twin {
         Some(path) => sts_model::ModelFile::read(path)?,
-        None => measure_and_fit(args.seed, &args.out)?,
+        None => {
+            let model = measure_and_fit(args.seed, &args.out)?;
+            println!("{}", fit_summary(&model, &args.out));
+            model
+        }
     };
     let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
     eprintln!("3/3 cutting the bicuspid surface at {} Hz with {which} in the loop ...", args.freq);
@@ -80,8 +84,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Measures the default emulated machine (the 99-group test), fits the twin, writes it to
-/// `out` and prints its formulas and held-out errors.
+/// Measures the default emulated machine (the 99-group test), fits the twin and writes it to
+/// `out` (progress on stderr).
 pub fn measure_and_fit(seed: u64, out: &std::path::Path) -> anyhow::Result<sts_model::ModelFile> {
     eprintln!("measuring the emulated machine: 99 groups, 1-40 Hz x 1-11 um, 6 s each ...");
     let measure = MeasureConfig { seed, ..MeasureConfig::default() };
@@ -93,14 +97,18 @@ pub fn measure_and_fit(seed: u64, out: &std::path::Path) -> anyhow::Result<sts_m
         std::fs::create_dir_all(dir)?;
     }
     model.write(out)?;
-    println!("amplitude (um) = {}", model.amplitude.formula);
-    println!("phase (deg)    = {}", model.phase.formula);
-    println!(
-        "held-out: amplitude R^2 {:.4}, phase R^2 {:.4}, waveform error {:.1} nm mean absolute ({} written)",
+    Ok(model)
+}
+
+/// The fitted twin's formulas and held-out errors, in lines for people.
+pub fn fit_summary(model: &sts_model::ModelFile, out: &std::path::Path) -> String {
+    format!(
+        "amplitude (um) = {}\nphase (deg)    = {}\nheld-out: amplitude R^2 {:.4}, phase R^2 {:.4}, waveform error {:.1} nm mean absolute ({} written)",
+        model.amplitude.formula,
+        model.phase.formula,
         model.validation.amplitude_r2,
         model.validation.phase_r2,
         model.validation.waveform_mae_um * 1e3,
         out.display()
-    );
-    Ok(model)
+    )
 }

@@ -33,7 +33,8 @@ pub struct Args {
     /// Seed of the machine's noise (and of the fit, without `--twin`).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Print the rows as JSON instead of a Markdown table.
+    /// Print the rows as JSON instead of a Markdown table (stdout holds the JSON only; the
+    /// fit's and the trials' progress go to stderr).
     #[arg(long)]
     pub json: bool,
 }
@@ -57,7 +58,17 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     let model = match &args.twin {
         Some(path) => ModelFile::read(path)?,
-        None => super::demo::measure_and_fit(args.seed, &args.out)?,
+        None => {
+            let model = super::demo::measure_and_fit(args.seed, &args.out)?;
+            // With --json, stdout holds the JSON only.
+            let summary = super::demo::fit_summary(&model, &args.out);
+            if args.json {
+                eprintln!("{summary}");
+            } else {
+                println!("{summary}");
+            }
+            model
+        }
     };
     let params = machine_params(&plant, plant.interface.offset_v);
     let mut rows = Vec::new();

@@ -35,9 +35,9 @@
 //! twice, on the residual and on the residual with each group's fundamental taken out (from
 //! it and from the candidate's columns, by least squares), and keep the significant score, or
 //! of two alike the one that explains more. Candidates rank by the residual RMS they explain,
-//! the significant first. A structural mode, a loop delay and a sensor's gain change the
-//! fundamental only: in the lab's workflow the formulas absorb them as they absorb the clean
-//! machine's error, and `none` is then the right answer (the suite counts it so where the
+//! the significant first. A structural mode, a loop delay and an accelerometer's gain change
+//! the fundamental only: in the lab's workflow the formulas absorb them as they absorb the
+//! clean machine's error, and `none` is then the right answer (the suite counts it so where the
 //! twin's error stays within 1.5x of the clean twin's).
 //!
 //! **The test for `none`.** The best candidate is the verdict only if (1) it explains at least

@@ -71,7 +71,8 @@ pub fn probe_scale_of<'a>(groups: impl IntoIterator<Item = (&'a GroupData, &'a G
     (den > 0.0 && (num / den).is_finite()).then_some(ProbeScale { gain: num / den, slowest_freq_hz, groups: slow })
 }
 
-/// The slowest groups' ratios as `1 + constant + per_inverse_amp / A` (least squares): a
+/// The slowest groups' ratios as `1 + constant + per_inverse_amp / A` (least squares
+/// weighted by `A^2`): a
 /// scale error is the constant, the same at every stroke; what the machine itself does
 /// there (a friction's steps, of about the same size at every stroke) falls with the stroke.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -91,20 +92,24 @@ impl ProbeScale {
         if n < 3 {
             return None;
         }
+        // Weighted by the stroke squared: a disturbance of a given size (a ripple's, the
+        // noise's) moves a group's ratio by that size over its stroke.
         let x: Vec<f64> = self.groups.iter().map(|g| 1.0 / g.amp_um).collect();
         let y: Vec<f64> = self.groups.iter().map(|g| g.ratio - 1.0).collect();
-        let mean_x = x.iter().sum::<f64>() / n as f64;
-        let mean_y = y.iter().sum::<f64>() / n as f64;
-        let sxx: f64 = x.iter().map(|v| (v - mean_x).powi(2)).sum();
-        if sxx <= 0.0 {
+        let w: Vec<f64> = self.groups.iter().map(|g| g.amp_um * g.amp_um).collect();
+        let sum_w: f64 = w.iter().sum();
+        let mean_x = w.iter().zip(&x).map(|(w, x)| w * x).sum::<f64>() / sum_w;
+        let mean_y = w.iter().zip(&y).map(|(w, y)| w * y).sum::<f64>() / sum_w;
+        let sxx: f64 = w.iter().zip(&x).map(|(w, v)| w * (v - mean_x).powi(2)).sum();
+        if sxx.is_nan() || sxx <= 0.0 {
             return None;
         }
-        let sxy: f64 = x.iter().zip(&y).map(|(a, b)| (a - mean_x) * (b - mean_y)).sum();
+        let sxy: f64 = w.iter().zip(x.iter().zip(&y)).map(|(w, (a, b))| w * (a - mean_x) * (b - mean_y)).sum();
         let slope = sxy / sxx;
         let constant = mean_y - slope * mean_x;
-        let sse: f64 = x.iter().zip(&y).map(|(a, b)| (b - constant - slope * a).powi(2)).sum();
+        let sse: f64 = w.iter().zip(x.iter().zip(&y)).map(|(w, (a, b))| w * (b - constant - slope * a).powi(2)).sum();
         let sigma2 = sse / (n - 2).max(1) as f64;
-        let constant_se = (sigma2 * (1.0 / n as f64 + mean_x * mean_x / sxx)).sqrt();
+        let constant_se = (sigma2 * (1.0 / sum_w + mean_x * mean_x / sxx)).sqrt();
         Some(ScaleSplit { constant, constant_se, per_inverse_amp_um: slope })
     }
 }

@@ -432,7 +432,7 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         None => "no groups".to_string(),
     };
     let test = format!(
-        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold, on the residual and, for the {} whose signature reaches beyond the fundamental, also on the residual without each group's fundamental. A score is significant when it explains at least {:.0}% of its residual, its per-group reductions of that residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, of the reductions and of the reductions relative to each group's residual, p < {ALPHA}/{} = {:.2e}, Bonferroni over the {} scores and the 2 statistics), and the residual RMS it explains exceeds the data's own floor, the part of the error that does not repeat from one command period to the next (the lower quartile over the groups, {:.1} nm, and at least {:.0} nm). The verdict is the significant candidate that explains the most residual RMS, else none. Ahead of them, the probe's scale is read on the slowest groups, where the servo follows the command: their in-phase ratios of probe to command as 1 + c + d / stroke; a c of at least {:.1}% and {} standard errors names sensor-gain first.",
+        "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold, on the residual and, for the {} whose signature reaches beyond the fundamental, also on the residual without each group's fundamental. A score is significant when it explains at least {:.0}% of its residual, its per-group reductions of that residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, of the reductions and of the reductions relative to each group's residual, p < {ALPHA}/{} = {:.2e}, Bonferroni over the {} scores and the 2 statistics), and the residual RMS it explains exceeds the data's own floor, the part of the error that does not repeat from one command period to the next (the lower quartile over the groups, {:.1} nm, and at least {:.0} nm). The verdict is the significant candidate that explains the most residual RMS, else none. Ahead of them, the probe's scale is read on the slowest groups, where the servo follows the command: their in-phase ratios of probe to command as 1 + c + d / stroke (weighted by the stroke squared); a c of at least {:.1}% and {} standard errors whose part of the motion holds at least {:.0}% of the error there names sensor-gain first.",
         candidates::ALL.iter().filter(|c| c.beyond_fundamental()).count(),
         MIN_EXPLAINED * 100.0,
         scores_tested() * STATISTICS,
@@ -441,7 +441,8 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         floor_um * 1e3,
         NOT_REPEATING_MIN_UM * 1e3,
         sts_analysis::probe_scale::SCALE_TOLERANCE * 100.0,
-        sts_analysis::probe_scale::SCALE_MIN_T
+        sts_analysis::probe_scale::SCALE_MIN_T,
+        MIN_EXPLAINED * 100.0
     );
     let not_repeating = repeatability.describe(|i| (ctx[i].sample.info.freq_hz, ctx[i].sample.info.amp_um));
     let structure = structure::split(ctx);

@@ -72,9 +72,9 @@ pub fn probe_scale_of<'a>(groups: impl IntoIterator<Item = (&'a GroupData, &'a G
 }
 
 /// The slowest groups' ratios as `1 + constant + per_inverse_amp / A` (least squares
-/// weighted by `A^2`): a
-/// scale error is the constant, the same at every stroke; what the machine itself does
-/// there (a friction's steps, of about the same size at every stroke) falls with the stroke.
+/// weighted by `A^2`): a scale error is the constant, the same at every stroke; what the
+/// machine itself does there (a friction's steps, of about the same size at every stroke)
+/// falls with the stroke.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ScaleSplit {
     /// The part of the ratio that is the same at every stroke (the scale error).

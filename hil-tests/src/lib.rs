@@ -46,6 +46,7 @@ pub mod twin {
     use sts_twin_core::features::FeatureConfig;
     use sts_twin_core::feedforward::FeedforwardParams;
     use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
+    use sts_twin_core::supervisor::SupervisorParams;
     use sts_twin_core::wire::{Request, Response, Status};
 
     /// Feature window, samples: 0.25 s keeps model updates frequent in short runs.
@@ -81,10 +82,14 @@ pub mod twin {
     }
 
     /// Sets the features and parameters above, uploads and activates `program` if given, and
-    /// enables compensation.
+    /// enables compensation. The supervisor is switched off: these streams are open loop
+    /// (the accelerometer code does not see the DAC), so there is no machine for it to judge;
+    /// `supervisor_hil.rs` tests it in the closed loop.
     pub fn configure(cop: &mut dyn Coprocessor, program: Option<Program>) {
         expect_ack("feature config", cop.request(Request::SetFeatureConfig(feature_config())).unwrap()).unwrap();
         expect_ack("params", cop.request(Request::SetParams(params())).unwrap()).unwrap();
+        let off = SupervisorParams { active: false, ..SupervisorParams::default() };
+        expect_ack("supervisor off", cop.request(Request::SetSupervisor(off)).unwrap()).unwrap();
         if let Some(program) = program {
             expect_ack("program", cop.request(Request::UploadProgram { program, activate: true }).unwrap()).unwrap();
         }

@@ -10,6 +10,7 @@ mod platform_determinism;
 mod platform_faults;
 mod platform_orphans;
 mod platform_underrun;
+mod supervisor_hil;
 mod trial_hil;
 mod twin_bench;
 mod twin_faults;

@@ -460,7 +460,8 @@ fn a_lossy_control_link_loses_no_request() {
     }
     let stats = lossy.stats();
     let (inbound, outbound) = (lossy.inbound(), lossy.outbound());
-    assert_eq!(stats.requests, u64::from(REQUESTS) + 4);
+    // And the five of `configure`.
+    assert_eq!(stats.requests, u64::from(REQUESTS) + 5);
     assert!(
         inbound.dropped >= 1 && inbound.corrupted >= 1 && outbound.dropped >= 1 && outbound.corrupted >= 1,
         "{inbound:?} {outbound:?}"

@@ -129,7 +129,8 @@ impl InputSlot {
 
 /// Output status bit: compensation is enabled (possibly still ramping).
 pub const OUT_FLAG_ENABLED: u16 = 1 << 0;
-/// Output status bit: the firmware does not trust its inputs and ramps to zero.
+/// Output status bit: the firmware does not trust its inputs, or the supervisor holds
+/// compensation off, and ramps to zero (the status's degraded bits say why).
 pub const OUT_FLAG_DEGRADED: u16 = 1 << 1;
 /// Output status bit: the DAC code was clamped at full scale this tick.
 pub const OUT_FLAG_SATURATED: u16 = 1 << 2;

@@ -76,6 +76,10 @@ pub fn handle_request(
             Ok(()) => Response::Ack,
             Err(_) => Response::Rejected(Rejection::FeatureConfig),
         },
+        Request::SetSupervisor(params) => match servo.with(|s| s.set_supervisor_params(params)) {
+            Ok(()) => Response::Ack,
+            Err(err) => Response::Rejected(Rejection::Supervisor(err)),
+        },
         Request::ResetCounters => {
             servo.with(|s| s.update_counters(|c| *c = Default::default()));
             Response::Ack
@@ -101,5 +105,7 @@ pub fn status(models: &Models, servo: &mut impl ServoAccess, config_source: Conf
         amp_um: s.last_output().amp_um(),
         phase_deg: s.last_output().phase_deg(),
         features: *s.last_features(),
+        supervisor_params: s.supervisor_params(),
+        supervisor: s.supervisor_state(),
     })
 }

@@ -41,12 +41,14 @@ pub struct Counters {
     /// Servo-axis twin states reset to rest after diverging (a model whose loop is unstable
     /// on this motion; the term restarts, its output never leaves the bound).
     pub axis_resets: u32,
+    /// Times the supervisor switched compensation off (not helping, or running away).
+    pub supervisor_trips: u32,
 }
 
 impl Counters {
     /// Sum of the fault counters (wrapping): underruns, overruns, DAC saturations, frame
     /// errors, rejected programs and parameters, model faults, axis twin resets, stuck and
-    /// saturated inputs, config store errors. Every output slot reports it.
+    /// saturated inputs, config store errors, supervisor trips. Every output slot reports it.
     pub fn fault_sum(&self) -> u32 {
         self.bus_underruns
             .wrapping_add(self.bus_overruns)
@@ -60,5 +62,6 @@ impl Counters {
             .wrapping_add(self.input_stuck)
             .wrapping_add(self.input_saturated)
             .wrapping_add(self.config_store_errors)
+            .wrapping_add(self.supervisor_trips)
     }
 }

@@ -226,6 +226,11 @@ impl Feedforward {
         self.gain_q16 as f32 / ONE_Q16 as f32
     }
 
+    /// Whether the gain is zero (compensation fully ramped out).
+    pub fn gain_is_zero(&self) -> bool {
+        self.gain_q16 == 0
+    }
+
     /// One tick: `de_pred_pm` is the predicted dynamic error; `trusted` false ramps the
     /// compensation out (degraded inputs) whatever `enabled` says.
     #[inline]

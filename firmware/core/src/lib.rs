@@ -19,6 +19,7 @@ pub mod feedforward;
 pub mod math;
 pub mod program;
 pub mod servo;
+pub mod supervisor;
 pub mod synth;
 pub mod twin;
 pub mod wire;

@@ -8,6 +8,7 @@ use sts_twin_core::features::{DefaultSpectralRings, FeatureConfig};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::{paper_program, Program, ProgramBuilder, TickTerm, REG_AMP_UM, REG_PHASE_DEG};
 use sts_twin_core::servo::{Models, Servo, ServoConfig, DEGRADED_STUCK};
+use sts_twin_core::supervisor::SupervisorParams;
 use sts_twin_core::twin::Twin;
 use sts_twin_core::wire::{ConfigSource, Rejection, Request, Response};
 
@@ -63,9 +64,28 @@ fn axis_program(id: u32) -> Program {
     program
 }
 
+/// The supervisor is switched off: these input streams are open loop (the accelerometer does
+/// not see the DAC), so there is no machine for it to judge (the rig's and the HIL tests
+/// judge it in the closed loop).
 fn booted_twin_with(program: Program) -> Box<Twin> {
+    booted_twin_supervised(program, SUPERVISOR_OFF)
+}
+
+const SUPERVISOR_OFF: SupervisorParams = SupervisorParams {
+    active: false,
+    worse_ratio: 1.1,
+    stroke_tolerance: 0.05,
+    floor_nm: 50.0,
+    other_power_ratio: 4.0,
+    max_clamped_ticks: 8,
+    min_motion_share: 0.5,
+    new_point_freq_change: 0.1,
+};
+
+fn booted_twin_supervised(program: Program, supervisor: SupervisorParams) -> Box<Twin> {
     let mut twin = Box::new(Twin::boot(feature_config(), servo_config(), &[]));
     assert_eq!(twin.handle(Request::SetParams(params())), Response::Ack);
+    assert_eq!(twin.handle(Request::SetSupervisor(supervisor)), Response::Ack);
     assert_eq!(twin.handle(Request::UploadProgram { program, activate: true }), Response::Ack);
     assert_eq!(twin.handle(Request::SetEnabled(true)), Response::Ack);
     twin
@@ -108,22 +128,33 @@ fn the_model_takes_effect_and_the_output_follows_it() {
 
 /// The firmware computes the model at low priority some time after the request; the host
 /// computes it at once. Both must write the same DAC codes, bit for bit: also with an axis
-/// twin, whose compensator reads the ticks' commands from the ring while the servo goes on.
+/// twin, whose compensator reads the ticks' commands from the ring while the servo goes on,
+/// and with the supervisor judging each update (here it holds compensation off until its
+/// baseline, then lets it in).
 #[test]
 fn a_late_computed_model_gives_bit_identical_output() {
-    late_computed_models_give_bit_identical_output(rms_program(7));
-    late_computed_models_give_bit_identical_output(axis_program(7));
+    for supervisor in [SUPERVISOR_OFF, SupervisorParams::default()] {
+        late_computed_models_give_bit_identical_output(rms_program(7), supervisor);
+        late_computed_models_give_bit_identical_output(axis_program(7), supervisor);
+    }
 }
 
-fn late_computed_models_give_bit_identical_output(program: Program) {
-    let mut host = booted_twin_with(program.clone());
+fn late_computed_models_give_bit_identical_output(program: Program, supervisor: SupervisorParams) {
+    let mut host = booted_twin_supervised(program.clone(), supervisor);
     let expected: Vec<OutputSlot> = (0..6000).map(|k| host.tick(Some(&input(k)))).collect();
+    if supervisor.active {
+        // Held off until two bare windows agree, then let in.
+        assert_ne!(host.servo().supervisor_state().bare_freq_hz, 0.0);
+        assert!(expected.iter().any(|o| o.flags & OUT_FLAG_DEGRADED != 0));
+        assert!(expected.last().is_some_and(|o| o.flags & OUT_FLAG_DEGRADED == 0));
+    }
 
     let rings = Box::new(DefaultSpectralRings::new());
     let commands = Box::new(DefaultCommandRing::new());
     let (servo, check) = Servo::new(feature_config(), servo_config(), params());
     assert_eq!(check, Ok(()));
     let mut servo = Box::new(servo);
+    servo.set_supervisor_params(supervisor).unwrap();
     let mut models = Box::new(Models::new());
     models.upload(program, true).unwrap();
     servo.set_enabled(true);

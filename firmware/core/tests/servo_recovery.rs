@@ -31,10 +31,14 @@ fn rms_program() -> Program {
     b.finish().unwrap()
 }
 
+/// A twin on the open-loop test stream: the supervisor is switched off (the accelerometer
+/// does not see the DAC here, so there is no machine for it to judge).
 fn twin(config: ServoConfig) -> Box<Twin> {
     let mut twin = Box::new(Twin::boot(FeatureConfig { window_samples: 2000, ..FeatureConfig::DEFAULT }, config, &[]));
     let params = FeedforwardParams { enable_ramp_ticks: 400, slew_v_per_tick: 0.05, ..FeedforwardParams::default() };
     assert_eq!(twin.handle(Request::SetParams(params)), Response::Ack);
+    let off = sts_twin_core::supervisor::SupervisorParams { active: false, ..Default::default() };
+    assert_eq!(twin.handle(Request::SetSupervisor(off)), Response::Ack);
     assert_eq!(twin.handle(Request::UploadProgram { program: rms_program(), activate: true }), Response::Ack);
     assert_eq!(twin.handle(Request::SetEnabled(true)), Response::Ack);
     twin

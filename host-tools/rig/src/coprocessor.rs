@@ -7,6 +7,7 @@ use sts_twin_core::feedforward::FeedforwardParams;
 use crate::trajectory::{Trajectory, TrajectoryPoint};
 use crate::RigError;
 use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
+use sts_twin_core::supervisor::SupervisorParams;
 use sts_twin_core::wire::{Request, Response};
 
 /// The feedforward parameters matching the emulated controller's analogue interface.
@@ -39,6 +40,24 @@ pub fn expect_ack(what: &str, response: Response) -> Result<(), RigError> {
         Response::Ack => Ok(()),
         other => Err(RigError::Refused { what: what.to_string(), response: Box::new(other) }),
     }
+}
+
+/// Switches the co-processor's supervisor off, for a calibration that drives the output on
+/// purpose (with no motion commanded, the supervisor would hold it at zero), and returns
+/// the thresholds to give back with [`restore_supervisor`] afterwards.
+pub fn supervisor_off(coprocessor: &mut dyn Coprocessor) -> Result<SupervisorParams, RigError> {
+    let before = match coprocessor.request(Request::GetStatus)? {
+        Response::Status(status) => status.supervisor_params,
+        other => return Err(RigError::Unexpected { request: "its status request", response: Box::new(other) }),
+    };
+    let off = SupervisorParams { active: false, ..before };
+    expect_ack("switching the supervisor off", coprocessor.request(Request::SetSupervisor(off))?)?;
+    Ok(before)
+}
+
+/// Sets the supervisor's thresholds back after [`supervisor_off`].
+pub fn restore_supervisor(coprocessor: &mut dyn Coprocessor, params: SupervisorParams) -> Result<(), RigError> {
+    expect_ack("restoring the supervisor", coprocessor.request(Request::SetSupervisor(params))?)
 }
 
 /// One tick of the loop as recorded.

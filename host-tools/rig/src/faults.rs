@@ -10,6 +10,7 @@
 //! #     staged_program_id: None, params: FeedforwardParams::default(),
 //! #     feature_config: FeatureConfig::DEFAULT, config_source: ConfigSource::Stored,
 //! #     amp_um: 0.0, phase_deg: 0.0, features: [0.0; 12],
+//! #     supervisor_params: Default::default(), supervisor: Default::default(),
 //! # };
 //! status.counters.frame_errors = 3;
 //! let lines = fault_report(&status);
@@ -18,8 +19,10 @@
 //! ```
 
 use sts_twin_core::servo::{
-    Counters, DEGRADED_MODEL, DEGRADED_NO_INPUT, DEGRADED_RECOVERING, DEGRADED_SATURATED, DEGRADED_STUCK,
+    Counters, DEGRADED_GATED, DEGRADED_MODEL, DEGRADED_NO_INPUT, DEGRADED_RECOVERING, DEGRADED_SATURATED,
+    DEGRADED_STUCK, DEGRADED_SUPERVISED,
 };
+use sts_twin_core::supervisor::Trip;
 use sts_twin_core::wire::{ConfigSource, Request, Response, Status};
 
 use super::{Coprocessor, RigError};
@@ -32,7 +35,35 @@ pub fn fault_report(status: &Status) -> Vec<String> {
     let mut lines = Vec::new();
     let reasons = degraded_reasons(status.degraded);
     if !reasons.is_empty() {
-        lines.push(format!("compensation is ramped out now, the inputs are not trusted: {}", reasons.join("; ")));
+        lines.push(format!("compensation is ramped out now: {}", reasons.join("; ")));
+    }
+    if let Some(trip) = status.supervisor.tripped {
+        let why = match trip {
+            Trip::WorseThanBare => format!(
+                "the error the accelerometer sees with compensation ({:.0}% of the stroke at {:.1} Hz) exceeded the \
+                 bare machine's ({:.0}%)",
+                100.0 * status.supervisor.last.error_ratio,
+                status.supervisor.last.freq_hz.abs(),
+                100.0 * status.supervisor.bare_error_ratio
+            ),
+            Trip::Shaking => "the correction shook the structure at other frequencies than the command's (the \
+                              accelerometer's power there grew beyond the bare machine's)"
+                .to_string(),
+            Trip::Saturation => "the DAC target was clamped at full scale too often".to_string(),
+        };
+        lines.push(format!(
+            "the supervisor switched compensation off: {why}; it resumes at a new operating point (the command \
+             frequency changed by more than {:.0}%), with new parameters or a new model, or when switched on again",
+            100.0 * status.supervisor_params.new_point_freq_change
+        ));
+    }
+    if status.supervisor.gated {
+        lines.push(format!(
+            "compensation is faded out: the accelerometer sees mostly noise at {:.1} Hz (the motion holds {:.0}% of \
+             its power; the twin's features would be measured on noise)",
+            status.supervisor.last.freq_hz.abs(),
+            100.0 * status.supervisor.last.motion_share
+        ));
     }
     if status.program_id.is_none() {
         lines.push(
@@ -53,12 +84,14 @@ pub fn fault_report(status: &Status) -> Vec<String> {
 
 /// The `servo::DEGRADED_*` bits of `degraded` as phrases (unknown bits named by value).
 pub fn degraded_reasons(degraded: u16) -> Vec<String> {
-    const KNOWN: [(u16, &str); 5] = [
+    const KNOWN: [(u16, &str); 7] = [
         (DEGRADED_STUCK, "the accelerometer is stuck or dead (its code does not change)"),
         (DEGRADED_SATURATED, "the accelerometer is saturated (full-scale codes)"),
         (DEGRADED_NO_INPUT, "the host's samples stopped arriving (bus underruns)"),
         (DEGRADED_MODEL, "the model's last evaluation failed"),
         (DEGRADED_RECOVERING, "inputs are healthy again, waiting for a clean feature window"),
+        (DEGRADED_SUPERVISED, "the supervisor holds compensation off (see below)"),
+        (DEGRADED_GATED, "the supervisor's gate: the accelerometer sees mostly noise"),
     ];
     let mut reasons: Vec<String> =
         KNOWN.iter().filter(|(bit, _)| degraded & bit != 0).map(|(_, text)| text.to_string()).collect();
@@ -72,7 +105,7 @@ pub fn degraded_reasons(degraded: u16) -> Vec<String> {
 /// One line per non-zero fault counter of `c` (informational counters such as ticks,
 /// model updates and slew-limited ticks are not faults and are left out).
 fn counter_lines(c: &Counters) -> Vec<String> {
-    let entries: [(u32, &str); 14] = [
+    let entries: [(u32, &str); 15] = [
         (c.input_stuck, "episodes of a stuck or dead accelerometer (compensation ramped out until it recovered)"),
         (c.input_saturated, "episodes of accelerometer saturation (compensation ramped out until it recovered)"),
         (
@@ -97,6 +130,10 @@ fn counter_lines(c: &Counters) -> Vec<String> {
         (
             c.axis_resets,
             "servo-axis twin restarts after it diverged (its identified loop is unstable on this motion; refit it)",
+        ),
+        (
+            c.supervisor_trips,
+            "supervisor trips: compensation made the error worse than the bare machine's or saturated the DAC",
         ),
         (c.frame_errors, "control frames dropped as corrupt (CRC, stuffing or length; the host retries)"),
         (c.dac_saturations, "ticks with the DAC target clamped at full scale"),
@@ -145,6 +182,8 @@ mod tests {
             amp_um: 1.0,
             phase_deg: 2.0,
             features: [0.0; 12],
+            supervisor_params: Default::default(),
+            supervisor: Default::default(),
         }
     }
 
@@ -158,7 +197,7 @@ mod tests {
     #[test]
     fn every_fault_counter_is_reported_with_its_count() {
         type SetCounter = fn(&mut Counters);
-        let set: [(SetCounter, &str); 14] = [
+        let set: [(SetCounter, &str); 15] = [
             (|c| c.input_stuck = 2, "2 episodes of a stuck or dead accelerometer"),
             (|c| c.input_saturated = 3, "3 episodes of accelerometer saturation"),
             (|c| c.bus_underruns = 40, "40 bus underruns"),
@@ -169,6 +208,7 @@ mod tests {
             (|c| c.rejected_params = 8, "8 parameter sets rejected (e.g. K_dv"),
             (|c| c.rejected_feature_configs = 13, "13 feature settings rejected"),
             (|c| c.axis_resets = 14, "14 servo-axis twin restarts"),
+            (|c| c.supervisor_trips = 15, "15 supervisor trips"),
             (|c| c.frame_errors = 9, "9 control frames dropped as corrupt"),
             (|c| c.dac_saturations = 10, "10 ticks with the DAC target clamped"),
             (|c| c.config_store_errors = 11, "11 config store errors"),
@@ -201,8 +241,42 @@ mod tests {
     }
 
     #[test]
+    fn a_supervisor_trip_and_the_gate_say_why_and_what_brings_compensation_back() {
+        use sts_twin_core::supervisor::{MotionEstimate, SupervisorState};
+        let mut status = clean();
+        status.supervisor = SupervisorState {
+            tripped: Some(Trip::WorseThanBare),
+            gated: true,
+            bare_error_ratio: 0.9,
+            bare_freq_hz: 80.0,
+            last: MotionEstimate {
+                freq_hz: 80.0,
+                cmd_amp_nm: 3000.0,
+                error_ratio: 1.5,
+                motion_share: 0.3,
+                motion_power_m2ps4: 0.03,
+                other_power_m2ps4: 0.07,
+            },
+            ..Default::default()
+        };
+        let lines = fault_report(&status);
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(lines[0].contains("150% of the stroke at 80.0 Hz") && lines[0].contains("(90%)"), "{}", lines[0]);
+        assert!(lines[0].contains("changed by more than 10%"), "{}", lines[0]);
+        assert!(lines[1].contains("mostly noise at 80.0 Hz") && lines[1].contains("30%"), "{}", lines[1]);
+    }
+
+    #[test]
     fn each_degraded_bit_has_its_own_reason() {
-        let bits = [DEGRADED_STUCK, DEGRADED_SATURATED, DEGRADED_NO_INPUT, DEGRADED_MODEL, DEGRADED_RECOVERING];
+        let bits = [
+            DEGRADED_STUCK,
+            DEGRADED_SATURATED,
+            DEGRADED_NO_INPUT,
+            DEGRADED_MODEL,
+            DEGRADED_RECOVERING,
+            DEGRADED_SUPERVISED,
+            DEGRADED_GATED,
+        ];
         let texts: Vec<String> = bits.iter().map(|&b| degraded_reasons(b).concat()).collect();
         for (i, text) in texts.iter().enumerate() {
             assert!(!text.is_empty() && !text.contains("unknown"), "{text}");

@@ -13,7 +13,9 @@
 
 use serde::Serialize;
 use sts_emulator::{EffectSpec, Machine, PlantParams};
+use sts_twin_core::bus::{OUT_FLAG_DEGRADED, OUT_FLAG_MODEL_ACTIVE};
 use sts_twin_core::feedforward::FeedforwardParams;
+use sts_twin_core::supervisor::Trip;
 use sts_twin_core::wire::{ConfigSource, Request, Response};
 
 use crate::calibrate::{measure_path, path_table, PathConfig, PathPoint};
@@ -106,9 +108,41 @@ pub struct TrialReport {
     pub points: usize,
     /// Firmware fault counters' sum at the end.
     pub fault_count: u32,
+    /// Ticks of the cut with a model active and compensation trusted.
+    pub cut_ticks_compensating: u64,
+    /// Ticks of the cut with a model active but compensation held off (flagged degraded:
+    /// the supervisor, or untrusted inputs; `supervisor` says which).
+    pub cut_ticks_held_off: u64,
+    /// The largest change of the DAC code from one tick to the next over the whole trial
+    /// (air cut and cut): the slew limit bounds it.
+    pub max_dac_step_codes: i32,
+    /// The co-processor's supervisor at the end of the trial.
+    pub supervisor: sts_twin_core::supervisor::SupervisorState,
+    /// Its trips over the trial.
+    pub supervisor_trips: u32,
     /// The cut over the disc (not in the JSON).
     #[serde(skip)]
     pub maps: CutMaps,
+}
+
+impl TrialReport {
+    /// What the co-processor did in the cut, for a table: the shares of the cut's ticks with
+    /// compensation on and held off, with the supervisor's state at the end.
+    pub fn compensation_summary(&self) -> String {
+        let share = |ticks: u64| 100.0 * ticks as f64 / self.points.max(1) as f64;
+        let mut summary = format!("on {:.0}%", share(self.cut_ticks_compensating));
+        if self.cut_ticks_held_off > 0 {
+            let why = match self.supervisor.tripped {
+                Some(Trip::WorseThanBare) => "the supervisor: worse than bare",
+                Some(Trip::Shaking) => "the supervisor: shaking the structure",
+                Some(Trip::Saturation) => "the supervisor: DAC saturated",
+                None if self.supervisor.gated => "the gate: accelerometer noise",
+                None => "inputs not trusted, or the supervisor before its baseline",
+            };
+            summary.push_str(&format!(", held off {:.0}% ({why})", share(self.cut_ticks_held_off)));
+        }
+        summary
+    }
 }
 
 /// Measures the analogue path's phase with `coprocessor` on a machine like the trial's (same
@@ -222,15 +256,26 @@ pub fn run_trial(
     let mut deviations = Vec::new();
     let (mut s_tcp, mut c_tcp, mut s_des, mut c_des) = (0.0, 0.0, 0.0, 0.0);
     let mut last_fault = 0;
+    let (mut held_off, mut compensating) = (0u64, 0u64);
+    let (mut last_dac, mut max_dac_step_codes) = (None::<i16>, 0i32);
     let radial_bins =
         ((config.r_eval_mm * 1e3 / (2.0 * config.feed_um_per_rev)).floor() as usize).clamp(1, MAP_RADIAL_BINS);
     let angular_bins = MAP_ANGULAR_BINS;
     let mut bins = vec![Bin::default(); radial_bins * angular_bins];
     run_loop(&mut machine, coprocessor, &trajectory, 0..ticks, f64::from(params.dac_full_scale_v), true, |s| {
         last_fault = s.output.fault_count;
+        if let Some(last) = last_dac.replace(s.output.dac_code) {
+            max_dac_step_codes = max_dac_step_codes.max((i32::from(s.output.dac_code) - i32::from(last)).abs());
+        }
         let t = s.machine.time_s;
         if t < air_s || s.point.x_mm > config.r_eval_mm {
             return;
+        }
+        let flags = s.output.flags;
+        if flags & OUT_FLAG_MODEL_ACTIVE != 0 {
+            let degraded = flags & OUT_FLAG_DEGRADED != 0;
+            held_off += u64::from(degraded);
+            compensating += u64::from(!degraded);
         }
         let design = s.point.z_cmd_um;
         let dev = s.machine.z_tcp_true_um - design;
@@ -253,6 +298,10 @@ pub fn run_trial(
     if deviations.is_empty() {
         return Err(RigError::NoCutPoints { r_eval_mm: config.r_eval_mm });
     }
+    let status = match coprocessor.request(Request::GetStatus)? {
+        Response::Status(status) => status,
+        other => return Err(RigError::Unexpected { request: "its status request", response: Box::new(other) }),
+    };
     let mean = |f: fn(&Bin) -> f64| -> Vec<Vec<Option<f64>>> {
         bins.chunks(angular_bins)
             .map(|row| row.iter().map(|b| (b.points > 0).then(|| f(b) / f64::from(b.points))).collect())
@@ -278,6 +327,11 @@ pub fn run_trial(
         wall_time_s: started.elapsed().as_secs_f64(),
         points: deviations.len(),
         fault_count: last_fault,
+        cut_ticks_compensating: compensating,
+        cut_ticks_held_off: held_off,
+        max_dac_step_codes,
+        supervisor: status.supervisor,
+        supervisor_trips: status.counters.supervisor_trips,
         maps,
     })
 }

@@ -9,17 +9,20 @@ use super::{
 use core::sync::atomic::{fence, AtomicI32, AtomicU32, Ordering};
 
 /// Rings shared between the interrupt (writer) and the feature reader, one slot per block:
-/// the block's sum of 16 codes (the decimated sample, times 16) and its packed min/max.
+/// the block's sum of 16 codes (the decimated sample, times 16), its packed min/max, and the
+/// command position handed in with its last sample (for the supervisor's view of the
+/// motion).
 ///
 /// All fields are atomics, so the rings are `Sync`, need no `unsafe` and can live in a
 /// `static`. `RING_BLOCKS` must be at least the state's `WINDOW_BLOCKS + MARGIN_BLOCKS`
-/// (checked at compile time by `push`). Memory: `8 * RING_BLOCKS + 4` bytes.
+/// (checked at compile time by `push`). Memory: `12 * RING_BLOCKS + 4` bytes.
 #[derive(Debug)]
 pub struct SpectralRings<const RING_BLOCKS: usize> {
     /// Blocks whose write has started (wrapping); stored before the slot is written.
     claimed: AtomicU32,
-    /// Sum of the block's 16 codes (|sum| <= 2^19).
-    block_sum: [AtomicI32; RING_BLOCKS],
+    /// Sum of the block's 16 codes (|sum| <= 2^19), and the command position handed in with
+    /// its last sample, nm (side by side: the block end stores both from one address).
+    block_sum_cmd: [[AtomicI32; 2]; RING_BLOCKS],
     /// Block maximum (high 16 bits) and minimum (low 16 bits) codes.
     block_extremes: [AtomicU32; RING_BLOCKS],
 }
@@ -66,15 +69,17 @@ impl<const RING_BLOCKS: usize> SpectralRings<RING_BLOCKS> {
     pub const fn new() -> Self {
         Self {
             claimed: AtomicU32::new(0),
-            block_sum: [const { AtomicI32::new(0) }; RING_BLOCKS],
+            block_sum_cmd: [const { [AtomicI32::new(0), AtomicI32::new(0)] }; RING_BLOCKS],
             block_extremes: [const { AtomicU32::new(0) }; RING_BLOCKS],
         }
     }
 
     /// Writes block number `index` to `slot` (interrupt side).
     #[inline]
-    pub(crate) fn publish(&self, slot: usize, index: u32, sum: i32, max: i16, min: i16) {
-        let (Some(sum_slot), Some(ext_slot)) = (self.block_sum.get(slot), self.block_extremes.get(slot)) else {
+    pub(crate) fn publish(&self, slot: usize, index: u32, sum: i32, max: i16, min: i16, cmd_nm: i32) {
+        let (Some([sum_slot, cmd_slot]), Some(ext_slot)) =
+            (self.block_sum_cmd.get(slot), self.block_extremes.get(slot))
+        else {
             return;
         };
         // Claim first: a reader that sees the new slot contents after its acquire fence
@@ -82,7 +87,43 @@ impl<const RING_BLOCKS: usize> SpectralRings<RING_BLOCKS> {
         self.claimed.store(index.wrapping_add(1), Ordering::Relaxed);
         fence(Ordering::Release);
         sum_slot.store(sum, Ordering::Relaxed);
+        cmd_slot.store(cmd_nm, Ordering::Relaxed);
         ext_slot.store(((max as u16 as u32) << 16) | min as u16 as u32, Ordering::Relaxed);
+    }
+
+    /// Hands the window's complete blocks of `capture` to `visit`, oldest first, as (index,
+    /// block sum, packed extremes, command position handed in with the block's last sample),
+    /// and returns how many there were; [`FeatureError::Torn`]
+    /// when `push` overwrote any of them during the reading (the visited values are then
+    /// not to be used), [`FeatureError::InvalidCapture`] for a capture from larger rings.
+    pub fn visit_window(
+        &self,
+        capture: &Capture,
+        mut visit: impl FnMut(usize, i32, u32, i32),
+    ) -> Result<usize, FeatureError> {
+        let nd = (capture.blocks as usize).min(capture.cfg.window_blocks());
+        if nd > RING_BLOCKS || capture.ring_slot as usize >= RING_BLOCKS.max(1) {
+            return Err(FeatureError::InvalidCapture);
+        }
+        let mut slot = (capture.ring_slot as usize + RING_BLOCKS - nd) % RING_BLOCKS.max(1);
+        for j in 0..nd {
+            visit(
+                j,
+                self.block_sum_cmd[slot][0].load(Ordering::Relaxed),
+                self.block_extremes[slot].load(Ordering::Relaxed),
+                self.block_sum_cmd[slot][1].load(Ordering::Relaxed),
+            );
+            slot += 1;
+            if slot == RING_BLOCKS {
+                slot = 0;
+            }
+        }
+        fence(Ordering::Acquire);
+        let claimed = self.claimed.load(Ordering::Relaxed);
+        if nd > 0 && claimed.wrapping_sub(capture.blocks_written) > (RING_BLOCKS - nd) as u32 {
+            return Err(FeatureError::Torn);
+        }
+        Ok(nd)
     }
 
     /// Computes the features of `capture`. Reads only the ring slots of the blocks the
@@ -112,35 +153,16 @@ impl<const RING_BLOCKS: usize> SpectralRings<RING_BLOCKS> {
         if half > FFT_HALF || fft_len > MAX_FFT_LEN {
             return Err(FeatureError::ScratchTooSmall { needed_half_len: half as u32 });
         }
-        // A capture from a state paired with larger rings.
-        let nd = (capture.blocks as usize).min(cfg.window_blocks());
-        if nd > RING_BLOCKS || capture.ring_slot as usize >= RING_BLOCKS.max(1) {
-            return Err(FeatureError::InvalidCapture);
-        }
-
         // Gather the window's blocks, oldest first: extremes into max/min, block sums packed
         // two per u64 into scratch.power (2 * FFT_HALF >= FFT length >= nd slots).
         let mut max = if capture.partial_len > 0 { capture.partial_max } else { i16::MIN };
         let mut min = if capture.partial_len > 0 { capture.partial_min } else { i16::MAX };
-        let first_slot = (capture.ring_slot as usize + RING_BLOCKS - nd) % RING_BLOCKS.max(1);
-        let mut slot = first_slot;
-        for j in 0..nd {
-            let sum = self.block_sum[slot].load(Ordering::Relaxed);
-            let ext = self.block_extremes[slot].load(Ordering::Relaxed);
+        let nd = self.visit_window(capture, |j, sum, ext, _| {
             let (bmax, bmin) = ((ext >> 16) as u16 as i16, ext as u16 as i16);
             max = max.max(bmax);
             min = min.min(bmin);
             set_block_sum(&mut scratch.power, j, sum);
-            slot += 1;
-            if slot == RING_BLOCKS {
-                slot = 0;
-            }
-        }
-        fence(Ordering::Acquire);
-        let claimed = self.claimed.load(Ordering::Relaxed);
-        if nd > 0 && claimed.wrapping_sub(capture.blocks_written) > (RING_BLOCKS - nd) as u32 {
-            return Err(FeatureError::Torn);
-        }
+        })?;
 
         let mut out = [0.0f32; FEATURE_COUNT];
         let extremes = if nd > 0 || capture.partial_len > 0 { Some(Extremes { max, min }) } else { None };

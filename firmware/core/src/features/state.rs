@@ -232,6 +232,18 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
     /// Every 16th call also writes one decimated sample and the block extremes to `rings`.
     #[inline]
     pub fn push<const RING_BLOCKS: usize>(&mut self, rings: &SpectralRings<RING_BLOCKS>, code: i16) {
+        self.push_with_command(rings, code, 0);
+    }
+
+    /// [`push`](Self::push), with the command position handed in with this sample, nm: a
+    /// block's last goes into `rings` with the block.
+    #[inline]
+    pub fn push_with_command<const RING_BLOCKS: usize>(
+        &mut self,
+        rings: &SpectralRings<RING_BLOCKS>,
+        code: i16,
+        cmd_nm: i32,
+    ) {
         const { assert!(RING_BLOCKS >= WINDOW_BLOCKS + MARGIN_BLOCKS, "RING_BLOCKS too small") };
         if self.dc_pending {
             self.start_block_dc();
@@ -277,19 +289,20 @@ impl<const WINDOW_BLOCKS: usize> FeatureState<WINDOW_BLOCKS> {
         if in_block + 1 < BLOCK_SAMPLES {
             self.snap.counts.in_block = in_block as u32 + 1;
         } else {
-            self.end_block(rings);
+            self.end_block(rings, cmd_nm);
         }
     }
 
     /// Block end: publish the block, advance the ring positions, set the next DC reference.
     #[inline(never)]
-    fn end_block<const RING_BLOCKS: usize>(&mut self, rings: &SpectralRings<RING_BLOCKS>) {
+    fn end_block<const RING_BLOCKS: usize>(&mut self, rings: &SpectralRings<RING_BLOCKS>, cmd_nm: i32) {
         rings.publish(
             self.snap.counts.ring_slot as usize,
             self.snap.counts.blocks_written,
             self.block_sum,
             self.snap.counts.block_max,
             self.snap.counts.block_min,
+            cmd_nm,
         );
         self.block_sum = 0;
         self.snap.counts.block_max = i16::MIN;

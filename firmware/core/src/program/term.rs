@@ -202,11 +202,13 @@ pub mod tick_cost {
     /// A tick without per-tick terms at its worst: the paper program's (512 measured with
     /// the bus's six-word input slots; 482 with four, and 482 with six since the compiler
     /// keeps the servo's address in a register: kept at 516, as that is no design's
-    /// guarantee; 514 since the tick tests whether to store the command for an axis twin),
-    /// whose formulas are not evaluated in the tick (the model update runs at low priority).
-    /// That test moved the kernel programs by 2-6 instructions (register allocation): the
-    /// kernel terms' figures below were raised by what each needed.
-    pub const FIXED: u32 = 516;
+    /// guarantee; 514 since the tick tests whether to store the command for an axis twin;
+    /// 521 on the 2026-11-27 toolchain, 526 since the block end stores the command for the
+    /// supervisor), whose formulas are not evaluated in the tick (the model update runs at
+    /// low priority). The command-store test moved the kernel programs by 2-6 instructions
+    /// (register allocation): the kernel terms' figures below were raised by what each
+    /// needed.
+    pub const FIXED: u32 = 522;
     /// More for a servo-axis twin, whose correction is synthesised as a harmonic term: the
     /// tick stores its command in the ring the twin's compensator reads at low priority (552
     /// measured with it, 38 over the paper program's 514).
@@ -219,8 +221,10 @@ pub mod tick_cost {
     /// Once, when the program has kernel terms (anything but harmonics): running them (41).
     pub const KERNELS: u32 = 42;
     /// A Laguerre bank on the position sine (108; 669.4 in all since the axis twin's command
-    /// store), with 32-bit stages.
-    pub const LAGUERRE_POSITION_SINE: u32 = 112;
+    /// store), with 32-bit stages; 119 since the supervisor's command store, so that the
+    /// two-bank program (802 measured after a switch) and three harmonics beside a bank (802)
+    /// are refused.
+    pub const LAGUERRE_POSITION_SINE: u32 = 119;
     /// A Laguerre bank on the velocity sign (130; 134), with 32-bit stages and divisions.
     pub const LAGUERRE_VELOCITY_SIGN: u32 = 134;
     /// A Laguerre bank on the Dahl state (146; 151), with 32-bit stages.

@@ -34,6 +34,7 @@ use crate::commands::DefaultCommandRing;
 use crate::features::{DefaultFeatureState, DefaultSpectralRings, FeatureConfig, FeatureError};
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
 use crate::program::{ModelOutput, TickTerm};
+use crate::supervisor::{Supervisor, SupervisorParamError, SupervisorParams, SupervisorState};
 use crate::synth::{Synth, SynthTargets};
 use timing::first_request_countdown;
 
@@ -51,6 +52,14 @@ pub const DEGRADED_NO_INPUT: u16 = 1 << 2;
 pub const DEGRADED_MODEL: u16 = 1 << 3;
 /// Degraded: inputs are healthy again but the feature window still holds bad samples.
 pub const DEGRADED_RECOVERING: u16 = 1 << 4;
+/// Held off by the supervisor: compensation was not helping, shook the structure or
+/// saturated the DAC ([`crate::supervisor`]), until the operating point changes.
+pub const DEGRADED_SUPERVISED: u16 = 1 << 5;
+/// Held off by the supervisor's gate: the accelerometer sees mostly noise.
+pub const DEGRADED_GATED: u16 = 1 << 6;
+/// The supervisor's bits: not about the inputs, so kept while they recover. In the
+/// degraded bits, so that the tick needs nothing more to ramp compensation out.
+const SUPERVISOR_BITS: u16 = DEGRADED_SUPERVISED | DEGRADED_GATED;
 
 /// Timing and fault-detection settings of the servo pipeline.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -186,6 +195,9 @@ pub struct Servo {
     applied: usize,
     /// What applying the pending result does besides the synthesiser's update.
     pending_effect: PendingEffect,
+    /// The supervisor's degraded bits that applying the pending result sets, and its new
+    /// trips to count (decided when the result is delivered).
+    pending_supervision: (u16, u32),
     model_active: bool,
     last_dac: i16,
     program_id: Option<u32>,
@@ -206,6 +218,7 @@ pub struct Servo {
     push_commands: bool,
     /// The same for the pending result's program, taking effect with it.
     pending_push_commands: bool,
+    supervisor: Supervisor,
 }
 
 impl Servo {
@@ -227,6 +240,7 @@ impl Servo {
             },
         };
         let timing = ModelTiming::new(&config, feature_config.window_samples);
+        let (supervisor, _) = Supervisor::new(SupervisorParams::default(), 0);
         let servo = Self {
             features,
             feature_config,
@@ -243,6 +257,8 @@ impl Servo {
             awaiting_due: None,
             fault_total: 0,
             model_active: false,
+            pending_supervision: (0, 0),
+            supervisor,
             program_id: None,
             last_outputs: [ModelOutput::default(); 2],
             axis_resets_seen: 0,
@@ -270,6 +286,7 @@ impl Servo {
         self.model_countdown = first_request_countdown(&self.timing);
         self.pending_due_tick = u64::MAX;
         self.awaiting_due = None;
+        self.supervisor.window_restarted(self.counters.ticks, self.feedforward.gain_is_zero());
         Ok(())
     }
 
@@ -299,7 +316,7 @@ impl Servo {
         }
         self.health.underrun_run = 0;
         self.check_input(input.acc_code);
-        self.features.push(rings, input.acc_code);
+        self.features.push_with_command(rings, input.acc_code, input.cmd_pos_nm);
         let prev_cmd_phase_turns = self.prev_cmd_phase_turns;
         self.prev_cmd_phase_turns = input.cmd_phase_turns;
 
@@ -322,6 +339,8 @@ impl Servo {
                 slot.request.due_tick = due_tick;
                 slot.request.cmd_step_turns = cmd_step_turns;
                 slot.request.cmd_phase_turns = input.cmd_phase_turns;
+                slot.request.gain_zero = self.feedforward.gain_is_zero();
+                slot.request.clamped_total = self.counters.dac_saturations;
                 slot.full = true;
                 requested = true;
                 self.awaiting_due = Some(due_tick);
@@ -381,7 +400,7 @@ impl Servo {
     }
 
     fn degrade(&mut self, reason: u16) {
-        if self.health.degraded & !DEGRADED_RECOVERING == 0 {
+        if self.health.degraded & !(DEGRADED_RECOVERING | SUPERVISOR_BITS) == 0 {
             self.counters.degraded_entries += 1;
         }
         self.health.degraded |= reason;
@@ -425,7 +444,7 @@ impl Servo {
             } else {
                 let h = &mut self.health;
                 // Inputs are healthy again: wait for a model result from a window of them.
-                h.degraded = (h.degraded & DEGRADED_MODEL) | DEGRADED_RECOVERING;
+                h.degraded = (h.degraded & (DEGRADED_MODEL | SUPERVISOR_BITS)) | DEGRADED_RECOVERING;
                 h.recovering_ticks = h.recovering_ticks.saturating_sub(1);
                 if h.recovering_ticks == 0 {
                     h.degraded &= !DEGRADED_RECOVERING;
@@ -483,6 +502,10 @@ impl Servo {
                 self.health.degraded |= DEGRADED_MODEL;
             }
         }
+        let (bits, trips) = self.pending_supervision;
+        self.health.degraded = (self.health.degraded & !SUPERVISOR_BITS) | bits;
+        self.counters.supervisor_trips = self.counters.supervisor_trips.wrapping_add(trips);
+        self.fault_total = self.fault_total.wrapping_add(trips);
         self.applied = slot;
         self.pending_due_tick = u64::MAX;
     }
@@ -551,6 +574,16 @@ impl Servo {
                 self.last_outputs[applied]
             }
         };
+        // The supervisor's verdict, in force with the result: its degraded bits.
+        self.supervisor.judge(&result.observation);
+        let bits = if self.supervisor.allows() {
+            0
+        } else if self.supervisor.state().tripped.is_some() {
+            DEGRADED_SUPERVISED
+        } else {
+            DEGRADED_GATED
+        };
+        self.pending_supervision = (bits, self.supervisor.take_trips());
         self.pending_due_tick = result.due_tick;
         self.results[slot] = Some(result);
     }
@@ -566,8 +599,37 @@ impl Servo {
         if result.is_err() {
             self.counters.rejected_params += 1;
             self.fault_total = self.fault_total.wrapping_add(1);
+        } else {
+            self.clear_supervisor_trip();
         }
         result
+    }
+
+    /// Sets the supervisor's thresholds (rejected ones are counted and change nothing); they
+    /// take effect, and a trip is cleared, with the next model update.
+    pub fn set_supervisor_params(&mut self, params: SupervisorParams) -> Result<(), SupervisorParamError> {
+        let result = self.supervisor.set_params(params, self.counters.ticks);
+        if result.is_err() {
+            self.counters.rejected_params += 1;
+            self.fault_total = self.fault_total.wrapping_add(1);
+        }
+        result
+    }
+
+    /// The supervisor's thresholds in force.
+    pub fn supervisor_params(&self) -> SupervisorParams {
+        *self.supervisor.params()
+    }
+
+    /// The supervisor's state.
+    pub fn supervisor_state(&self) -> SupervisorState {
+        *self.supervisor.state()
+    }
+
+    /// Clears a trip of the supervisor: compensation resumes (ramping) with the next model
+    /// update, where a baseline is held.
+    fn clear_supervisor_trip(&mut self) {
+        self.supervisor.clear_trip(self.counters.ticks);
     }
 
     /// The feedforward parameters in force.
@@ -575,9 +637,12 @@ impl Servo {
         *self.feedforward.params()
     }
 
-    /// Switches compensation on or off.
+    /// Switches compensation on or off; switching it on clears a supervisor trip.
     pub fn set_enabled(&mut self, enabled: bool) {
         self.feedforward.set_enabled(enabled);
+        if enabled {
+            self.clear_supervisor_trip();
+        }
     }
 
     /// Whether compensation is asked for.

@@ -11,6 +11,7 @@ use crate::commands::DefaultCommandRing;
 use crate::features::{DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features};
 use crate::math::{deg_to_turns, um_to_pm};
 use crate::program::{EvalError, ModelOutput, Program, ProgramError, TickTerm, MAX_TERMS, REG_AMP_UM, REG_PHASE_DEG};
+use crate::supervisor::{motion, Observation};
 use crate::synth::SynthTargets;
 
 /// A snapshot handed from the servo tick to the model update.
@@ -29,6 +30,10 @@ pub struct ModelRequest {
     /// The command phase at the request, u32 turns (the axis twin's compensator takes the
     /// phases of the ticks before from it and the step).
     pub cmd_phase_turns: u32,
+    /// Whether the feedforward's gain was zero at the request.
+    pub gain_zero: bool,
+    /// DAC saturations counted up to the request.
+    pub clamped_total: u32,
 }
 
 impl ModelRequest {
@@ -39,6 +44,8 @@ impl ModelRequest {
         due_tick: 0,
         cmd_step_turns: 0,
         cmd_phase_turns: 0,
+        gain_zero: true,
+        clamped_total: 0,
     };
 }
 
@@ -82,6 +89,8 @@ pub struct ModelResult {
     pub targets: SynthTargets,
     /// Times the axis twin's compensator diverged and was reset since the last result.
     pub new_axis_resets: u32,
+    /// The update as the supervisor judges it.
+    pub observation: Observation,
 }
 
 /// The twin programs (active and staged) and the model computation: the low-priority side.
@@ -194,6 +203,14 @@ impl Models {
             outcome: Err(ModelFault::NoProgram),
             targets: SynthTargets::SILENT,
             new_axis_resets: 0,
+            observation: Observation {
+                tick: request.tick,
+                window_ticks: request.snapshot.capture().cfg.window_samples,
+                gain_zero: request.gain_zero,
+                clamped_total: request.clamped_total,
+                estimate: None,
+                program_id: None,
+            },
         };
         self.compensate(commands, request);
         if let Some(compensator) = &self.compensator {
@@ -209,6 +226,13 @@ impl Models {
             }
         };
         result.features = features.as_array();
+        result.observation.estimate = motion::estimate(
+            rings,
+            &capture,
+            result.features[crate::features::VARIANCE_M2PS4],
+            request.cmd_step_turns,
+            request.cmd_phase_turns,
+        );
         if let Some(program) = &self.active {
             result.outcome = match program.evaluate(&result.features) {
                 Ok(mut output) => {
@@ -225,6 +249,7 @@ impl Models {
                         }
                         None => result.targets = SynthTargets::new(&output, &program.terms),
                     }
+                    result.observation.program_id = Some(program.id);
                     Ok((output, program.terms.clone(), program.id))
                 }
                 Err(err) => Err(ModelFault::Eval(err)),

@@ -6,6 +6,7 @@ use crate::counters::Counters;
 use crate::features::FeatureConfig;
 use crate::feedforward::{FeedforwardParams, ParamError};
 use crate::program::{Program, ProgramError};
+use crate::supervisor::{SupervisorParamError, SupervisorParams, SupervisorState};
 
 /// A message with the sequence number its answer carries back.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -52,6 +53,8 @@ pub enum Request {
     /// Sets the feature extraction (window, accelerometer scale, sample rate). The window
     /// restarts empty, so no model update happens until it is full again.
     SetFeatureConfig(FeatureConfig),
+    /// Sets the supervisor's thresholds; rejected ones leave the old in force. Clears a trip.
+    SetSupervisor(SupervisorParams),
 }
 
 /// Firmware to host.
@@ -85,6 +88,8 @@ pub enum Rejection {
     Store,
     /// The feature configuration is invalid (see `FeatureConfig::validate`).
     FeatureConfig,
+    /// The supervisor's thresholds are invalid.
+    Supervisor(SupervisorParamError),
 }
 
 /// Where the configuration in force came from at boot.
@@ -126,4 +131,8 @@ pub struct Status {
     pub phase_deg: f32,
     /// The features of the last model update (f1..f12).
     pub features: [f32; 12],
+    /// The supervisor's thresholds in force.
+    pub supervisor_params: SupervisorParams,
+    /// The supervisor's state.
+    pub supervisor: SupervisorState,
 }

@@ -113,8 +113,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 Some(model) => {
                     let features =
                         sts_twin_core::features::FeatureConfig { window_samples: 2000, ..model.feature_config };
+                    // The bench's inputs are a command ramp, not a cut: the supervisor would
+                    // hold compensation off (its own tick cost, the command's span, is paid
+                    // either way).
+                    let supervisor_off =
+                        sts_twin_core::supervisor::SupervisorParams { active: false, ..Default::default() };
                     vec![
                         Request::SetFeatureConfig(features),
+                        Request::SetSupervisor(supervisor_off),
                         Request::UploadProgram { program: model.firmware_program()?, activate: true },
                         Request::SetEnabled(true),
                     ]

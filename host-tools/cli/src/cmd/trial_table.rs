@@ -88,17 +88,21 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         return Ok(());
     }
     let which = if args.sim { "sim (the core on the host)" } else { "hil (the firmware in QEMU)" };
-    println!("| Z frequency | form error PV, bare | with the twin | reduction | phase error, bare | with the twin |");
-    println!("|---|---|---|---|---|---|");
+    println!(
+        "| Z frequency | form error PV, bare | with the twin | reduction | phase error, bare | with the twin | \
+         compensation in the cut |"
+    );
+    println!("|---|---|---|---|---|---|---|");
     for row in &rows {
         println!(
-            "| {:.0} Hz | {:.3} um | {:.3} um | {:.1}% | {:+.2} deg | {:+.2} deg |",
+            "| {:.0} Hz | {:.3} um | {:.3} um | {:.1}% | {:+.2} deg | {:+.2} deg | {} |",
             row.bare.freq_hz,
             row.bare.form_error_pv_um,
             row.twin.form_error_pv_um,
             row.reduction_pct,
             row.bare.phase_error_deg,
-            row.twin.phase_error_deg
+            row.twin.phase_error_deg,
+            row.twin.compensation_summary()
         );
     }
     println!("\nCo-processor: {which}; model: {}; machine seed {}.", model.description, args.seed);

@@ -67,6 +67,8 @@ pub fn enable_check(
     let settle_ticks = (config.settle_s * config.sample_rate_hz).round() as u32;
     let window_ticks = ((config.window_s * config.sample_rate_hz).round() as u32).max(1);
     rig.request("switching compensation off", Request::SetEnabled(false))?;
+    // Switched on at rest on purpose: the supervisor would hold the gain at zero.
+    let supervisor = crate::supervisor_off(rig.coprocessor())?;
     rig.analog_enabled = false;
     let before = rig.average(settle_ticks, window_ticks)?;
     rig.analog_enabled = true;
@@ -79,6 +81,7 @@ pub fn enable_check(
     let after = rig.average(0, window_ticks)?;
     added_pulses_max = added_pulses_max.max(after.ain_pulses_max);
     rig.request("switching compensation off", Request::SetEnabled(false))?;
+    crate::restore_supervisor(rig.coprocessor(), supervisor)?;
     Ok(EnableCheck {
         offset_v,
         pulse_nm,

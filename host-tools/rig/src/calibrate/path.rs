@@ -24,7 +24,7 @@ use sts_twin_core::wire::Request;
 use sts_analysis::lsq::least_squares;
 use sts_model::replay::turns_u32;
 
-use crate::{expect_ack, Coprocessor, RigError};
+use crate::{expect_ack, restore_supervisor, supervisor_off, Coprocessor, RigError};
 use sts_analysis::resample::SERVO_RATE_HZ;
 
 /// Program id of the calibration's constant program.
@@ -138,6 +138,8 @@ pub fn measure_path(
     }
     let params = FeedforwardParams { analogue_path: AnaloguePath::NONE, ..params };
     expect_ack("the feedforward parameters", coprocessor.request(Request::SetParams(params))?)?;
+    // The sine is driven on purpose, with the slide at rest.
+    let supervisor = supervisor_off(coprocessor)?;
     // The constant program ignores the features; a short window makes it start soon.
     let features =
         FeatureConfig { window_samples: 800, sample_rate_hz: config.sample_rate_hz as f32, ..FeatureConfig::DEFAULT };
@@ -202,6 +204,7 @@ pub fn measure_path(
         rig.tick(coprocessor, machine, last_freq_hz * (k + 1) as f64 / rate)?;
     }
     expect_ack("clearing the calibration program", coprocessor.request(Request::ClearProgram)?)?;
+    restore_supervisor(coprocessor, supervisor)?;
     Ok(points)
 }
 

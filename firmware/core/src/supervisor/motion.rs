@@ -1,0 +1,251 @@
+//! What the accelerometer says the tool did at the command frequency, read at low priority
+//! from the window's block sums: the error left between the command and the tool (as a
+//! fraction of the stroke) and how much of the accelerometer's power the commanded motion
+//! holds.
+//!
+//! The block sums are least-squares fitted with a mean, `sin` and `cos` of the command
+//! phase at each block's centre (exact for any number of periods, not only whole ones; the
+//! phase of the ticks before the request comes from its phase and step, as for the axis
+//! twin's compensator: exact for a command at a steady frequency, as in a cut). A block of
+//! 16 samples scales a sine of `w` rad per tick by `sin(8 w) / sin(w / 2)`; it is divided
+//! out. The tool's position is the acceleration over `-(2 pi f)^2`. The command's
+//! fundamental is fitted the same way on the command positions the rings keep with each
+//! block (its last sample's, stored with the block sum), so no convention between the
+//! command's phase and its position is assumed, and a slow drift or a changing stroke
+//! within the window counts as it does for the accelerometer.
+//!
+//! The accelerometer's own gain and phase (its filters) are not known here: they bias the
+//! error by a few per cent of the stroke, the same with and without compensation, which
+//! is what the supervisor's stroke tolerance is for.
+
+use serde::{Deserialize, Serialize};
+
+use crate::features::{Capture, SpectralRings, BLOCK_SAMPLES};
+
+/// The motion at the command frequency over one feature window.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MotionEstimate {
+    /// Command frequency, Hz (negative for a command running backwards).
+    pub freq_hz: f32,
+    /// Amplitude of the command's fundamental over the window, nm.
+    pub cmd_amp_nm: f32,
+    /// Amplitude of the command minus the tool's motion at the command frequency, over
+    /// `cmd_amp_nm`.
+    pub error_ratio: f32,
+    /// The power of the accelerometer's signal at the command frequency over its whole
+    /// variance in the window: near 1 where the accelerometer sees the motion, near 0
+    /// where it sees mostly noise (on which the twin's features are then measured).
+    pub motion_share: f32,
+    /// The accelerometer's power at the command frequency, (m/s^2)^2.
+    pub motion_power_m2ps4: f32,
+    /// The accelerometer's power at all other frequencies (its variance less the power at
+    /// the command frequency), (m/s^2)^2: noise, harmonics, and the structure shaken by a
+    /// correction.
+    pub other_power_m2ps4: f32,
+}
+
+/// Fewest command periods the window must hold for an estimate.
+const MIN_PERIODS: f32 = 1.0;
+/// Highest command frequency, as a fraction of the block rate (blocks of 16 at 8 kHz: 500
+/// Hz), so that the block sums resolve it.
+const MAX_FREQ_OF_BLOCK_RATE: f32 = 0.4;
+/// Smallest command amplitude judged, nm: below it there is no motion to compensate.
+const MIN_CMD_AMP_NM: f32 = 10.0;
+
+/// Sums for a least-squares fit of samples `y` by a mean, `sin` and `cos` of the command
+/// phase.
+#[derive(Clone, Copy, Default)]
+struct SineSums {
+    n: f32,
+    s: f32,
+    c: f32,
+    ss: f32,
+    sc: f32,
+    cc: f32,
+    y: f32,
+    ys: f32,
+    yc: f32,
+}
+
+impl SineSums {
+    fn add(&mut self, y: f32, s: f32, c: f32) {
+        self.n += 1.0;
+        self.s += s;
+        self.c += c;
+        self.ss += s * s;
+        self.sc += s * c;
+        self.cc += c * c;
+        self.y += y;
+        self.ys += y * s;
+        self.yc += y * c;
+    }
+
+    /// The `sin` and `cos` coefficients, the mean taken out; `None` unless well posed (at
+    /// least a period gives a determinant near `(n / 2)^2`).
+    fn fit(&self) -> Option<(f32, f32)> {
+        let n = self.n;
+        let (css, csc, ccc) =
+            (self.ss - self.s * self.s / n, self.sc - self.s * self.c / n, self.cc - self.c * self.c / n);
+        let (cys, cyc) = (self.ys - self.y * self.s / n, self.yc - self.y * self.c / n);
+        let det = css * ccc - csc * csc;
+        if det.is_nan() || det <= 0.05 * n * n {
+            return None;
+        }
+        Some(((cys * ccc - cyc * csc) / det, (cyc * css - cys * csc) / det))
+    }
+}
+
+/// The estimate for the window of `capture`, whose request came at command phase
+/// `cmd_phase_turns` with step `cmd_step_turns` (the phase and position handed in with a
+/// tick's input are those of the tick after it, whose output they drive).
+/// `variance_m2ps4` is the window's accelerometer variance (feature f3). `None` when the
+/// window holds less than a period, the frequency is beyond what the blocks resolve, the
+/// command does not move, or the ring was overwritten while read.
+pub fn estimate<const RING_BLOCKS: usize>(
+    rings: &SpectralRings<RING_BLOCKS>,
+    capture: &Capture,
+    variance_m2ps4: f32,
+    cmd_step_turns: i32,
+    cmd_phase_turns: u32,
+) -> Option<MotionEstimate> {
+    const TURN: f32 = 4_294_967_296.0;
+    let rate_hz = capture.cfg.sample_rate_hz;
+    let w_rad_per_tick = cmd_step_turns as f32 * (core::f32::consts::TAU / TURN);
+    let freq_hz = cmd_step_turns as f32 * (rate_hz / TURN);
+    let nd = (capture.blocks as usize).min(capture.cfg.window_blocks());
+    let periods = nd as f32 * BLOCK_SAMPLES as f32 * cmd_step_turns.unsigned_abs() as f32 / TURN;
+    let block_rate_hz = rate_hz / BLOCK_SAMPLES as f32;
+    // (Written so that a NaN is refused too.)
+    if periods < MIN_PERIODS
+        || freq_hz.abs() > MAX_FREQ_OF_BLOCK_RATE * block_rate_hz
+        || variance_m2ps4.is_nan()
+        || variance_m2ps4 <= 0.0
+        || nd == 0
+    {
+        return None;
+    }
+    // The phase at the centre of the window's first block: the request's, less the ticks
+    // back to its last sample, less 7.5 to its centre, less the tick the phase runs ahead.
+    let step = cmd_step_turns as u32;
+    let half_step = step.wrapping_add(u32::from(cmd_step_turns < 0)) as i32 >> 1;
+    let back_ticks = 8 + capture.partial_len + (BLOCK_SAMPLES * (nd - 1)) as u32;
+    let to_rad = |turns: u32| turns as i32 as f32 * (core::f32::consts::TAU / TURN);
+    let first_phase = cmd_phase_turns.wrapping_sub(step.wrapping_mul(back_ticks)).wrapping_sub(half_step as u32);
+    // Then a rotation by a block's advance per block (three sines per window, not two per
+    // block: this runs at low priority within the model latency). The command sample kept
+    // with a block (its last input's, for the tick after) is 8.5 ticks after its centre.
+    let (mut s, mut c) = libm::sincosf(to_rad(first_phase));
+    let (ds, dc) = libm::sincosf(to_rad(step.wrapping_mul(BLOCK_SAMPLES as u32)));
+    let (cmd_s, cmd_c) = libm::sincosf(to_rad((step.wrapping_mul(8)).wrapping_add(half_step as u32)));
+    let (mut acc, mut cmd) = (SineSums::default(), SineSums::default());
+    // Relative to the first block, so that f32 keeps the cross terms exact enough.
+    let mut first: Option<(i32, i32)> = None;
+    let read = rings.visit_window(capture, |_, block_sum, _, cmd_nm| {
+        let (sum0, cmd0) = *first.get_or_insert((block_sum, cmd_nm));
+        acc.add((block_sum - sum0) as f32, s, c);
+        cmd.add(cmd_nm.wrapping_sub(cmd0) as f32, s * cmd_c + c * cmd_s, c * cmd_c - s * cmd_s);
+        (s, c) = (s * dc + c * ds, c * dc - s * ds);
+    });
+    if read.ok()? != nd {
+        return None;
+    }
+    let (p_codes, q_codes) = acc.fit()?;
+    let (cmd_sin_nm, cmd_cos_nm) = cmd.fit()?;
+    let cmd_amp_nm = libm::sqrtf(cmd_sin_nm * cmd_sin_nm + cmd_cos_nm * cmd_cos_nm);
+    if cmd_amp_nm.is_nan() || cmd_amp_nm < MIN_CMD_AMP_NM {
+        return None;
+    }
+    // Block sum of a unit sine of w rad per tick.
+    let block_gain = libm::sinf(8.0 * w_rad_per_tick) / libm::sinf(0.5 * w_rad_per_tick);
+    let acc_mps2 = capture.cfg.acc_mps2_per_lsb / block_gain;
+    let w_rad_per_s = w_rad_per_tick * rate_hz;
+    // Tool position = -acceleration / w^2, in nm.
+    let to_nm = acc_mps2 / (w_rad_per_s * w_rad_per_s) * 1e9;
+    let error_sin_nm = cmd_sin_nm + p_codes * to_nm;
+    let error_cos_nm = cmd_cos_nm + q_codes * to_nm;
+    let error_ratio = libm::sqrtf(error_sin_nm * error_sin_nm + error_cos_nm * error_cos_nm) / cmd_amp_nm;
+    let motion_power_m2ps4 = 0.5 * (p_codes * p_codes + q_codes * q_codes) * (acc_mps2 * acc_mps2);
+    let motion_share = motion_power_m2ps4 / variance_m2ps4;
+    let other_power_m2ps4 = (variance_m2ps4 - motion_power_m2ps4).max(0.0);
+    (error_ratio.is_finite() && motion_share.is_finite()).then_some(MotionEstimate {
+        freq_hz,
+        cmd_amp_nm,
+        error_ratio,
+        motion_share,
+        motion_power_m2ps4,
+        other_power_m2ps4,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::{FeatureConfig, FeatureState};
+
+    /// A tool that follows a 40 Hz, 3 um command with `gain` and `lag_deg`, seen by the
+    /// accelerometer (1e-4 m/s^2 per LSB); the estimate's error ratio is
+    /// `|1 - gain e^(-i lag)|`.
+    fn ratio_for(freq_hz: f64, gain: f64, lag_deg: f64) -> MotionEstimate {
+        let cfg = FeatureConfig { window_samples: 800, ..FeatureConfig::DEFAULT };
+        let mut state = std::boxed::Box::new(FeatureState::<50>::new(cfg).unwrap());
+        let rings = std::boxed::Box::new(SpectralRings::<306>::new());
+        let step = (freq_hz / 8000.0 * 4_294_967_296.0).round() as i64 as i32;
+        let w = std::f64::consts::TAU * freq_hz;
+        let ticks = 1000u32;
+        for k in 0..ticks {
+            let theta = w * f64::from(k) / 8000.0;
+            let acc = -w * w * 3e-6 * gain * (theta - lag_deg.to_radians()).sin();
+            // The command handed in with a tick's input is the next tick's, as the phase.
+            let cmd = (3000.0 * (theta + w / 8000.0).sin()).round() as i32;
+            state.push_with_command(&*rings, (acc / 1e-4).round() as i16, cmd);
+        }
+        // The phase handed in with the last tick's input: that of the tick after it.
+        let phase = (step as u32).wrapping_mul(ticks);
+        let capture = state.capture(&*rings);
+        let variance = 0.5 * (w * w * 3e-6 * gain).powi(2);
+        estimate(&*rings, &capture, variance as f32, step, phase).expect("an estimate")
+    }
+
+    #[test]
+    fn the_error_ratio_is_what_the_tool_left_of_the_command() {
+        for (freq_hz, gain, lag_deg) in [(40.0, 1.0, 0.0), (40.0, 0.5, 0.0), (40.0, 1.0, 30.0), (80.0, 1.5, -20.0)] {
+            let est = ratio_for(freq_hz, gain, lag_deg);
+            let lag = f64::to_radians(lag_deg);
+            let expected = ((1.0 - gain * lag.cos()).powi(2) + (gain * lag.sin()).powi(2)).sqrt();
+            assert!(
+                (f64::from(est.error_ratio) - expected).abs() < 0.01,
+                "{freq_hz} Hz gain {gain} lag {lag_deg}: {} vs {expected}",
+                est.error_ratio
+            );
+            assert!((est.freq_hz - freq_hz as f32).abs() < 1e-3);
+            assert!((est.motion_share - 1.0).abs() < 0.01, "{est:?}");
+        }
+    }
+
+    #[test]
+    fn no_estimate_without_a_period_or_motion() {
+        let cfg = FeatureConfig { window_samples: 800, ..FeatureConfig::DEFAULT };
+        let mut state = std::boxed::Box::new(FeatureState::<50>::new(cfg).unwrap());
+        let rings = std::boxed::Box::new(SpectralRings::<306>::new());
+        let moving = |k: i32| (3000.0 * libm::sin(f64::from(k) * 0.0314)) as i32;
+        for k in 0..900 {
+            state.push_with_command(&*rings, (k % 7) as i16, moving(k));
+        }
+        let capture = state.capture(&*rings);
+        // 5 Hz: a 0.1 s window holds half a period.
+        let step_5hz = (5.0 / 8000.0 * 4_294_967_296.0f64) as i32;
+        assert_eq!(estimate(&*rings, &capture, 1.0, step_5hz, 0), None);
+        let step_40hz = step_5hz * 8;
+        assert_eq!(estimate(&*rings, &capture, 0.0, step_40hz, 0), None, "no variance");
+        assert!(estimate(&*rings, &capture, 1.0, step_40hz, 0).is_some());
+        // A command standing still.
+        let mut still = std::boxed::Box::new(FeatureState::<50>::new(cfg).unwrap());
+        let still_rings = std::boxed::Box::new(SpectralRings::<306>::new());
+        for k in 0..900 {
+            still.push_with_command(&*still_rings, (k % 7) as i16, 1234);
+        }
+        let capture = still.capture(&*still_rings);
+        assert_eq!(estimate(&*still_rings, &capture, 1.0, step_40hz, 0), None, "no motion");
+    }
+}

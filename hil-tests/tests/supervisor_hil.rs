@@ -87,6 +87,14 @@ fn check(name: &str, case: Case, sound_in_qemu: bool) {
     );
     let mut sim = SimCoprocessor::boot(&[]);
     let sim_faulty = self::faulty(&mut sim, &case);
+    // The figures of docs/supervisor.md (`--nocapture`).
+    eprintln!(
+        "{name}: bare {:.3} um PV, unsupervised {:.3}, supervised {:.3} ({})",
+        bare.form_error_pv_um,
+        unsupervised.form_error_pv_um,
+        sim_faulty.form_error_pv_um,
+        sim_faulty.compensation_summary()
+    );
     let sound = self::sound(&mut sim);
     let mut hil = HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots");
     let faulty = self::faulty(&mut hil, &case);
@@ -173,6 +181,7 @@ fn a_correction_a_third_too_small_still_helps_and_is_left_on() {
     let mut hil = HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots");
     let faulty = self::faulty(&mut hil, &case);
     hil.shutdown().unwrap();
+    eprintln!("K_dv x 3: bare {:.3} um PV, supervised {:.3}", bare.form_error_pv_um, faulty.form_error_pv_um);
     assert_eq!(faulty.supervisor_trips, 0, "{:?}", faulty.supervisor);
     assert!(faulty.cut_ticks_compensating > faulty.points as u64 * 9 / 10, "{}", faulty.compensation_summary());
     assert!(

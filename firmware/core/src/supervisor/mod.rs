@@ -1,31 +1,38 @@
 //! The supervisor: switches compensation off where it is not helping or is running away,
 //! from what the co-processor sees in production (the accelerometer, the command, its own
-//! DAC), with no probe at the tool.
+//! DAC), with no probe at the tool. `docs/supervisor.md` has the measurements.
 //!
 //! It judges every model update at low priority ([`Supervisor::judge`], from
 //! [`Servo::deliver`](crate::servo::Servo::deliver)); its verdict takes effect with the
-//! result, at the same tick on the firmware and the host. The servo tick only reads the
-//! verdict: compensation is then "not trusted", so the feedforward's gain ramps to zero
-//! within the slew limit, as for a faulty input.
+//! result, at the same tick on the firmware and the host, as a degraded bit of the servo.
+//! Compensation is then "not trusted", so the feedforward's gain ramps to zero within the
+//! slew limit, as for a faulty input.
 //!
-//! - **Baseline.** A window in which the gain was zero throughout gives the bare machine's
-//!   error at this operating point ([`motion`]: the command minus the tool's motion at the
-//!   command frequency, as a fraction of the stroke). Compensation is allowed only once a
-//!   baseline at the command frequency (within `new_point_freq_change`) is held.
-//! - **Trip: worse than bare.** A compensated window whose error ratio exceeds
-//!   `worse_ratio` times the baseline's plus `stroke_tolerance` (the accelerometer's own gain
-//!   and phase errors, the same with and without compensation, bias the ratio by a few per
-//!   cent of the stroke) plus `floor_nm` over the stroke (its noise), three updates in a row. A twin with the wrong sign, K_dv too high, a twin of another
-//!   machine, or one driven into a loop through the machine (its features grow with the
-//!   compensated motion) all show here.
+//! - **Baseline.** Two windows in which the gain was zero throughout, a window apart and
+//!   agreeing, give the bare machine's error at this operating point ([`motion`]: the command
+//!   minus the tool's motion at the command frequency, as a fraction of the stroke) and its
+//!   accelerometer power. Compensation is allowed only once a baseline at the command
+//!   frequency (within `new_point_freq_change`) is held.
+//! - **Trip: worse than bare.** A compensated window whose error ratio exceeds `worse_ratio`
+//!   times the baseline's plus `stroke_tolerance` (the accelerometer's own gain and phase
+//!   errors, and its place beside the tool, bias the ratio by a few per cent of the stroke,
+//!   the same with and without compensation) plus `floor_nm` over the stroke (its noise),
+//!   three updates in a row. A correction of the wrong sign or a twin of another machine
+//!   show here.
+//! - **Trip: shaking.** The accelerometer's power at other frequencies than the command's
+//!   above `other_power_ratio` times the bare machine's (or a hundredth of the bare motion's
+//!   power), three updates in a row: a correction far too large, or one driven into a loop
+//!   through the machine (its features grow with the compensated motion), shakes the
+//!   structure at its mode.
 //! - **Trip: saturation.** More than `max_clamped_ticks` DAC targets clamped at full scale
 //!   per 800 ticks, beyond a burst of as many (a leaky bucket).
-//! - **Gate.** Where the commanded motion holds less than `min_motion_share` of the
-//!   accelerometer's power, the features are measured on noise and compensation fades out
-//!   (not a fault; it fades back in when the share is 1.25 times the threshold again).
+//! - **Gate.** Where the motion holds less than `min_motion_share` of the accelerometer's
+//!   power, the features are measured on noise and compensation fades out (not a fault; it
+//!   fades back in when the share is 1.25 times the threshold again).
 //! - **Resume.** A trip holds until the operating point changes (the command frequency by
 //!   more than `new_point_freq_change`), a new program takes effect, the feedforward or
-//!   supervisor parameters are set, or compensation is switched on again.
+//!   supervisor parameters are set, or compensation is switched on again. Such requests take
+//!   effect with the first update requested at or after their tick (see `apply_requests`).
 
 pub mod motion;
 

@@ -48,6 +48,8 @@ pub struct Row {
     pub twin: TrialReport,
     /// Form error reduction, percent.
     pub reduction_pct: f64,
+    /// What the co-processor did in the twin's cut ([`TrialReport::compensation_summary`]).
+    pub compensation: String,
 }
 
 /// Runs `sts-twin trial-table`.
@@ -81,7 +83,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let (twin_params, _) = with_measured_path(cop.as_mut(), &plant, &effects, params, args.seed)?;
         let twin = run_trial(cop.as_mut(), &plant, &effects, Some(&model), twin_params, &config)?;
         let reduction_pct = 100.0 * (1.0 - twin.form_error_pv_um / bare.form_error_pv_um);
-        rows.push(Row { bare, twin, reduction_pct });
+        let compensation = twin.compensation_summary();
+        rows.push(Row { bare, twin, reduction_pct, compensation });
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
@@ -102,7 +105,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             row.reduction_pct,
             row.bare.phase_error_deg,
             row.twin.phase_error_deg,
-            row.twin.compensation_summary()
+            row.compensation
         );
     }
     println!("\nCo-processor: {which}; model: {}; machine seed {}.", model.description, args.seed);

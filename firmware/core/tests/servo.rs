@@ -71,16 +71,7 @@ fn booted_twin_with(program: Program) -> Box<Twin> {
     booted_twin_supervised(program, SUPERVISOR_OFF)
 }
 
-const SUPERVISOR_OFF: SupervisorParams = SupervisorParams {
-    active: false,
-    worse_ratio: 1.1,
-    stroke_tolerance: 0.05,
-    floor_nm: 50.0,
-    other_power_ratio: 4.0,
-    max_clamped_ticks: 8,
-    min_motion_share: 0.5,
-    new_point_freq_change: 0.1,
-};
+const SUPERVISOR_OFF: SupervisorParams = SupervisorParams { active: false, ..SupervisorParams::DEFAULT };
 
 fn booted_twin_supervised(program: Program, supervisor: SupervisorParams) -> Box<Twin> {
     let mut twin = Box::new(Twin::boot(feature_config(), servo_config(), &[]));

@@ -68,18 +68,23 @@ pub struct SupervisorParams {
     pub new_point_freq_change: f32,
 }
 
+impl SupervisorParams {
+    /// The safe defaults.
+    pub const DEFAULT: Self = Self {
+        active: true,
+        worse_ratio: 1.1,
+        stroke_tolerance: 0.05,
+        floor_nm: 50.0,
+        other_power_ratio: 4.0,
+        max_clamped_ticks: 8,
+        min_motion_share: 0.5,
+        new_point_freq_change: 0.1,
+    };
+}
+
 impl Default for SupervisorParams {
     fn default() -> Self {
-        Self {
-            active: true,
-            worse_ratio: 1.1,
-            stroke_tolerance: 0.05,
-            floor_nm: 50.0,
-            other_power_ratio: 4.0,
-            max_clamped_ticks: 8,
-            min_motion_share: 0.5,
-            new_point_freq_change: 0.1,
-        }
+        Self::DEFAULT
     }
 }
 

@@ -104,7 +104,8 @@ fn program_with(terms: &[TickTerm]) -> Program {
 
 /// Uploads `program` with the feature window `window_samples` and enables compensation. The
 /// supervisor is switched off: the inputs are a command ramp, not a cut, and it would hold
-/// compensation off (its own tick cost, the command's span, is paid either way).
+/// compensation off (its own tick cost, the command stored at each block end, is paid
+/// either way).
 fn prepare(hil: &mut Hil, program: Program, window_samples: u32) -> Result<(), HilError> {
     let requests = [
         Request::SetFeatureConfig(FeatureConfig { window_samples, ..FeatureConfig::DEFAULT }),

@@ -46,10 +46,7 @@ pub fn expect_ack(what: &str, response: Response) -> Result<(), RigError> {
 /// purpose (with no motion commanded, the supervisor would hold it at zero), and returns
 /// the thresholds to give back with [`restore_supervisor`] afterwards.
 pub fn supervisor_off(coprocessor: &mut dyn Coprocessor) -> Result<SupervisorParams, RigError> {
-    let before = match coprocessor.request(Request::GetStatus)? {
-        Response::Status(status) => status.supervisor_params,
-        other => return Err(RigError::Unexpected { request: "its status request", response: Box::new(other) }),
-    };
+    let before = crate::calibrate::rest::status(coprocessor)?.supervisor_params;
     let off = SupervisorParams { active: false, ..before };
     expect_ack("switching the supervisor off", coprocessor.request(Request::SetSupervisor(off))?)?;
     Ok(before)

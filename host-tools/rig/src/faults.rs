@@ -23,7 +23,7 @@ use sts_twin_core::servo::{
     DEGRADED_STUCK, DEGRADED_SUPERVISED,
 };
 use sts_twin_core::supervisor::Trip;
-use sts_twin_core::wire::{ConfigSource, Request, Response, Status};
+use sts_twin_core::wire::{ConfigSource, Status};
 
 use super::{Coprocessor, RigError};
 
@@ -146,10 +146,7 @@ fn counter_lines(c: &Counters) -> Vec<String> {
 /// Asks `coprocessor` for its status and prints [`fault_report`] to stderr (stdout stays
 /// free for reports and JSON).
 pub fn print_fault_report(coprocessor: &mut dyn Coprocessor) -> Result<(), RigError> {
-    let status = match coprocessor.request(Request::GetStatus)? {
-        Response::Status(status) => status,
-        other => return Err(RigError::Unexpected { request: "its status request", response: Box::new(other) }),
-    };
+    let status = crate::calibrate::rest::status(coprocessor)?;
     let lines = fault_report(&status);
     if lines.is_empty() {
         eprintln!("co-processor ({}): no faults in {} ticks", coprocessor.kind(), status.counters.ticks);
@@ -167,6 +164,7 @@ mod tests {
     use super::*;
     use sts_twin_core::features::FeatureConfig;
     use sts_twin_core::feedforward::FeedforwardParams;
+    use sts_twin_core::wire::{Request, Response};
 
     fn clean() -> Status {
         Status {

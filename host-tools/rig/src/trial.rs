@@ -16,7 +16,7 @@ use sts_emulator::{EffectSpec, Machine, PlantParams};
 use sts_twin_core::bus::{OUT_FLAG_DEGRADED, OUT_FLAG_MODEL_ACTIVE};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::supervisor::Trip;
-use sts_twin_core::wire::{ConfigSource, Request, Response};
+use sts_twin_core::wire::{ConfigSource, Request};
 
 use crate::calibrate::{measure_path, path_table, PathConfig, PathPoint};
 use crate::{expect_ack, run_loop, Bicuspid, Coprocessor, RigError, Trajectory, TrajectoryPoint};
@@ -206,10 +206,7 @@ impl Trajectory for WithAirCut {
 /// its config store at boot, as `calibrate-offset` stored them; an error that says what to run
 /// when it booted without a stored calibration.
 pub fn stored_params(coprocessor: &mut dyn Coprocessor) -> Result<FeedforwardParams, RigError> {
-    let status = match coprocessor.request(Request::GetStatus)? {
-        Response::Status(status) => status,
-        other => return Err(RigError::Unexpected { request: "its status request", response: Box::new(other) }),
-    };
+    let status = crate::calibrate::rest::status(coprocessor)?;
     match status.config_source {
         ConfigSource::Stored => Ok(status.params),
         other => Err(RigError::NotCalibrated { config_source: other }),
@@ -298,10 +295,7 @@ pub fn run_trial(
     if deviations.is_empty() {
         return Err(RigError::NoCutPoints { r_eval_mm: config.r_eval_mm });
     }
-    let status = match coprocessor.request(Request::GetStatus)? {
-        Response::Status(status) => status,
-        other => return Err(RigError::Unexpected { request: "its status request", response: Box::new(other) }),
-    };
+    let status = crate::calibrate::rest::status(coprocessor)?;
     let mean = |f: fn(&Bin) -> f64| -> Vec<Vec<Option<f64>>> {
         bins.chunks(angular_bins)
             .map(|row| row.iter().map(|b| (b.points > 0).then(|| f(b) / f64::from(b.points))).collect())

@@ -114,8 +114,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     let features =
                         sts_twin_core::features::FeatureConfig { window_samples: 2000, ..model.feature_config };
                     // The bench's inputs are a command ramp, not a cut: the supervisor would
-                    // hold compensation off (its own tick cost, the command's span, is paid
-                    // either way).
+                    // hold compensation off (its own tick cost, the command stored at each
+                    // block end, is paid either way).
                     let supervisor_off =
                         sts_twin_core::supervisor::SupervisorParams { active: false, ..Default::default() };
                     vec![

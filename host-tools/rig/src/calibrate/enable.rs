@@ -68,7 +68,7 @@ pub fn enable_check(
     let window_ticks = ((config.window_s * config.sample_rate_hz).round() as u32).max(1);
     rig.request("switching compensation off", Request::SetEnabled(false))?;
     // Switched on at rest on purpose: the supervisor would hold the gain at zero.
-    let supervisor = crate::supervisor_off(rig.coprocessor())?;
+    let supervisor = crate::supervisor_off(rig.parts().0)?;
     rig.analog_enabled = false;
     let before = rig.average(settle_ticks, window_ticks)?;
     rig.analog_enabled = true;
@@ -81,7 +81,7 @@ pub fn enable_check(
     let after = rig.average(0, window_ticks)?;
     added_pulses_max = added_pulses_max.max(after.ain_pulses_max);
     rig.request("switching compensation off", Request::SetEnabled(false))?;
-    crate::restore_supervisor(rig.coprocessor(), supervisor)?;
+    crate::restore_supervisor(rig.parts().0, supervisor)?;
     Ok(EnableCheck {
         offset_v,
         pulse_nm,

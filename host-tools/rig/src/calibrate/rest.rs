@@ -130,11 +130,6 @@ impl<'a> RestRig<'a> {
         expect_ack(what, self.coprocessor.request(request)?)
     }
 
-    /// The co-processor, for a request with an answer other than `Ack`.
-    pub fn coprocessor(&mut self) -> &mut dyn Coprocessor {
-        self.coprocessor
-    }
-
     /// Sets the co-processor's parameters so that, compensation off, it writes `dac_v` volts
     /// (its output is then `-offset_v`).
     pub fn hold_dac_v(&mut self, params: &FeedforwardParams, dac_v: f64) -> Result<(), RigError> {

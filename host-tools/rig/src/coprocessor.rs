@@ -8,7 +8,7 @@ use crate::trajectory::{Trajectory, TrajectoryPoint};
 use crate::RigError;
 use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
 use sts_twin_core::supervisor::SupervisorParams;
-use sts_twin_core::wire::{Request, Response};
+use sts_twin_core::wire::{Request, Response, Status};
 
 /// The feedforward parameters matching the emulated controller's analogue interface.
 pub fn machine_params(plant: &PlantParams, offset_v: f64) -> FeedforwardParams {
@@ -42,11 +42,19 @@ pub fn expect_ack(what: &str, response: Response) -> Result<(), RigError> {
     }
 }
 
+/// The co-processor's status.
+pub fn status(coprocessor: &mut dyn Coprocessor) -> Result<Status, RigError> {
+    match coprocessor.request(Request::GetStatus)? {
+        Response::Status(status) => Ok(status),
+        other => Err(RigError::Unexpected { request: "the status request", response: Box::new(other) }),
+    }
+}
+
 /// Switches the co-processor's supervisor off, for a calibration that drives the output on
 /// purpose (with no motion commanded, the supervisor would hold it at zero), and returns
 /// the thresholds to give back with [`restore_supervisor`] afterwards.
 pub fn supervisor_off(coprocessor: &mut dyn Coprocessor) -> Result<SupervisorParams, RigError> {
-    let before = crate::calibrate::rest::status(coprocessor)?.supervisor_params;
+    let before = status(coprocessor)?.supervisor_params;
     let off = SupervisorParams { active: false, ..before };
     expect_ack("switching the supervisor off", coprocessor.request(Request::SetSupervisor(off))?)?;
     Ok(before)

@@ -146,7 +146,7 @@ fn counter_lines(c: &Counters) -> Vec<String> {
 /// Asks `coprocessor` for its status and prints [`fault_report`] to stderr (stdout stays
 /// free for reports and JSON).
 pub fn print_fault_report(coprocessor: &mut dyn Coprocessor) -> Result<(), RigError> {
-    let status = crate::calibrate::rest::status(coprocessor)?;
+    let status = crate::status(coprocessor)?;
     let lines = fault_report(&status);
     if lines.is_empty() {
         eprintln!("co-processor ({}): no faults in {} ticks", coprocessor.kind(), status.counters.ticks);

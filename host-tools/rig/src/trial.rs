@@ -206,7 +206,7 @@ impl Trajectory for WithAirCut {
 /// its config store at boot, as `calibrate-offset` stored them; an error that says what to run
 /// when it booted without a stored calibration.
 pub fn stored_params(coprocessor: &mut dyn Coprocessor) -> Result<FeedforwardParams, RigError> {
-    let status = crate::calibrate::rest::status(coprocessor)?;
+    let status = crate::status(coprocessor)?;
     match status.config_source {
         ConfigSource::Stored => Ok(status.params),
         other => Err(RigError::NotCalibrated { config_source: other }),
@@ -295,7 +295,7 @@ pub fn run_trial(
     if deviations.is_empty() {
         return Err(RigError::NoCutPoints { r_eval_mm: config.r_eval_mm });
     }
-    let status = crate::calibrate::rest::status(coprocessor)?;
+    let status = crate::status(coprocessor)?;
     let mean = |f: fn(&Bin) -> f64| -> Vec<Vec<Option<f64>>> {
         bins.chunks(angular_bins)
             .map(|row| row.iter().map(|b| (b.points > 0).then(|| f(b) / f64::from(b.points))).collect())

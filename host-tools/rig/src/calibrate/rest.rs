@@ -7,7 +7,7 @@
 use sts_emulator::{Machine, StepInput, StepOutput};
 use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::wire::{Request, Response, Status};
+use sts_twin_core::wire::{Request, Status};
 
 use crate::{expect_ack, Coprocessor, RigError};
 
@@ -156,10 +156,4 @@ impl<'a> RestRig<'a> {
     }
 }
 
-/// The co-processor's status.
-pub fn status(coprocessor: &mut dyn Coprocessor) -> Result<Status, RigError> {
-    match coprocessor.request(Request::GetStatus)? {
-        Response::Status(status) => Ok(status),
-        other => Err(RigError::Unexpected { request: "the status request", response: Box::new(other) }),
-    }
-}
+pub use crate::coprocessor::status;

@@ -13,8 +13,9 @@ use crate::wire::frame_crc32;
 
 /// Magic bytes at the start of a record.
 pub const CONFIG_MAGIC: [u8; 4] = *b"STSC";
-/// Format version of the record (2: the feedforward parameters carry the analogue-path table).
-pub const CONFIG_VERSION: u16 = 2;
+/// Format version of the record (2: the feedforward parameters carry the analogue-path table;
+/// 3: the table holds ten points with their gains).
+pub const CONFIG_VERSION: u16 = 3;
 /// Largest record, bytes.
 pub const MAX_CONFIG_BYTES: usize = 256;
 
@@ -137,9 +138,9 @@ mod tests {
         }
         assert_eq!(PersistentConfig::decode(&buf[..len - 1]), Err(ConfigError::Length));
         // The largest record: a full analogue-path table.
-        let points: [(f32, f32); crate::analogue_path::PATH_POINTS] =
-            core::array::from_fn(|i| (5.0 * (i + 1) as f32, -1.5 * i as f32));
-        let path = crate::analogue_path::AnaloguePath::from_points(&points).unwrap();
+        let points: [(f32, f32, f32); crate::analogue_path::PATH_POINTS] =
+            core::array::from_fn(|i| (5.0 * (i + 1) as f32, 1.0 + 0.5 * i as f32, -1.5 * i as f32));
+        let path = crate::analogue_path::AnaloguePath::from_responses(8.0, &points).unwrap();
         let full = PersistentConfig { params: FeedforwardParams { analogue_path: path, ..Default::default() } };
         let full_len = full.encode(&mut buf).unwrap();
         assert_eq!(PersistentConfig::decode(&buf[..full_len]), Ok(full));

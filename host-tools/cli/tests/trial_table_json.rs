@@ -1,17 +1,19 @@
-//! `trial-table --json` without `--twin` measures and fits a twin first; its stdout must still
-//! be the JSON alone (the fit's formulas and the progress go to stderr), so that a script can
-//! read it.
+//! `trial-table --sim --json` without `--twin`: the machine measured over its whole range,
+//! the servo-axis twin fitted, and the cut at every frequency of issue 18's table. Its
+//! stdout must be the JSON alone (the fit's summary and the progress go to stderr), and the
+//! twin must be useful across the range and never worse than the bare machine.
 
 use std::process::Command;
 
+const FREQS: &str = "2,5,10,20,30,40,50,60,70,80,100";
+
 #[test]
-fn trial_table_json_prints_json_only() {
-    let dir =
-        std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("trial-table-json-{}", std::process::id()));
+fn the_range_twin_helps_from_20_to_100_hz_is_never_worse_and_stdout_is_json_only() {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("trial-table-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let twin = dir.join("twin.json");
     let out = Command::new(env!("CARGO_BIN_EXE_sts-twin"))
-        .args(["trial-table", "--sim", "--json", "--freqs", "40", "--out"])
+        .args(["trial-table", "--sim", "--json", "--freqs", FREQS, "--out"])
         .arg(&twin)
         .output()
         .expect("run sts-twin");
@@ -22,9 +24,29 @@ fn trial_table_json_prints_json_only() {
     let rows: serde_json::Value =
         serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("stdout is not JSON ({e}):\n{stdout}"));
     let rows = rows.as_array().expect("an array of rows");
-    assert_eq!(rows.len(), 1);
-    assert_eq!(rows[0]["twin"]["freq_hz"].as_f64(), Some(40.0));
-    assert!(rows[0]["reduction_pct"].as_f64().is_some_and(|r| r > 90.0), "{}", rows[0]);
+    assert_eq!(rows.len(), FREQS.split(',').count());
     // What the fit printed went to stderr.
-    assert!(stderr.contains("amplitude (um) = "), "{stderr}");
+    assert!(stderr.contains("servo-axis twin: "), "{stderr}");
+    for row in rows {
+        let freq_hz = row["twin"]["freq_hz"].as_f64().unwrap();
+        let bare_um = row["bare"]["form_error_pv_um"].as_f64().unwrap();
+        let twin_um = row["twin"]["form_error_pv_um"].as_f64().unwrap();
+        let reduction_pct = row["reduction_pct"].as_f64().unwrap();
+        let phase_deg = row["twin"]["phase_error_deg"].as_f64().unwrap();
+        eprintln!("{freq_hz} Hz: {bare_um:.3} -> {twin_um:.3} um ({reduction_pct:.1}%), phase {phase_deg:+.2} deg");
+        // Never worse than bare: within 5% or 10 nm PV.
+        assert!(twin_um <= (bare_um * 1.05).max(bare_um + 0.010), "{freq_hz} Hz: {row}");
+        // Issue 18's targets: 90% from 20 to 60 Hz, 80% at 80 Hz.
+        if (20.0..=60.0).contains(&freq_hz) {
+            assert!(reduction_pct >= 90.0, "{freq_hz} Hz: {row}");
+        }
+        if freq_hz >= 70.0 {
+            assert!(reduction_pct >= 80.0, "{freq_hz} Hz: {row}");
+        }
+        if freq_hz == 40.0 {
+            assert!(reduction_pct >= 98.5, "{row}");
+            // Measured -0.09 deg (the issue asks for 0.05; see README): a guard, not the goal.
+            assert!(phase_deg.abs() <= 0.15, "{row}");
+        }
+    }
 }

@@ -134,7 +134,8 @@ impl MeasureConfig {
         m
     }
 
-    fn check(&self) -> Result<(), MeasureError> {
+    /// Checks the configuration (frequencies, amplitudes, durations) before anything runs.
+    pub fn check(&self) -> Result<(), MeasureError> {
         let bad = |m: &str| Err(MeasureError::Config(m.into()));
         if self.freqs_hz.is_empty() || self.amps_um.is_empty() {
             return bad("no frequencies or amplitudes");

@@ -77,7 +77,7 @@ pub enum FitError {
         error: postcard::Error,
     },
     /// `--effect` names an effect that is not known.
-    #[error("--effect: unknown effect {name:?} (known: {})", EFFECTS.join(", "))]
+    #[error("--effect: unknown effect {name:?} (known: {}, and servo-axis: the servo-axis twin alone)", EFFECTS.join(", "))]
     UnknownEffect {
         /// The name given.
         name: String,

@@ -156,8 +156,9 @@ pub fn with_measured_path(
     seed: u64,
 ) -> Result<(FeedforwardParams, Vec<PathPoint>), RigError> {
     let mut machine = Machine::new(plant, effects, seed ^ 0xCA1B)?;
-    let points = measure_path(coprocessor, &mut machine, params, &PathConfig::default(), 0)?;
-    let analogue_path = path_table(&points)?;
+    let config = PathConfig::default();
+    let points = measure_path(coprocessor, &mut machine, params, &config, 0)?;
+    let analogue_path = path_table(&points, config.amp_um)?;
     Ok((FeedforwardParams { analogue_path, ..params }, points))
 }
 

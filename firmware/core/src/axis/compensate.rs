@@ -65,14 +65,11 @@ pub struct Phasor {
 }
 
 impl Phasor {
-    const ZERO: Self = Self { re: 0.0, im: 0.0 };
-
-    fn mul(self, other: Self) -> Self {
-        Self { re: self.re * other.re - self.im * other.im, im: self.re * other.im + self.im * other.re }
-    }
+    /// Zero.
+    pub const ZERO: Self = Self { re: 0.0, im: 0.0 };
 
     /// `1 / self`, or zero for zero (no learning through a path that does not respond).
-    fn inverse(self) -> Self {
+    pub fn inverse(self) -> Self {
         let norm = self.re * self.re + self.im * self.im;
         if norm > 0.0 && norm.is_finite() {
             Self { re: self.re / norm, im: -self.im / norm }
@@ -84,6 +81,15 @@ impl Phasor {
     /// The amplitude, in the phasor's unit.
     pub fn amplitude(self) -> f32 {
         libm::sqrtf(self.re * self.re + self.im * self.im)
+    }
+}
+
+/// The complex product.
+impl core::ops::Mul for Phasor {
+    type Output = Self;
+
+    fn mul(self, other: Self) -> Self {
+        Self { re: self.re * other.re - self.im * other.im, im: self.re * other.im + self.im * other.re }
     }
 }
 
@@ -111,8 +117,19 @@ pub struct Compensator {
     state: AxisState,
     /// Command phase step per tick the gains are for, u32 turns (0: none measured yet).
     step_turns: u32,
-    /// `1 / G(h f)` per order.
+    /// `G(h f)` and `1 / G(h f)` per order.
+    response: [Phasor; ORDERS.len()],
     inverse_response: [Phasor; ORDERS.len()],
+    /// Whether the responses were measured in the last [`Compensator::learn`].
+    remeasured: bool,
+    /// The axis has no effects: its response does not depend on the amplitude.
+    linear_only: bool,
+    /// `G(h f)` per order as the analogue path is calibrated (see
+    /// [`Compensator::path_responses`]; zero until simulated), the phase step and amplitude
+    /// (nm) it is for, and the next order to simulate.
+    path_response: [Phasor; ORDERS.len()],
+    path_response_for: (u32, i32),
+    path_pending: usize,
     /// `U_h` per order, nm.
     correction_nm: [Phasor; ORDERS.len()],
     /// `sum e_k (sin + i cos)(h theta_k)` since the last [`Compensator::learn`], nm.
@@ -149,7 +166,13 @@ impl Compensator {
             linear,
             state: AxisState::INITIAL,
             step_turns: 0,
+            response: [Phasor::ZERO; ORDERS.len()],
             inverse_response: [Phasor::ZERO; ORDERS.len()],
+            remeasured: false,
+            linear_only: params.friction.is_none() && params.hysteresis.is_none() && params.ripple.is_none(),
+            path_response: [Phasor::ZERO; ORDERS.len()],
+            path_response_for: (0, 0),
+            path_pending: 0,
             correction_nm: [Phasor::ZERO; ORDERS.len()],
             sums: [Phasor::ZERO; ORDERS.len()],
             settling_ticks: SETTLE_TICKS,
@@ -197,14 +220,17 @@ impl Compensator {
     pub fn learn(&mut self, step_turns: i32) {
         let sums = core::mem::replace(&mut self.sums, [Phasor::ZERO; ORDERS.len()]);
         let summed_ticks = core::mem::replace(&mut self.summed_ticks, 0);
+        self.remeasured = false;
         if step_turns <= 0 {
             return;
         }
         let step = step_turns as u32;
         if (i64::from(step) - i64::from(self.step_turns)).abs() * REMEASURE_FRACTION > i64::from(step) {
             self.step_turns = step;
+            self.remeasured = true;
             for (i, &order) in ORDERS.iter().enumerate() {
-                self.inverse_response[i] = self.response(step.wrapping_mul(order)).inverse();
+                self.response[i] = self.response(step.wrapping_mul(order));
+                self.inverse_response[i] = self.response[i].inverse();
             }
         }
         // mu per tick: the fraction per period over the ticks of a period.
@@ -222,7 +248,7 @@ impl Compensator {
         let amplitude_nm = self.command_nm.amplitude();
         if amplitude_nm >= MIN_COMMAND_NM {
             for ((r, sum), inverse) in self.relative.iter_mut().zip(sums).zip(self.inverse_response) {
-                let delta = sum.mul(inverse);
+                let delta = sum * inverse;
                 r.re -= 2.0 * mu * delta.re / amplitude_nm;
                 r.im -= 2.0 * mu * delta.im / amplitude_nm;
             }
@@ -245,33 +271,40 @@ impl Compensator {
     /// `step_turns` per tick: a sine simulated from rest, projected over whole periods; zero
     /// (no learning) beyond half the tick rate or below 0.5 Hz.
     fn response(&self, step_turns: u32) -> Phasor {
-        if step_turns == 0 || step_turns >= 1 << 31 {
-            return Phasor::ZERO;
-        }
-        let ticks_per_period = (4_294_967_296.0 / step_turns as f32) as u32 + 1;
-        if ticks_per_period > MAX_PERIOD_TICKS {
-            return Phasor::ZERO;
-        }
-        let periods = RESPONSE_MEASURE_TICKS.div_ceil(ticks_per_period.max(1)).max(1);
-        let measure_ticks = (periods as f32 * 4_294_967_296.0 / step_turns as f32) as u32;
-        let mut state = AxisState::INITIAL;
-        let (mut input, mut output) = (Phasor::ZERO, Phasor::ZERO);
-        let mut phase = 0u32;
-        for k in 0..RESPONSE_SETTLE_TICKS + measure_ticks {
-            let (s, c) = sin_cos(phase);
-            let added_nm = to_nm(RESPONSE_AMP_NM * s);
-            let out_nm = self.linear.step_added(&mut state, 0, added_nm) as f32 * 1e-3;
-            if k >= RESPONSE_SETTLE_TICKS {
-                input.re += added_nm as f32 * s;
-                input.im += added_nm as f32 * c;
-                output.re += out_nm * s;
-                output.im += out_nm * c;
-            }
-            phase = phase.wrapping_add(step_turns);
-        }
-        output.mul(input.inverse())
+        response_of(&self.linear, step_turns, RESPONSE_AMP_NM)
     }
 
+    /// `G(h f)` per order of [`ORDERS`] at the frequency of the last learning, simulated as
+    /// the analogue path is calibrated: the command at rest, a sine of `amp_nm` added (0: the
+    /// responses' own amplitude), the twin's effects included (see
+    /// [`crate::analogue_path`]); zero before any learning. Returns the phase step per tick
+    /// it is for too.
+    ///
+    /// A linear axis's is the learning's own response. An axis with effects is simulated
+    /// when the frequency or the amplitude changes, one order per call and never in a call
+    /// whose [`Compensator::learn`] measured the responses, so that no model update carries
+    /// more than one simulated response (the update must be done by its due tick); an order
+    /// not simulated yet is zero (no correction for the path).
+    pub fn path_responses(&mut self, amp_nm: f32) -> (u32, [Phasor; ORDERS.len()]) {
+        if self.step_turns == 0 {
+            return (0, [Phasor::ZERO; ORDERS.len()]);
+        }
+        if self.linear_only {
+            return (self.step_turns, self.response);
+        }
+        let amp_nm = if amp_nm > 0.0 { amp_nm } else { RESPONSE_AMP_NM };
+        let key = (self.step_turns, to_nm(amp_nm));
+        if key != self.path_response_for {
+            (self.path_response_for, self.path_pending) = (key, 0);
+            self.path_response = [Phasor::ZERO; ORDERS.len()];
+        }
+        if self.path_pending < ORDERS.len() && !self.remeasured {
+            let i = self.path_pending;
+            self.path_response[i] = response_of(&self.model, self.step_turns.wrapping_mul(ORDERS[i]), amp_nm);
+            self.path_pending += 1;
+        }
+        (self.step_turns, self.path_response)
+    }
     /// Puts the simulated axis back at rest, at the next command (after a gap in the
     /// commands), keeping the correction learned so far.
     pub fn restart(&mut self) {
@@ -291,6 +324,37 @@ impl Compensator {
     pub fn resets(&self) -> u32 {
         self.state.resets
     }
+}
+
+/// `model`'s response from an added displacement of `amp_nm` to the TCP at a phase step of
+/// `step_turns` per tick, the command at rest: a sine simulated from rest, projected over
+/// whole periods; zero beyond half the tick rate or below 0.5 Hz.
+fn response_of(model: &AxisModel, step_turns: u32, amp_nm: f32) -> Phasor {
+    if step_turns == 0 || step_turns >= 1 << 31 {
+        return Phasor::ZERO;
+    }
+    let ticks_per_period = (4_294_967_296.0 / step_turns as f32) as u32 + 1;
+    if ticks_per_period > MAX_PERIOD_TICKS {
+        return Phasor::ZERO;
+    }
+    let periods = RESPONSE_MEASURE_TICKS.div_ceil(ticks_per_period.max(1)).max(1);
+    let measure_ticks = (periods as f32 * 4_294_967_296.0 / step_turns as f32) as u32;
+    let mut state = AxisState::INITIAL;
+    let (mut input, mut output) = (Phasor::ZERO, Phasor::ZERO);
+    let mut phase = 0u32;
+    for k in 0..RESPONSE_SETTLE_TICKS + measure_ticks {
+        let (s, c) = sin_cos(phase);
+        let added_nm = to_nm(amp_nm * s);
+        let out_nm = model.step_added(&mut state, 0, added_nm) as f32 * 1e-3;
+        if k >= RESPONSE_SETTLE_TICKS {
+            input.re += added_nm as f32 * s;
+            input.im += added_nm as f32 * c;
+            output.re += out_nm * s;
+            output.im += out_nm * c;
+        }
+        phase = phase.wrapping_add(step_turns);
+    }
+    output * input.inverse()
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 use heapless::Vec;
 
 use crate::analogue_path::AnaloguePath;
-use crate::axis::compensate::{Compensator, ORDERS};
+use crate::axis::compensate::{Compensator, Phasor, ORDERS};
 use crate::commands::DefaultCommandRing;
 use crate::features::{DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features};
 use crate::math::{deg_to_turns, um_to_pm};
@@ -243,9 +243,10 @@ impl Models {
                         request.cmd_step_turns,
                         capture.cfg.sample_rate_hz,
                     );
-                    match &self.compensator {
+                    match &mut self.compensator {
                         Some(compensator) => {
-                            result.targets = compensated_targets(&mut output, &program.terms, compensator)
+                            let ratios = path_ratios(compensator, path, capture.cfg.sample_rate_hz);
+                            result.targets = compensated_targets(&mut output, &program.terms, compensator, ratios)
                         }
                         None => result.targets = SynthTargets::new(&output, &program.terms),
                     }
@@ -294,12 +295,44 @@ impl Models {
     }
 }
 
+/// `G(h f) / H(h f)` per order of the compensator: its simulated path, as the table was
+/// measured, over the measured one (see [`crate::analogue_path`]), 1 where the table does not
+/// reach or the twin has no response yet. An unmeasured gain takes the twin's, so that the phase alone is corrected.
+fn path_ratios(compensator: &mut Compensator, path: &AnaloguePath, sample_rate_hz: f32) -> [Phasor; ORDERS.len()] {
+    if path.count == 0 {
+        return [Phasor { re: 1.0, im: 0.0 }; ORDERS.len()];
+    }
+    let (step_turns, responses) = compensator.path_responses(path.amp_um * 1e3);
+    let freq_hz = step_turns as f32 * (sample_rate_hz / 4_294_967_296.0);
+    core::array::from_fn(|i| {
+        let twin = responses[i];
+        let twin_gain = twin.amplitude();
+        match path.response_at(freq_hz * ORDERS[i] as f32) {
+            Some((gain, phase_deg)) if twin_gain > 0.0 => {
+                let gain = gain.unwrap_or(twin_gain);
+                let phase_rad = phase_deg * (core::f32::consts::PI / 180.0);
+                twin * Phasor { re: libm::cosf(phase_rad) * gain, im: libm::sinf(phase_rad) * gain }.inverse()
+            }
+            _ => Phasor { re: 1.0, im: 0.0 },
+        }
+    })
+}
+
 /// The synthesiser's targets of a program whose axis twin compensates: its fundamental plus
-/// the compensator's (a correction `u` cancels the error `-u`), and the axis term's slot a
-/// harmonic of the compensator's higher order. The output's fundamental registers are
+/// the compensator's (a correction `u` cancels the error `-u`), each harmonic of which is
+/// taken through `ratios` (its simulated path over the measured one), and the axis term's
+/// slot a harmonic of the compensator's higher order. The output's fundamental registers are
 /// updated to the sum.
-fn compensated_targets(output: &mut ModelOutput, terms: &[TickTerm], compensator: &Compensator) -> SynthTargets {
-    let correction_nm = compensator.correction_nm();
+fn compensated_targets(
+    output: &mut ModelOutput,
+    terms: &[TickTerm],
+    compensator: &Compensator,
+    ratios: [Phasor; ORDERS.len()],
+) -> SynthTargets {
+    let mut correction_nm = compensator.correction_nm();
+    for (correction, ratio) in correction_nm.iter_mut().zip(ratios) {
+        *correction = *correction * ratio;
+    }
     // amp sin(theta + phase) = (amp cos phase) sin theta + (amp sin phase) cos theta.
     let (amp_um, phase_rad) = (output.amp_um(), output.phase_deg() * (core::f32::consts::PI / 180.0));
     let (amp_um, phase_deg) = amp_phase_deg(
@@ -389,5 +422,59 @@ mod tests {
         let mut untouched = output;
         correct_for_path(&mut untouched, &terms, &AnaloguePath::NONE, STEP_40HZ, 8000.0);
         assert_eq!(untouched, output);
+    }
+
+    #[test]
+    fn the_axis_correction_is_taken_through_the_twins_path_over_the_measured_one() {
+        let mut compensator = Compensator::new(&crate::axis::default_machine()).unwrap();
+        let unit = Phasor { re: 1.0, im: 0.0 };
+        // Nothing measured by the twin yet: no change.
+        let path = AnaloguePath::from_responses(8.0, &[(40.0, 2.0, -6.0), (100.0, 5.0, -170.0)]).unwrap();
+        assert_eq!(path_ratios(&mut compensator, &path, 8000.0), [unit; ORDERS.len()]);
+        compensator.learn(STEP_40HZ);
+        let (_, twin) = compensator.path_responses(8000.0);
+        let ratios = path_ratios(&mut compensator, &path, 8000.0);
+        // 40 Hz is in the table: G / H; 120 Hz (the third order) is beyond it: 1.
+        let (gain, phase_deg) = (ratios[0].amplitude(), libm::atan2f(ratios[0].im, ratios[0].re).to_degrees());
+        let twin_phase_deg = libm::atan2f(twin[0].im, twin[0].re).to_degrees();
+        assert!((gain - twin[0].amplitude() / 2.0).abs() < 1e-5, "{gain}");
+        assert!((phase_deg - (twin_phase_deg + 6.0)).abs() < 1e-3, "{phase_deg}");
+        assert_eq!(ratios[1], unit);
+        // A table that equals the twin's path changes nothing; phases alone keep the gain.
+        let same = AnaloguePath::from_responses(8.0, &[(40.0, twin[0].amplitude(), twin_phase_deg)]).unwrap();
+        let ratio = path_ratios(&mut compensator, &same, 8000.0)[0];
+        assert!((ratio.re - 1.0).abs() < 1e-5 && ratio.im.abs() < 1e-5, "{ratio:?}");
+        let phases = AnaloguePath::from_points(&[(40.0, twin_phase_deg - 2.0)]).unwrap();
+        let ratio = path_ratios(&mut compensator, &phases, 8000.0)[0];
+        assert!((ratio.amplitude() - 1.0).abs() < 1e-5, "{ratio:?}");
+        assert!((libm::atan2f(ratio.im, ratio.re).to_degrees() - 2.0).abs() < 1e-3, "{ratio:?}");
+        assert_eq!(path_ratios(&mut compensator, &AnaloguePath::NONE, 8000.0), [unit; ORDERS.len()]);
+    }
+
+    /// With friction the response to a sine at rest depends on its amplitude; the twin's is
+    /// simulated with the table's, effects included.
+    #[test]
+    fn the_twins_path_is_simulated_as_the_table_was_measured() {
+        let friction = crate::axis::Friction {
+            coulomb_mps2: 3.0 / 45.0,
+            static_mps2: 4.5 / 45.0,
+            stribeck_mps: 2e-4,
+            smooth_mps: 1e-5,
+        };
+        let params = crate::axis::AxisParams { friction: Some(friction), ..crate::axis::default_machine() };
+        let mut compensator = Compensator::new(&params).unwrap();
+        compensator.learn(STEP_40HZ);
+        // Not in the update that measured the learning's responses: none yet.
+        assert_eq!(compensator.path_responses(8000.0).1, [Phasor::ZERO; ORDERS.len()]);
+        compensator.learn(STEP_40HZ);
+        let phase_at = |c: &mut Compensator, amp_nm: f32| {
+            let g = c.path_responses(amp_nm).1[0];
+            libm::atan2f(g.im, g.re).to_degrees()
+        };
+        let (small, large) = (phase_at(&mut compensator, 1000.0), phase_at(&mut compensator, 8000.0));
+        // Friction lags a small sine at rest more than a large one.
+        assert!(small < large - 5.0, "1 um {small} deg, 8 um {large} deg");
+        let linear = phase_at(&mut Compensator::new(&crate::axis::default_machine()).unwrap(), 8000.0);
+        assert_eq!(linear, 0.0, "no learning yet: no response");
     }
 }

@@ -33,9 +33,10 @@ pub struct MotionEstimate {
     /// Amplitude of the command minus the tool's motion at the command frequency, over
     /// `cmd_amp_nm`.
     pub error_ratio: f32,
-    /// The power of the accelerometer's signal at the command frequency over its whole
-    /// variance in the window: near 1 where the accelerometer sees the motion, near 0
-    /// where it sees mostly noise (on which the twin's features are then measured).
+    /// The power of the commanded motion's acceleration over itself plus the
+    /// accelerometer's power at other frequencies: near 1 where the accelerometer can see
+    /// the motion, near 0 where it sees mostly noise (on which the twin's features are then
+    /// measured).
     pub motion_share: f32,
     /// The accelerometer's power at the command frequency, (m/s^2)^2.
     pub motion_power_m2ps4: f32,
@@ -166,8 +167,13 @@ pub fn estimate<const RING_BLOCKS: usize>(
     let error_cos_nm = cmd_cos_nm + q_codes * to_nm;
     let error_ratio = libm::sqrtf(error_sin_nm * error_sin_nm + error_cos_nm * error_cos_nm) / cmd_amp_nm;
     let motion_power_m2ps4 = 0.5 * (p_codes * p_codes + q_codes * q_codes) * (acc_mps2 * acc_mps2);
-    let motion_share = motion_power_m2ps4 / variance_m2ps4;
     let other_power_m2ps4 = (variance_m2ps4 - motion_power_m2ps4).max(0.0);
+    // The share is the commanded motion's, not the motion seen: compensation moves the
+    // tool towards the command, and above the axis's resonance (the tool then moving
+    // against its command) the motion seen passes through zero while it ramps in.
+    let command_acc_mps2 = w_rad_per_s * w_rad_per_s * cmd_amp_nm * 1e-9;
+    let command_power_m2ps4 = 0.5 * command_acc_mps2 * command_acc_mps2;
+    let motion_share = command_power_m2ps4 / (command_power_m2ps4 + other_power_m2ps4);
     (error_ratio.is_finite() && motion_share.is_finite()).then_some(MotionEstimate {
         freq_hz,
         cmd_amp_nm,

@@ -52,7 +52,9 @@ pub struct Args {
     /// Accelerometer scale, m/s^2 per LSB, when the manifest does not state it.
     #[arg(long)]
     pub acc_scale: Option<f64>,
-    /// Physical effects the twin gains as per-tick terms (canonical names, comma separated).
+    /// Physical effects the twin gains as per-tick terms (canonical names, comma separated),
+    /// or `servo-axis`: the servo axis alone simulated from the command, the twin for the
+    /// machine's whole speed range (measured over it: `measure --freqs`).
     #[arg(long, value_delimiter = ',')]
     pub effect: Vec<String>,
     /// Seconds at each group's start left out of the feature window (the start transient

@@ -106,13 +106,21 @@ fn stored_calibration_board(bus: &std::path::Path) -> anyhow::Result<Box<dyn Cop
 
 /// Prints a measured analogue path for people.
 pub fn print_path(points: &[PathPoint]) {
-    eprintln!("analogue path (DAC -> TCP) phase: {}", path_text(points.iter().map(|p| (p.freq_hz, p.phase_deg))));
+    eprintln!(
+        "analogue path (DAC -> TCP) gain and phase: {}",
+        path_text(points.iter().map(|p| (p.freq_hz, p.gain, p.phase_deg)))
+    );
 }
 
-/// An analogue-path table as `5 Hz +0.05 deg, 10 Hz ...` (`none` when empty).
-fn path_text(points: impl Iterator<Item = (f64, f64)>) -> String {
-    let cells: Vec<String> =
-        points.map(|(freq_hz, phase_deg)| format!("{freq_hz:.0} Hz {phase_deg:+.2} deg")).collect();
+/// An analogue-path table as `5 Hz 1.002 +0.05 deg, 10 Hz ...` (`none` when empty; a gain
+/// of 0 is not measured and left out).
+fn path_text(points: impl Iterator<Item = (f64, f64, f64)>) -> String {
+    let cells: Vec<String> = points
+        .map(|(freq_hz, gain, phase_deg)| match gain > 0.0 {
+            true => format!("{freq_hz:.0} Hz {gain:.3} {phase_deg:+.2} deg"),
+            false => format!("{freq_hz:.0} Hz {phase_deg:+.2} deg"),
+        })
+        .collect();
     if cells.is_empty() {
         "none".to_string()
     } else {
@@ -155,12 +163,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 "stored calibration: offset {:+.3} mV, K_dv {:.4} um/V, analogue path {}",
                 f64::from(stored.offset_v) * 1e3,
                 stored.k_dv_um_per_v,
-                path_text(
-                    stored
-                        .analogue_path
-                        .points()
-                        .map(|(freq_hz, phase_deg)| (f64::from(freq_hz), f64::from(phase_deg)))
-                )
+                path_text(stored.analogue_path.points().map(|(freq_hz, gain, phase_deg)| (
+                    f64::from(freq_hz),
+                    f64::from(gain),
+                    f64::from(phase_deg)
+                )))
             );
         }
         stored

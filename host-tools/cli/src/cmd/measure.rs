@@ -1,6 +1,6 @@
 //! `sts-twin measure`: the offline dynamic-error measurement test on the emulated machine
-//! (99 groups: 1, 5, 10, ..., 40 Hz x 1..11 um, 6 s each at 8 kHz), written as an
-//! `sts-twin-dataset/1` directory.
+//! (by default the paper's 99 groups: 1, 5, 10, ..., 40 Hz x 1..11 um, 6 s each at 8 kHz),
+//! written as an `sts-twin-dataset/1` directory.
 
 use anyhow::Context;
 use std::path::PathBuf;
@@ -29,6 +29,14 @@ pub struct Args {
     /// start transient); a lead-in records steady motion only.
     #[arg(long, default_value_t = 0.0)]
     pub lead_in_s: f64,
+    /// Z frequencies of the groups, Hz, comma-separated (default: the paper's 1, 5, 10, ...,
+    /// 40). The emulated machine may go beyond the paper's 40 Hz, e.g. to measure a twin for
+    /// its whole range: `--freqs 1,5,10,...,100`.
+    #[arg(long, value_delimiter = ',')]
+    pub freqs: Option<Vec<f64>>,
+    /// Stroke amplitudes of the groups, um, comma-separated (default: 1, 2, ..., 11).
+    #[arg(long, value_delimiter = ',')]
+    pub amps: Option<Vec<f64>>,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -45,7 +53,18 @@ pub fn config(args: &Args) -> anyhow::Result<MeasureConfig> {
         .iter()
         .map(|text| text.parse::<EffectSpec>().with_context(|| format!("--effect {text}")))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok(MeasureConfig { plant, effects, seed: args.seed, lead_in_s: args.lead_in_s, ..MeasureConfig::default() })
+    let defaults = MeasureConfig::default();
+    let config = MeasureConfig {
+        plant,
+        effects,
+        seed: args.seed,
+        lead_in_s: args.lead_in_s,
+        freqs_hz: args.freqs.clone().unwrap_or(defaults.freqs_hz.clone()),
+        amps_um: args.amps.clone().unwrap_or(defaults.amps_um.clone()),
+        ..defaults
+    };
+    config.check().context("--freqs / --amps")?;
+    Ok(config)
 }
 
 /// Runs `sts-twin measure`.

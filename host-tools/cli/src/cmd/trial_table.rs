@@ -5,6 +5,8 @@ use std::path::PathBuf;
 
 use serde::Serialize;
 
+use sts_emulator::{EffectSpec, MeasureConfig, PlantParams};
+use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
 use sts_rig::machine_params;
 use sts_rig::trial::{run_trial, with_measured_path, TrialConfig, TrialReport};
@@ -17,12 +19,13 @@ pub struct Args {
     /// Z operational frequencies, Hz, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "5,10,20,30,40,60,80")]
     pub freqs: Vec<f64>,
-    /// Model file of the twin; without it the default machine is measured and a twin fitted
-    /// (as `sts-twin demo` does) and written to `--out`.
+    /// Model file of the twin; without it the machine is measured over its whole range
+    /// (1, 5, 10, ..., 100 Hz x 1..11 um), a servo-axis twin fitted (`fit --effect
+    /// servo-axis`) and written to `--out`.
     #[arg(long)]
     pub twin: Option<PathBuf>,
     /// Where a fitted model is written.
-    #[arg(long, default_value = "target/demo-twin.json")]
+    #[arg(long, default_value = "target/range-twin.json")]
     pub out: PathBuf,
     /// The emulated machine.
     #[command(flatten)]
@@ -52,6 +55,45 @@ pub struct Row {
     pub compensation: String,
 }
 
+/// Z frequencies of the measurement a twin for the whole range is fitted on, Hz.
+pub fn range_freqs_hz() -> Vec<f64> {
+    std::iter::once(1.0).chain((1..=20).map(|k| 5.0 * f64::from(k))).collect()
+}
+
+/// Measures `plant` with `effects` over [`range_freqs_hz`] and fits the servo-axis twin with
+/// formulas on what it leaves; writes it to `out`.
+fn measure_and_fit_range(
+    plant: &PlantParams,
+    effects: &[EffectSpec],
+    seed: u64,
+    out: &std::path::Path,
+) -> anyhow::Result<ModelFile> {
+    let freqs_hz = range_freqs_hz();
+    eprintln!("measuring the machine over its range: {} groups, 1-100 Hz x 1-11 um, 6 s each ...", freqs_hz.len() * 11);
+    let measure =
+        MeasureConfig { plant: plant.clone(), effects: effects.to_vec(), seed, freqs_hz, ..MeasureConfig::default() };
+    let dataset = sts_emulator::measure::run(&measure, &|_| {})?;
+    eprintln!("fitting the servo-axis twin and the formulas on what it leaves ...");
+    let prepared = sts_fit::effects::prepare(&dataset, &[sts_fit::effects::SERVO_AXIS.to_string()])?;
+    let description = "trial-table: servo-axis twin over 1-100 Hz";
+    let model = fit(&prepared.dataset, description, &FitConfig { seed, ..FitConfig::default() }, &mut |_| {})?;
+    let model = prepared.attach(model)?;
+    if let Some(dir) = out.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    model.write(out)?;
+    prepared.write_record(out)?;
+    eprintln!("{}", axis_summary(&prepared.records));
+    Ok(model)
+}
+
+/// The identified servo axis in a line for people.
+fn axis_summary(records: &[sts_fit::effects::EffectRecord]) -> String {
+    let params: Vec<String> =
+        records.iter().flat_map(|r| r.params.iter()).map(|(name, value)| format!("{name} {value:.4}")).collect();
+    format!("servo-axis twin: {}", params.join(", "))
+}
+
 /// Runs `sts-twin trial-table`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let (plant, effects) = args.machine.load()?;
@@ -61,7 +103,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let model = match &args.twin {
         Some(path) => ModelFile::read(path)?,
         None => {
-            let model = super::demo::measure_and_fit(args.seed, &args.out)?;
+            let model = measure_and_fit_range(&plant, &effects, args.seed, &args.out)?;
             // With --json, stdout holds the JSON only.
             let summary = super::demo::fit_summary(&model, &args.out);
             if args.json {

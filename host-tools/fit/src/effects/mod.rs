@@ -47,6 +47,17 @@ use crate::FitError;
 /// The effects the servo-axis twin carries.
 const AXIS_EFFECTS: [&str; 3] = ["coulomb-friction", "presliding-hysteresis", "force-ripple"];
 
+/// Not an effect but the servo-axis twin alone (controller, slide and structural mode,
+/// simulated from the command, no nonlinear effect): the twin for a machine's whole speed
+/// range, whose correction the firmware learns from the command rather than from the
+/// accelerometer's view of the compensated motion. `fit --effect servo-axis`.
+pub const SERVO_AXIS: &str = "servo-axis";
+
+/// Whether `name` is carried by the servo-axis twin.
+fn is_axis(name: &str) -> bool {
+    name == SERVO_AXIS || AXIS_EFFECTS.contains(&name)
+}
+
 /// Laguerre pole of the effect terms (the same as the diagnosis's).
 pub const POLE: f64 = 0.93;
 
@@ -224,7 +235,7 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs]) -> f64 {
 /// whose `z_tcp_um` excludes the terms' output.
 pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError> {
     for n in names {
-        if !EFFECTS.contains(&n.as_str()) {
+        if !(EFFECTS.contains(&n.as_str()) || n == SERVO_AXIS) {
             return Err(FitError::UnknownEffect { name: n.clone() });
         }
     }
@@ -262,7 +273,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
     // simulates the axis's whole linear response itself (a late setpoint in its command
     // delay), the mode keeps its resonance only, and the axis is identified on readings
     // without it (the axis's own mode lies above the band).
-    let has_axis = names.iter().any(|n| AXIS_EFFECTS.contains(&n.as_str()));
+    let has_axis = names.iter().any(|n| is_axis(n));
     let in_band_mode = if names.iter().any(|n| n == "structural-mode") {
         linear::fit_mode(dataset, &inputs)?.map(|(mode_terms, params)| {
             let kept = if has_axis {
@@ -277,7 +288,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
     };
     for name in names {
         let (new_terms, params, note) = match name.as_str() {
-            n if AXIS_EFFECTS.contains(&n) => {
+            n if is_axis(n) => {
                 // One servo-axis twin carries all three (identified together below).
                 axis_names.push(name.clone());
                 continue;
@@ -441,6 +452,7 @@ fn fit_axis(
                     ("presliding_distance_um".to_string(), f64::from(h.force_mps2 / h.stiffness_per_s2) * 1e6),
                 ]
             }),
+            SERVO_AXIS => Vec::new(),
             _ => p.ripple.map_or_else(Vec::new, |r| {
                 vec![
                     ("amp_nm".to_string(), f64::from(r.amp_nm)),
@@ -456,7 +468,11 @@ fn fit_axis(
             effect: name.clone(),
             params,
             terms: usize::from(first),
-            note: format!("servo-axis twin (controller, slide, mode and the effect, simulated from the command; forces per kg; the firmware compensates through it){}", if first { "" } else { ": the term above" }),
+            note: format!(
+                "servo-axis twin (controller, slide, mode{}, simulated from the command; forces per kg; the firmware compensates through it){}",
+                if name == SERVO_AXIS { "" } else { " and the effect" },
+                if first { "" } else { ": the term above" }
+            ),
         });
     }
     Ok((TickTerm::Axis(p), records))

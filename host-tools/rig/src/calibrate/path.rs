@@ -1,4 +1,4 @@
-//! Measuring the analogue path's phase `arg H(f)`: DAC -> motion controller -> servo -> TCP.
+//! Measuring the analogue path's response `H(f)`: DAC -> motion controller -> servo -> TCP.
 //!
 //! The co-processor runs a constant twin program (amplitude `amp_um`, phase 0), so that it
 //! asks for the displacement `u = -amp_um * sin(command phase)`; the command itself stays at
@@ -51,7 +51,7 @@ pub struct PathConfig {
 impl Default for PathConfig {
     fn default() -> Self {
         Self {
-            freqs_hz: vec![5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 80.0],
+            freqs_hz: vec![5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 100.0],
             amp_um: 8.0,
             settle_s: 0.75,
             measure_s: 1.0,
@@ -71,10 +71,11 @@ pub struct PathPoint {
     pub phase_deg: f64,
 }
 
-/// The table for the firmware from measured points.
-pub fn path_table(points: &[PathPoint]) -> Result<AnaloguePath, RigError> {
-    let pairs: Vec<(f32, f32)> = points.iter().map(|p| (p.freq_hz as f32, p.phase_deg as f32)).collect();
-    AnaloguePath::from_points(&pairs).map_err(|error| RigError::PathTable { error })
+/// The table for the firmware from points measured with a sine of `amp_um`.
+pub fn path_table(points: &[PathPoint], amp_um: f64) -> Result<AnaloguePath, RigError> {
+    let responses: Vec<(f32, f32, f32)> =
+        points.iter().map(|p| (p.freq_hz as f32, p.gain as f32, p.phase_deg as f32)).collect();
+    AnaloguePath::from_responses(amp_um as f32, &responses).map_err(|error| RigError::PathTable { error })
 }
 
 /// Least-squares `a sin + b cos + c` of `values` against `angles`; returns `(a, b)`.
@@ -238,7 +239,7 @@ mod tests {
         assert!(points[0].phase_deg.abs() < 2.5, "{points:?}");
         assert!((points[1].gain - 1.94).abs() < 0.1, "{points:?}");
         assert!(points[1].phase_deg < -3.0 && points[1].phase_deg > -12.0, "{points:?}");
-        let table = path_table(&points).unwrap();
+        let table = path_table(&points, config.amp_um).unwrap();
         assert_eq!(table.count, 2);
         // Left at rest: the output ramped out, not cut off mid-stroke for the next user.
         match cop.request(Request::GetStatus).unwrap() {

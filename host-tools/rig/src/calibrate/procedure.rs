@@ -224,7 +224,7 @@ pub fn calibrate(
             let points = measure_path(cop, machine, params, path_config, tick)?;
             let ticks = ((machine.time_s() - t0_s) * path_config.sample_rate_hz).round() as u64;
             rig.advanced(ticks, -offset.offset_v);
-            params.analogue_path = path_table(&points)?;
+            params.analogue_path = path_table(&points, path_config.amp_um)?;
             points
         }
         None => Vec::new(),

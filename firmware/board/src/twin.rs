@@ -129,10 +129,16 @@ impl BackgroundApp for TwinBackground {
             Err(_) => Err(RecordError::Crc),
         };
         self.config_source = match loaded {
-            Ok(config) => match ctx.shared.with(|s| s.servo.set_params(config.params)) {
-                Ok(()) => ConfigSource::Stored,
-                Err(_) => ConfigSource::DefaultsAfterCorrupt,
-            },
+            // Both were validated with the record; the checks keep a failure visible anyway.
+            Ok(config)
+                if ctx.shared.with(|s| {
+                    s.servo.set_params(config.params).is_ok()
+                        && s.servo.set_supervisor_params(config.supervisor).is_ok()
+                }) =>
+            {
+                ConfigSource::Stored
+            }
+            Ok(_) => ConfigSource::DefaultsAfterCorrupt,
             Err(RecordError::Blank) => ConfigSource::Defaults,
             Err(_) => ConfigSource::DefaultsAfterCorrupt,
         };

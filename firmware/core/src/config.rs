@@ -9,12 +9,14 @@
 use serde::{Deserialize, Serialize};
 
 use crate::feedforward::FeedforwardParams;
+use crate::supervisor::SupervisorParams;
 use crate::wire::frame_crc32;
 
 /// Magic bytes at the start of a record.
 pub const CONFIG_MAGIC: [u8; 4] = *b"STSC";
 /// Format version of the record (2: the feedforward parameters carry the analogue-path table;
-/// 3: the table holds ten points with their gains).
+/// 3: the table holds ten points with their gains and amplitude, and the supervisor's
+/// thresholds are stored beside the parameters).
 pub const CONFIG_VERSION: u16 = 3;
 /// Largest record, bytes.
 pub const MAX_CONFIG_BYTES: usize = 256;
@@ -24,6 +26,9 @@ pub const MAX_CONFIG_BYTES: usize = 256;
 pub struct PersistentConfig {
     /// Feedforward parameters, including the calibrated offset and K_dv.
     pub params: FeedforwardParams,
+    /// The supervisor's thresholds in force when the record was saved (a lab's own, kept
+    /// across a power cycle; the defaults where none were set).
+    pub supervisor: SupervisorParams,
 }
 
 /// Why a stored record was not used.
@@ -116,6 +121,7 @@ impl PersistentConfig {
             _ => return Err(ConfigError::Decode),
         };
         config.params.validate().map_err(|_| ConfigError::Invalid)?;
+        config.supervisor.validate().map_err(|_| ConfigError::Invalid)?;
         Ok(config)
     }
 }
@@ -126,7 +132,10 @@ mod tests {
 
     #[test]
     fn a_record_round_trips_and_every_corruption_is_caught() {
-        let config = PersistentConfig { params: FeedforwardParams { offset_v: 0.0123, ..Default::default() } };
+        let config = PersistentConfig {
+            params: FeedforwardParams { offset_v: 0.0123, ..Default::default() },
+            supervisor: SupervisorParams { worse_ratio: 1.3, ..SupervisorParams::DEFAULT },
+        };
         let mut buf = [0u8; MAX_CONFIG_BYTES];
         let len = config.encode(&mut buf).unwrap();
         assert_eq!(PersistentConfig::decode(&buf[..len]), Ok(config));
@@ -141,11 +150,23 @@ mod tests {
         let points: [(f32, f32, f32); crate::analogue_path::PATH_POINTS] =
             core::array::from_fn(|i| (5.0 * (i + 1) as f32, 1.0 + 0.5 * i as f32, -1.5 * i as f32));
         let path = crate::analogue_path::AnaloguePath::from_responses(8.0, &points).unwrap();
-        let full = PersistentConfig { params: FeedforwardParams { analogue_path: path, ..Default::default() } };
+        let full = PersistentConfig {
+            params: FeedforwardParams { analogue_path: path, ..Default::default() },
+            supervisor: SupervisorParams::DEFAULT,
+        };
         let full_len = full.encode(&mut buf).unwrap();
         assert_eq!(PersistentConfig::decode(&buf[..full_len]), Ok(full));
-        let invalid = PersistentConfig { params: FeedforwardParams { k_dv_um_per_v: 0.0, ..Default::default() } };
+        let invalid = PersistentConfig {
+            params: FeedforwardParams { k_dv_um_per_v: 0.0, ..Default::default() },
+            supervisor: SupervisorParams::DEFAULT,
+        };
         let len = invalid.encode(&mut buf).unwrap();
+        assert_eq!(PersistentConfig::decode(&buf[..len]), Err(ConfigError::Invalid));
+        let bad_supervisor = PersistentConfig {
+            params: FeedforwardParams::default(),
+            supervisor: SupervisorParams { worse_ratio: 0.5, ..SupervisorParams::DEFAULT },
+        };
+        let len = bad_supervisor.encode(&mut buf).unwrap();
         assert_eq!(PersistentConfig::decode(&buf[..len]), Err(ConfigError::Invalid));
     }
 }

@@ -62,7 +62,7 @@ pub fn handle_request(
             Response::Ack
         }
         Request::SaveConfig => {
-            let config = PersistentConfig { params: servo.with(|s| s.params()) };
+            let config = servo.with(|s| PersistentConfig { params: s.params(), supervisor: s.supervisor_params() });
             let mut record = [0u8; MAX_CONFIG_BYTES];
             let written = config.encode(&mut record).ok().is_some_and(|len| store.write_config(&record[..len]));
             if written {

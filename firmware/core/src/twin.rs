@@ -39,12 +39,17 @@ impl Twin {
     /// A twin booted like the firmware: the config comes from `stored` (a config record as
     /// the store holds it, or empty) and falls back to defaults when it is not valid.
     pub fn boot(feature_config: FeatureConfig, servo_config: ServoConfig, stored: &[u8]) -> Self {
-        let (params, config_source) = match PersistentConfig::decode(stored) {
-            Ok(config) => (config.params, ConfigSource::Stored),
-            Err(ConfigError::Blank) => (FeedforwardParams::default(), ConfigSource::Defaults),
-            Err(_) => (FeedforwardParams::default(), ConfigSource::DefaultsAfterCorrupt),
+        let (config, config_source) = match PersistentConfig::decode(stored) {
+            Ok(config) => (Some(config), ConfigSource::Stored),
+            Err(ConfigError::Blank) => (None, ConfigSource::Defaults),
+            Err(_) => (None, ConfigSource::DefaultsAfterCorrupt),
         };
-        let (servo, _) = Servo::new(feature_config, servo_config, params);
+        let params = config.map_or_else(FeedforwardParams::default, |c| c.params);
+        let (mut servo, _) = Servo::new(feature_config, servo_config, params);
+        if let Some(config) = config {
+            // Validated with the record.
+            let _ = servo.set_supervisor_params(config.supervisor);
+        }
         let mut store = MemoryStore::default();
         let _ = store.record.extend_from_slice(stored);
         Self {

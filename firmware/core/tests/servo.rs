@@ -267,13 +267,20 @@ fn saturation_bursts_and_missing_input_are_counted_and_degrade() {
 fn the_config_store_round_trips_and_a_corrupt_one_falls_back() {
     let mut twin = booted_twin();
     let calibrated = FeedforwardParams { offset_v: 0.0042, ..params() };
+    let lab_thresholds = sts_twin_core::supervisor::SupervisorParams {
+        worse_ratio: 1.25,
+        min_motion_share: 0.3,
+        ..sts_twin_core::supervisor::SupervisorParams::DEFAULT
+    };
     assert_eq!(twin.handle(Request::SetParams(calibrated)), Response::Ack);
+    assert_eq!(twin.handle(Request::SetSupervisor(lab_thresholds)), Response::Ack);
     assert_eq!(twin.handle(Request::SaveConfig), Response::Ack);
     let record = twin.stored_config().to_vec();
     let mut rebooted = Twin::boot(feature_config(), servo_config(), &record);
     match rebooted.handle(Request::GetStatus) {
         Response::Status(status) => {
             assert_eq!(status.params, calibrated);
+            assert_eq!(status.supervisor_params, lab_thresholds, "the lab's thresholds survive a power cycle");
             assert_eq!(status.config_source, ConfigSource::Stored);
         }
         other => panic!("unexpected {other:?}"),

@@ -17,6 +17,7 @@ use serde::Serialize;
 use sts_emulator::{EffectSpec, Machine, PlantParams};
 use sts_twin_core::analogue_path::{PATH_MAX_FREQ_HZ, PATH_POINTS};
 use sts_twin_core::feedforward::FeedforwardParams;
+use sts_twin_core::supervisor::SupervisorParams;
 use sts_twin_core::wire::{ConfigSource, Rejection, Request, Response};
 
 use super::board::Board;
@@ -95,13 +96,20 @@ pub struct BootState {
     pub params: FeedforwardParams,
     /// Whether compensation is asked for.
     pub enabled: bool,
+    /// The supervisor's thresholds in force.
+    pub supervisor: SupervisorParams,
 }
 
 impl BootState {
     /// Reads it from the co-processor's status.
     pub fn read(coprocessor: &mut dyn Coprocessor) -> Result<Self, RigError> {
         let status = status(coprocessor)?;
-        Ok(Self { config_source: status.config_source, params: status.params, enabled: status.enabled })
+        Ok(Self {
+            config_source: status.config_source,
+            params: status.params,
+            enabled: status.enabled,
+            supervisor: status.supervisor_params,
+        })
     }
 }
 
@@ -133,6 +141,8 @@ pub struct StoreCheck {
     pub config_source_after_reboot: ConfigSource,
     /// The parameters loaded after the reboot are the calibration, bit for bit.
     pub stored_params_match: bool,
+    /// The supervisor's thresholds after the reboot are those in force when it was saved.
+    pub stored_supervisor_match: bool,
 }
 
 impl StoreCheck {
@@ -141,6 +151,7 @@ impl StoreCheck {
         self.saved
             && self.live_params_match
             && self.stored_params_match
+            && self.stored_supervisor_match
             && self.config_source_after_reboot == ConfigSource::Stored
     }
 }
@@ -237,7 +248,8 @@ pub fn calibrate(
         Response::Rejected(Rejection::Store) => false,
         other => return Err(RigError::Unexpected { request: "SaveConfig", response: Box::new(other) }),
     };
-    let live_params_match = rig.status()?.params == params;
+    let live = rig.status()?;
+    let live_params_match = live.params == params;
 
     progress("step 5: rebooting the co-processor and reading back what it loaded");
     board.reboot()?;
@@ -247,6 +259,7 @@ pub fn calibrate(
         live_params_match,
         config_source_after_reboot: reloaded.config_source,
         stored_params_match: reloaded.params == params,
+        stored_supervisor_match: reloaded.supervisor == live.supervisor_params,
     };
 
     progress("step 6: switching compensation on at rest");
@@ -358,9 +371,10 @@ impl fmt::Display for CalibrationReport {
         )?;
         writeln!(
             f,
-            "5. after a reboot the co-processor {}; parameters identical {}",
+            "5. after a reboot the co-processor {}; parameters identical {}, supervisor thresholds identical {}",
             describe_config_source(s.config_source_after_reboot),
-            yes_no(s.stored_params_match)
+            yes_no(s.stored_params_match),
+            yes_no(s.stored_supervisor_match)
         )?;
         let e = &self.enable;
         writeln!(

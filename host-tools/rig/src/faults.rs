@@ -59,8 +59,8 @@ pub fn fault_report(status: &Status) -> Vec<String> {
     }
     if status.supervisor.gated {
         lines.push(format!(
-            "compensation is faded out: the accelerometer sees mostly noise at {:.1} Hz (the motion holds {:.0}% of \
-             its power; the twin's features would be measured on noise)",
+            "compensation is faded out: the accelerometer sees mostly noise at {:.1} Hz (the commanded motion's \
+             acceleration holds {:.0}% of its power; the twin's features would be measured on noise)",
             status.supervisor.last.freq_hz.abs(),
             100.0 * status.supervisor.last.motion_share
         ));
@@ -91,7 +91,7 @@ pub fn degraded_reasons(degraded: u16) -> Vec<String> {
         (DEGRADED_MODEL, "the model's last evaluation failed"),
         (DEGRADED_RECOVERING, "inputs are healthy again, waiting for a clean feature window"),
         (DEGRADED_SUPERVISED, "the supervisor holds compensation off (see below)"),
-        (DEGRADED_GATED, "the supervisor's gate: the accelerometer sees mostly noise"),
+        (DEGRADED_GATED, "the supervisor's gate holds compensation off (see below)"),
     ];
     let mut reasons: Vec<String> =
         KNOWN.iter().filter(|(bit, _)| degraded & bit != 0).map(|(_, text)| text.to_string()).collect();
@@ -257,8 +257,13 @@ mod tests {
             },
             ..Default::default()
         };
+        status.degraded = DEGRADED_SUPERVISED | DEGRADED_GATED;
         let lines = fault_report(&status);
-        assert_eq!(lines.len(), 2, "{lines:?}");
+        // Why it is ramped out is said once: the degraded bits point to the lines below.
+        assert_eq!(lines.len(), 3, "{lines:?}");
+        assert_eq!(lines.iter().filter(|l| l.contains("mostly noise")).count(), 1, "{lines:?}");
+        assert!(lines[0].starts_with("compensation is ramped out now") && lines[0].contains("see below"), "{lines:?}");
+        let lines = &lines[1..];
         assert!(lines[0].contains("150% of the stroke at 80.0 Hz") && lines[0].contains("(90%)"), "{}", lines[0]);
         assert!(lines[0].contains("changed by more than 10%"), "{}", lines[0]);
         assert!(lines[1].contains("mostly noise at 80.0 Hz") && lines[1].contains("30%"), "{}", lines[1]);

@@ -56,7 +56,7 @@ pub struct Row {
 }
 
 /// Z frequencies of the measurement a twin for the whole range is fitted on, Hz.
-pub fn range_freqs_hz() -> Vec<f64> {
+fn range_freqs_hz() -> Vec<f64> {
     std::iter::once(1.0).chain((1..=20).map(|k| 5.0 * f64::from(k))).collect()
 }
 
@@ -68,10 +68,18 @@ fn measure_and_fit_range(
     seed: u64,
     out: &std::path::Path,
 ) -> anyhow::Result<ModelFile> {
-    let freqs_hz = range_freqs_hz();
-    eprintln!("measuring the machine over its range: {} groups, 1-100 Hz x 1-11 um, 6 s each ...", freqs_hz.len() * 11);
-    let measure =
-        MeasureConfig { plant: plant.clone(), effects: effects.to_vec(), seed, freqs_hz, ..MeasureConfig::default() };
+    let measure = MeasureConfig {
+        plant: plant.clone(),
+        effects: effects.to_vec(),
+        seed,
+        freqs_hz: range_freqs_hz(),
+        ..MeasureConfig::default()
+    };
+    eprintln!(
+        "measuring the machine over its range: {} groups, 1-100 Hz x 1-11 um, {:.0} s each ...",
+        measure.freqs_hz.len() * measure.amps_um.len(),
+        measure.duration_s
+    );
     let dataset = sts_emulator::measure::run(&measure, &|_| {})?;
     eprintln!("fitting the servo-axis twin and the formulas on what it leaves ...");
     let prepared = sts_fit::effects::prepare(&dataset, &[sts_fit::effects::SERVO_AXIS.to_string()])?;

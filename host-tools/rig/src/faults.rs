@@ -254,7 +254,6 @@ mod tests {
                 motion_share: 0.3,
                 motion_power_m2ps4: 0.03,
                 other_power_m2ps4: 0.07,
-                harmonic_power_m2ps4: 0.0,
             },
             ..Default::default()
         };

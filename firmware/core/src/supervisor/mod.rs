@@ -27,8 +27,7 @@
 //! - **Trip: saturation.** More than `max_clamped_ticks` DAC targets clamped at full scale
 //!   per 800 ticks, beyond a burst of as many (a leaky bucket).
 //! - **Gate.** Where the commanded motion's acceleration holds less than `min_motion_share`
-//!   of its power plus the accelerometer's power at other frequencies than the command's
-//!   and its harmonics (friction's stick-slip repeats with the command), the features are
+//!   of its power plus the accelerometer's power at other frequencies, the features are
 //!   measured on noise and compensation fades out (not a fault; it fades back in when the
 //!   share is 1.25 times the threshold again). The share is the command's, which
 //!   compensation does not move: the motion the accelerometer sees passes through zero
@@ -466,7 +465,6 @@ mod tests {
                 motion_share: 0.9,
                 motion_power_m2ps4: 9e-3,
                 other_power_m2ps4: 1e-3,
-                harmonic_power_m2ps4: 0.0,
             }),
             program_id: Some(1),
         }

@@ -34,9 +34,9 @@ pub struct MotionEstimate {
     /// `cmd_amp_nm`.
     pub error_ratio: f32,
     /// The power of the commanded motion's acceleration over itself plus the
-    /// accelerometer's power at other frequencies than the command's and its harmonics:
-    /// near 1 where the accelerometer can see the motion, near 0 where it sees mostly noise
-    /// (on which the twin's features are then measured).
+    /// accelerometer's power at other frequencies: near 1 where the accelerometer can see
+    /// the motion, near 0 where it sees mostly noise (on which the twin's features are then
+    /// measured).
     pub motion_share: f32,
     /// The accelerometer's power at the command frequency, (m/s^2)^2.
     pub motion_power_m2ps4: f32,
@@ -44,14 +44,7 @@ pub struct MotionEstimate {
     /// the command frequency), (m/s^2)^2: noise, harmonics, and the structure shaken by a
     /// correction.
     pub other_power_m2ps4: f32,
-    /// The part of `other_power_m2ps4` at the command's harmonics 2 to [`HARMONICS`] (those
-    /// the blocks resolve), (m/s^2)^2: motion that repeats with the command, such as
-    /// friction's, which the gate does not count as noise.
-    pub harmonic_power_m2ps4: f32,
 }
-
-/// Highest harmonic of the command whose power is told apart from noise.
-pub const HARMONICS: usize = 5;
 
 /// Fewest command periods the window must hold for an estimate.
 const MIN_PERIODS: f32 = 1.0;
@@ -147,29 +140,11 @@ pub fn estimate<const RING_BLOCKS: usize>(
     let (ds, dc) = libm::sincosf(to_rad(step.wrapping_mul(BLOCK_SAMPLES as u32)));
     let (cmd_s, cmd_c) = libm::sincosf(to_rad((step.wrapping_mul(8)).wrapping_add(half_step as u32)));
     let (mut acc, mut cmd) = (SineSums::default(), SineSums::default());
-    // Harmonics 2..=HARMONICS that the blocks resolve, each fitted on its own (with a window
-    // of whole or several periods they are near orthogonal; the gate needs no more).
-    let resolved =
-        (2..=HARMONICS).take_while(|h| *h as f32 * freq_hz.abs() <= MAX_FREQ_OF_BLOCK_RATE * block_rate_hz).count();
-    let mut harmonics = [SineSums::default(); HARMONICS - 1];
-    let mut harmonic_phase = [(0.0f32, 0.0f32); HARMONICS - 1];
-    let mut harmonic_step = [(0.0f32, 0.0f32); HARMONICS - 1];
-    for (i, (phase, step_sc)) in harmonic_phase.iter_mut().zip(&mut harmonic_step).enumerate().take(resolved) {
-        let h = (i + 2) as u32;
-        *phase = libm::sincosf(to_rad(first_phase.wrapping_mul(h)));
-        *step_sc = libm::sincosf(to_rad(step.wrapping_mul(BLOCK_SAMPLES as u32).wrapping_mul(h)));
-    }
     // Relative to the first block, so that f32 keeps the cross terms exact enough.
     let mut first: Option<(i32, i32)> = None;
     let read = rings.visit_window(capture, |_, block_sum, _, cmd_nm| {
         let (sum0, cmd0) = *first.get_or_insert((block_sum, cmd_nm));
         acc.add((block_sum - sum0) as f32, s, c);
-        for ((sums, (hs, hc)), (ds, dc)) in
-            harmonics.iter_mut().zip(&mut harmonic_phase).zip(&harmonic_step).take(resolved)
-        {
-            sums.add((block_sum - sum0) as f32, *hs, *hc);
-            (*hs, *hc) = (*hs * dc + *hc * ds, *hc * dc - *hs * ds);
-        }
         cmd.add(cmd_nm.wrapping_sub(cmd0) as f32, s * cmd_c + c * cmd_s, c * cmd_c - s * cmd_s);
         (s, c) = (s * dc + c * ds, c * dc - s * ds);
     });
@@ -193,26 +168,12 @@ pub fn estimate<const RING_BLOCKS: usize>(
     let error_ratio = libm::sqrtf(error_sin_nm * error_sin_nm + error_cos_nm * error_cos_nm) / cmd_amp_nm;
     let motion_power_m2ps4 = 0.5 * (p_codes * p_codes + q_codes * q_codes) * (acc_mps2 * acc_mps2);
     let other_power_m2ps4 = (variance_m2ps4 - motion_power_m2ps4).max(0.0);
-    let harmonic_power_m2ps4 = harmonics
-        .iter()
-        .take(resolved)
-        .enumerate()
-        .filter_map(|(i, sums)| {
-            let (p, q) = sums.fit()?;
-            let w_h = (i + 2) as f32 * w_rad_per_tick;
-            let acc_h = capture.cfg.acc_mps2_per_lsb / (libm::sinf(8.0 * w_h) / libm::sinf(0.5 * w_h));
-            Some(0.5 * (p * p + q * q) * acc_h * acc_h)
-        })
-        .sum::<f32>()
-        .min(other_power_m2ps4);
     // The share is the commanded motion's, not the motion seen: compensation moves the
     // tool towards the command, and above the axis's resonance (the tool then moving
     // against its command) the motion seen passes through zero while it ramps in.
     let command_acc_mps2 = w_rad_per_s * w_rad_per_s * cmd_amp_nm * 1e-9;
     let command_power_m2ps4 = 0.5 * command_acc_mps2 * command_acc_mps2;
-    // Friction's harmonics are motion, not noise.
-    let noise_power_m2ps4 = other_power_m2ps4 - harmonic_power_m2ps4;
-    let motion_share = command_power_m2ps4 / (command_power_m2ps4 + noise_power_m2ps4);
+    let motion_share = command_power_m2ps4 / (command_power_m2ps4 + other_power_m2ps4);
     (error_ratio.is_finite() && motion_share.is_finite()).then_some(MotionEstimate {
         freq_hz,
         cmd_amp_nm,
@@ -220,7 +181,6 @@ pub fn estimate<const RING_BLOCKS: usize>(
         motion_share,
         motion_power_m2ps4,
         other_power_m2ps4,
-        harmonic_power_m2ps4,
     })
 }
 
@@ -267,48 +227,6 @@ mod tests {
             assert!((est.freq_hz - freq_hz as f32).abs() < 1e-3);
             assert!((est.motion_share - 1.0).abs() < 0.01, "{est:?}");
         }
-    }
-
-    /// A tool at 40 Hz, 3 um, whose acceleration also holds a third harmonic (friction's
-    /// kind) of a third of the fundamental's, and white-ish noise of `noise_mps2` RMS.
-    fn with_harmonic(noise_mps2: f64) -> MotionEstimate {
-        let cfg = FeatureConfig { window_samples: 800, ..FeatureConfig::DEFAULT };
-        let mut state = std::boxed::Box::new(FeatureState::<50>::new(cfg).unwrap());
-        let rings = std::boxed::Box::new(SpectralRings::<306>::new());
-        let step = (40.0 / 8000.0 * 4_294_967_296.0f64).round() as i64 as i32;
-        let w = std::f64::consts::TAU * 40.0;
-        let a1 = w * w * 3e-6;
-        let (mut sum, mut sum2, mut seed) = (0.0, 0.0, 12345u32);
-        let ticks = 1000u32;
-        for k in 0..ticks {
-            let theta = w * f64::from(k) / 8000.0;
-            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            let noise = noise_mps2 * 3.0f64.sqrt() * (f64::from(seed >> 8) / f64::from(1u32 << 24) * 2.0 - 1.0);
-            let acc = -a1 * theta.sin() + a1 / 3.0 * (3.0 * theta).sin() + noise;
-            if k >= ticks - 800 {
-                (sum, sum2) = (sum + acc, sum2 + acc * acc);
-            }
-            let cmd = (3000.0 * (theta + w / 8000.0).sin()).round() as i32;
-            state.push_with_command(&*rings, (acc / 1e-4).round() as i16, cmd);
-        }
-        let variance = sum2 / 800.0 - (sum / 800.0).powi(2);
-        let capture = state.capture(&*rings);
-        estimate(&*rings, &capture, variance as f32, step, (step as u32).wrapping_mul(ticks)).expect("an estimate")
-    }
-
-    #[test]
-    fn the_commands_harmonics_are_motion_and_noise_is_not() {
-        let w = std::f64::consts::TAU * 40.0;
-        let harmonic_power = 0.5 * (w * w * 3e-6 / 3.0).powi(2);
-        let clean = with_harmonic(0.0);
-        // The harmonic is in the other power, told apart as harmonic: the share stays near 1.
-        let found = f64::from(clean.harmonic_power_m2ps4);
-        assert!((found / harmonic_power - 1.0).abs() < 0.1, "{found} vs {harmonic_power}: {clean:?}");
-        assert!(clean.other_power_m2ps4 >= clean.harmonic_power_m2ps4, "{clean:?}");
-        assert!(clean.motion_share > 0.95, "{clean:?}");
-        // Noise as strong as the fundamental's acceleration halves the share.
-        let noisy = with_harmonic(w * w * 3e-6 / 2f64.sqrt());
-        assert!(noisy.motion_share > 0.3 && noisy.motion_share < 0.7, "{noisy:?}");
     }
 
     #[test]

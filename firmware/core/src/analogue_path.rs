@@ -118,26 +118,22 @@ impl AnaloguePath {
     /// A table of phases only from `(freq_hz, phase_deg)` points (gains not measured),
     /// validated.
     pub fn from_points(points: &[(f32, f32)]) -> Result<Self, PathError> {
-        if points.len() > PATH_POINTS {
-            return Err(PathError::TooManyPoints);
-        }
-        let mut path = Self { count: points.len() as u8, ..Self::NONE };
-        for (i, &(freq_hz, phase_deg)) in points.iter().enumerate() {
-            path.freq_hz[i] = freq_hz;
-            path.phase_deg[i] = phase_deg;
-        }
-        path.validate()?;
-        Ok(path)
+        Self::from_triples(0.0, points.len(), points.iter().map(|&(freq_hz, phase_deg)| (freq_hz, 0.0, phase_deg)))
     }
 
     /// A table from `(freq_hz, gain, phase_deg)` points measured with a sine of `amp_um`,
     /// validated.
     pub fn from_responses(amp_um: f32, points: &[(f32, f32, f32)]) -> Result<Self, PathError> {
-        if points.len() > PATH_POINTS {
+        Self::from_triples(amp_um, points.len(), points.iter().copied())
+    }
+
+    /// A table of `len` `(freq_hz, gain, phase_deg)` points, validated.
+    fn from_triples(amp_um: f32, len: usize, points: impl Iterator<Item = (f32, f32, f32)>) -> Result<Self, PathError> {
+        if len > PATH_POINTS {
             return Err(PathError::TooManyPoints);
         }
-        let mut path = Self { count: points.len() as u8, amp_um, ..Self::NONE };
-        for (i, &(freq_hz, gain, phase_deg)) in points.iter().enumerate() {
+        let mut path = Self { count: len as u8, amp_um, ..Self::NONE };
+        for (i, (freq_hz, gain, phase_deg)) in points.enumerate() {
             path.freq_hz[i] = freq_hz;
             path.gain[i] = gain;
             path.phase_deg[i] = phase_deg;

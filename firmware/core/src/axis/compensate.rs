@@ -67,6 +67,8 @@ pub struct Phasor {
 impl Phasor {
     /// Zero.
     pub const ZERO: Self = Self { re: 0.0, im: 0.0 };
+    /// One.
+    pub const ONE: Self = Self { re: 1.0, im: 0.0 };
 
     /// `1 / self`, or zero for zero (no learning through a path that does not respond).
     pub fn inverse(self) -> Self {

@@ -300,7 +300,7 @@ impl Models {
 /// reach or the twin has no response yet. An unmeasured gain takes the twin's, so that the phase alone is corrected.
 fn path_ratios(compensator: &mut Compensator, path: &AnaloguePath, sample_rate_hz: f32) -> [Phasor; ORDERS.len()] {
     if path.count == 0 {
-        return [Phasor { re: 1.0, im: 0.0 }; ORDERS.len()];
+        return [Phasor::ONE; ORDERS.len()];
     }
     let (step_turns, responses) = compensator.path_responses(path.amp_um * 1e3);
     let freq_hz = step_turns as f32 * (sample_rate_hz / 4_294_967_296.0);
@@ -313,7 +313,7 @@ fn path_ratios(compensator: &mut Compensator, path: &AnaloguePath, sample_rate_h
                 let phase_rad = phase_deg * (core::f32::consts::PI / 180.0);
                 twin * Phasor { re: libm::cosf(phase_rad) * gain, im: libm::sinf(phase_rad) * gain }.inverse()
             }
-            _ => Phasor { re: 1.0, im: 0.0 },
+            _ => Phasor::ONE,
         }
     })
 }
@@ -427,7 +427,7 @@ mod tests {
     #[test]
     fn the_axis_correction_is_taken_through_the_twins_path_over_the_measured_one() {
         let mut compensator = Compensator::new(&crate::axis::default_machine()).unwrap();
-        let unit = Phasor { re: 1.0, im: 0.0 };
+        let unit = Phasor::ONE;
         // Nothing measured by the twin yet: no change.
         let path = AnaloguePath::from_responses(8.0, &[(40.0, 2.0, -6.0), (100.0, 5.0, -170.0)]).unwrap();
         assert_eq!(path_ratios(&mut compensator, &path, 8000.0), [unit; ORDERS.len()]);

@@ -3,6 +3,7 @@
 //! at a time. Run one group with `cargo test -p sts-hil-tests --release -- twin_hil::`.
 
 mod calibrate_hil;
+mod cortex_m7;
 mod firmware_paths;
 mod platform_bench;
 mod platform_boot;

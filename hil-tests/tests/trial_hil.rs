@@ -7,6 +7,7 @@
 use std::path::Path;
 
 use sts_emulator::{EffectSpec, PlantParams};
+use sts_hil::HilConfig;
 use sts_model::ModelFile;
 use sts_rig::calibrate::PathPoint;
 use sts_rig::machine_params;
@@ -51,8 +52,13 @@ fn cut_at(
 /// The same cut with the firmware in QEMU and with the core on the host: the same path and the
 /// same cut, number for number (asserted). Returns the cut.
 fn cut_in_qemu_as_on_the_host(effects: &[EffectSpec], model: &ModelFile) -> TrialReport {
+    cut_on_as_on_the_host(sts_hil_tests::twin_config(), effects, model)
+}
+
+/// [`cut_in_qemu_as_on_the_host`] on the board `config` boots.
+pub(crate) fn cut_on_as_on_the_host(config: HilConfig, effects: &[EffectSpec], model: &ModelFile) -> TrialReport {
     let (with_sim, sim_path) = cut(&mut SimCoprocessor::boot(&[]), effects, model);
-    let mut hil = HilCoprocessor::start(sts_hil_tests::twin_config()).expect("the twin firmware boots");
+    let mut hil = HilCoprocessor::start(config).expect("the twin firmware boots");
     let (with_hil, hil_path) = cut(&mut hil, effects, model);
     hil.shutdown().unwrap();
     assert_eq!(sim_path, hil_path, "the analogue path measured through QEMU differs from the host core's");
@@ -76,8 +82,14 @@ fn bare_cut_at(freq_hz: f64, effects: &[EffectSpec]) -> TrialReport {
 #[test]
 fn at_40_hz_the_twin_in_qemu_removes_over_90_percent_of_the_form_error() {
     let _serial = sts_hil_tests::serial();
+    the_40_hz_cut_removes_over_90_percent_on(sts_hil_tests::twin_config());
+}
+
+/// The body of [`at_40_hz_the_twin_in_qemu_removes_over_90_percent_of_the_form_error`] on
+/// the board `config` boots.
+pub(crate) fn the_40_hz_cut_removes_over_90_percent_on(config: HilConfig) {
     let bare = bare_cut(&[]);
-    let with_hil = cut_in_qemu_as_on_the_host(&[], &model());
+    let with_hil = cut_on_as_on_the_host(config, &[], &model());
     let reduction = 1.0 - with_hil.form_error_pv_um / bare.form_error_pv_um;
     assert!(
         reduction >= 0.90,

@@ -19,7 +19,7 @@ use sts_twin_core::program::{Program, ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG}
 use sts_twin_core::servo::{
     ModelTiming, ServoConfig, DEGRADED_MODEL, DEGRADED_NO_INPUT, DEGRADED_SATURATED, DEGRADED_STUCK,
 };
-use sts_twin_core::wire::{Rejection, Request, Response, Status};
+use sts_twin_core::wire::{Rejection, Request, Response, Status, PROTOCOL_VERSION};
 
 use sts_hil_tests::twin::{boot, configure, params, program, status, ENABLE_RAMP_TICKS as RAMP, WINDOW};
 
@@ -442,7 +442,10 @@ fn a_lossy_control_link_loses_no_request() {
     let mut expected_offset_v = 0.0f32;
     for i in 0..REQUESTS {
         match i % 4 {
-            0 | 2 => assert_eq!(lossy.request(Request::Ping { nonce: i }).unwrap(), Response::Pong { nonce: i }),
+            0 | 2 => assert_eq!(
+                lossy.request(Request::Ping { nonce: i }).unwrap(),
+                Response::Pong { nonce: i, protocol_version: PROTOCOL_VERSION }
+            ),
             1 => {
                 expected_offset_v = ((i / 4) % 5) as f32 * 0.001;
                 let p = FeedforwardParams { offset_v: expected_offset_v, ..params() };

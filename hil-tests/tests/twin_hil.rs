@@ -3,11 +3,12 @@
 
 use std::time::Duration;
 
+use sts_hil::HilConfig;
 use sts_rig::{expect_ack, Coprocessor, HilCoprocessor, SimCoprocessor};
 use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::{Program, TickTerm};
-use sts_twin_core::wire::{encode_frame, Rejection, Request, Response, Status, MAX_ENCODED_FRAME};
+use sts_twin_core::wire::{encode_frame, Rejection, Request, Response, Status, MAX_ENCODED_FRAME, PROTOCOL_VERSION};
 
 use sts_hil_tests::tone_input as input;
 use sts_hil_tests::twin::{boot, configure, params, program, status};
@@ -41,6 +42,11 @@ fn program_with_coupling(id: u32) -> sts_twin_core::program::Program {
 #[test]
 fn dac_codes_are_bit_identical_to_the_host_core() {
     let _serial = sts_hil_tests::serial();
+    dac_codes_are_the_host_cores_on(sts_hil_tests::twin_config());
+}
+
+/// The body of [`dac_codes_are_bit_identical_to_the_host_core`] on the board `config` boots.
+pub(crate) fn dac_codes_are_the_host_cores_on(config: HilConfig) {
     let inputs: Vec<InputSlot> = (0..24_000).map(input_with_axes).collect();
     let mut sim = SimCoprocessor::boot(&[]);
     configure(&mut sim, Some(program_with_coupling(11)));
@@ -55,7 +61,7 @@ fn dac_codes_are_bit_identical_to_the_host_core() {
         .count();
     assert!(differing > 20_000, "the axis-coupling term changed only {differing} predictions");
 
-    let mut hil = boot();
+    let mut hil = HilCoprocessor::start(config).expect("the twin firmware boots in QEMU");
     configure(&mut hil, Some(program_with_coupling(11)));
     let outputs = hil.hil().run_open_loop(&inputs).expect("stream");
     assert_eq!(outputs.len(), expected.len());
@@ -224,7 +230,10 @@ fn corrupted_and_truncated_frames_are_counted_and_ignored() {
         assert!(reply.map(|r| r.is_empty()).unwrap_or(true), "a bad frame was answered");
         hil.hil().run_open_loop(&(0..400).map(input).collect::<Vec<_>>()).expect("the loop keeps running");
     }
-    assert_eq!(hil.request(Request::Ping { nonce: 78 }).unwrap(), Response::Pong { nonce: 78 });
+    assert_eq!(
+        hil.request(Request::Ping { nonce: 78 }).unwrap(),
+        Response::Pong { nonce: 78, protocol_version: PROTOCOL_VERSION }
+    );
     let s = status(&mut hil);
     assert_eq!(s.counters.frame_errors, 3, "{:?}", s.counters);
     hil.shutdown().unwrap();

@@ -1,6 +1,9 @@
-//! The QEMU board's (mps2-an386) shared-memory map: the 16 MiB PSRAM at `0x2100_0000` is a
-//! file the HIL host maps too. It holds the analogue bus ([`sts_twin_core::bus`]) at offset
-//! 0, a diagnostics block the firmware fills for the host, and the persistent config store.
+//! The QEMU boards' shared-memory map. Two MPS2 FPGA images run the same firmware image:
+//! `mps2-an386` (Cortex-M4F) and `mps2-an500` (Cortex-M7, the STM32H7's core). They differ,
+//! for this firmware, only in where the 16 MiB PSRAM sits ([`Mps2Image::psram_base`]); the
+//! firmware reads the board's SCC ID at boot to tell them apart. The PSRAM is a file the HIL
+//! host maps too. It holds the analogue bus ([`sts_twin_core::bus`]) at offset 0, a
+//! diagnostics block the firmware fills for the host, and the persistent config store.
 //!
 //! | PSRAM offset | bytes | what | written by |
 //! |---|---|---|---|
@@ -11,8 +14,57 @@
 //! The config store persists across reboots because the host keeps the backing file and
 //! hands the same file to the next QEMU; a fresh file (all zero) reads as empty.
 
-/// Address of the PSRAM.
-pub const PSRAM_BASE: usize = 0x2100_0000;
+/// The MPS2 FPGA images the firmware runs on under QEMU.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Mps2Image {
+    /// AN386: Cortex-M4F, PSRAM at `0x2100_0000`.
+    An386,
+    /// AN500: Cortex-M7 (the STM32H7's core), PSRAM at `0x6000_0000`.
+    An500,
+}
+
+/// Address of the serial communication controller's ID register, which names the FPGA image.
+pub const SCC_ID_ADDR: usize = 0x4002_FFFC;
+
+impl Mps2Image {
+    /// Every image, in the order the tools list them.
+    pub const ALL: [Self; 2] = [Self::An386, Self::An500];
+
+    /// The image whose SCC ID register reads `scc_id`; `None` for another board.
+    pub const fn from_scc_id(scc_id: u32) -> Option<Self> {
+        match scc_id {
+            0x4104_3860 => Some(Self::An386),
+            0x4104_5000 => Some(Self::An500),
+            _ => None,
+        }
+    }
+
+    /// Address of the PSRAM (the host-shared file).
+    pub const fn psram_base(self) -> usize {
+        match self {
+            Self::An386 => 0x2100_0000,
+            Self::An500 => 0x6000_0000,
+        }
+    }
+
+    /// QEMU's `-machine` name.
+    pub const fn qemu_machine(self) -> &'static str {
+        match self {
+            Self::An386 => "mps2-an386",
+            Self::An500 => "mps2-an500",
+        }
+    }
+
+    /// The processor core.
+    pub const fn core(self) -> &'static str {
+        match self {
+            Self::An386 => "Cortex-M4F",
+            Self::An500 => "Cortex-M7",
+        }
+    }
+}
+
 /// Size of the PSRAM (and of the host's backing file).
 pub const PSRAM_BYTES: usize = 16 * 1024 * 1024;
 
@@ -82,3 +134,21 @@ pub const BUS_SPIN_BOUND: u32 = 16_000_000;
 const _: () = assert!(sts_twin_core::bus::BUS_BYTES <= DIAG_OFFSET);
 const _: () = assert!(DIAG_OFFSET + 4 * DIAG_WORDS <= CONFIG_OFFSET);
 const _: () = assert!(CONFIG_OFFSET + 2 * CONFIG_SLOT_BYTES <= PSRAM_BYTES);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_image_is_known_by_its_scc_id_and_has_its_own_psram() {
+        assert_eq!(Mps2Image::from_scc_id(0x4104_3860), Some(Mps2Image::An386));
+        assert_eq!(Mps2Image::from_scc_id(0x4104_5000), Some(Mps2Image::An500));
+        assert_eq!(Mps2Image::from_scc_id(0x4104_5050), None);
+        assert_ne!(Mps2Image::An386.psram_base(), Mps2Image::An500.psram_base());
+        for image in Mps2Image::ALL {
+            // The PSRAM must not meet the linker's RAM (memory.x: 4 MiB at 0x2000_0000).
+            assert!(image.psram_base() >= 0x2040_0000);
+            assert!(image.qemu_machine().starts_with("mps2-an"));
+        }
+    }
+}

@@ -33,7 +33,7 @@ pub fn handle_request(
     config_source: ConfigSource,
 ) -> Response {
     match request {
-        Request::Ping { nonce } => Response::Pong { nonce },
+        Request::Ping { nonce } => Response::Pong { nonce, protocol_version: crate::wire::PROTOCOL_VERSION },
         Request::GetStatus => Response::Status(status(models, servo, config_source)),
         Request::UploadProgram { program, activate } => match models.upload(program, activate) {
             Ok(()) => Response::Ack,

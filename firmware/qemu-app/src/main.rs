@@ -1,7 +1,8 @@
 //! # sts-twin-firmware
 //!
-//! The firmware for QEMU `mps2-an386` (Cortex-M4F). Interrupt priorities, most urgent
-//! first:
+//! The firmware for QEMU `mps2-an386` (Cortex-M4F) and `mps2-an500` (Cortex-M7, the
+//! STM32H7's core): one image for both, which reads the board's SCC ID at boot to find the
+//! shared PSRAM ([`qemu::Mps2Image`]). Interrupt priorities, most urgent first:
 //!
 //! 1. TIMER0, the 8 kHz servo tick: waits (bounded) for the host's input `k` on the
 //!    virtual analogue bus, runs [`ServoApp::tick`], writes output `k`. Never logs.
@@ -30,7 +31,7 @@ use embassy_executor::InterruptExecutor;
 use sts_twin_board::bringup::{BringUpBackground, BringUpServo, BringUpShared};
 use sts_twin_board::bus::{BusAdc, BusDac, BusView};
 use sts_twin_board::config::{AbStore, MemoryMedium};
-use sts_twin_board::qemu::{self, DIAG_WORDS};
+use sts_twin_board::qemu::{self, Mps2Image, DIAG_WORDS};
 use sts_twin_board::servo::{
     background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickResult, TickState, EVENT_CONTROL_RX,
     EVENT_MODEL_WORK, EVENT_UNDERRUN,
@@ -77,6 +78,8 @@ fn make_app() -> (App, AppBackground, AppShared) {
 /// Everything the servo interrupt owns.
 struct ServoContext {
     app: App,
+    bus: BusView,
+    diag: Diag,
     adc: BusAdc,
     dac: BusDac,
     timer: Timer0,
@@ -91,6 +94,8 @@ type QemuConfigStore = AbStore<MemoryMedium>;
 static SERVO: BootCell<ServoContext> = BootCell::new();
 /// Shared by the servo tick and the background (a critical-section cell).
 static SHARED: BootCell<SharedCell<AppShared>> = BootCell::new();
+/// The diagnostics block, for the UART receive handler (read-only use).
+static RX_DIAG: BootCell<Diag> = BootCell::new();
 /// Owned by the background task.
 static BACKGROUND: BootCell<(AppBackground, QemuConfigStore)> = BootCell::new();
 
@@ -103,23 +108,38 @@ fn pend_model_executor() {
 }
 static MODEL_EXEC: InterruptExecutor = InterruptExecutor::new();
 
-// SAFETY: the PSRAM at PSRAM_BASE is not used by the linker (memory.x) and is the bus.
-const BUS: BusView = unsafe { BusView::new(qemu::PSRAM_BASE as *mut u32) };
-
 defmt::timestamp!("tick {=u32}", COUNTERS.ticks.load(Ordering::Relaxed));
 
-fn diag_write(word: usize, value: u32) {
-    debug_assert!(word < DIAG_WORDS);
-    let addr = (qemu::PSRAM_BASE + qemu::DIAG_OFFSET) as *mut u32;
-    // SAFETY: the diagnostics block lies in the PSRAM, written by the firmware only.
-    unsafe { addr.add(word).write_volatile(value) }
+/// The board QEMU emulates, from its SCC ID register.
+fn board() -> Option<Mps2Image> {
+    // SAFETY: the SCC ID register is a read-only word present on every MPS2 image.
+    Mps2Image::from_scc_id(unsafe { (qemu::SCC_ID_ADDR as *const u32).read_volatile() })
 }
 
-fn config_store() -> QemuConfigStore {
+/// The diagnostics block in the PSRAM. Copyable: it is only a pointer.
+#[derive(Clone, Copy)]
+struct Diag(*mut u32);
+
+// SAFETY: the block is plain memory read by the host; each word has one writing context.
+unsafe impl Send for Diag {}
+
+impl Diag {
+    fn of(board: Mps2Image) -> Self {
+        Self((board.psram_base() + qemu::DIAG_OFFSET) as *mut u32)
+    }
+
+    fn write(self, word: usize, value: u32) {
+        debug_assert!(word < DIAG_WORDS);
+        // SAFETY: the diagnostics block lies in the PSRAM, written by the firmware only.
+        unsafe { self.0.add(word).write_volatile(value) }
+    }
+}
+
+fn config_store(board: Mps2Image) -> QemuConfigStore {
     // SAFETY: the config region lies in the PSRAM after the bus and diagnostics block and
     // is used by this one store.
     AbStore::new(unsafe {
-        MemoryMedium::new((qemu::PSRAM_BASE + qemu::CONFIG_OFFSET) as *mut u8, qemu::CONFIG_SLOT_BYTES)
+        MemoryMedium::new((board.psram_base() + qemu::CONFIG_OFFSET) as *mut u8, qemu::CONFIG_SLOT_BYTES)
     })
 }
 
@@ -147,16 +167,29 @@ fn paper_eval_counts() -> u32 {
 #[entry]
 fn main() -> ! {
     let mut core = cortex_m::Peripherals::take().unwrap();
-    defmt::info!("sts-twin firmware {=str} on mps2-an386", env!("CARGO_PKG_VERSION"));
-    if !BUS.header_valid() {
+    let Some(board) = board() else {
+        defmt::error!("not an MPS2 AN386 or AN500 (SCC ID): this image runs on QEMU mps2-an386 or mps2-an500");
+        fail();
+    };
+    defmt::info!(
+        "sts-twin firmware {=str} on {=str} ({=str})",
+        env!("CARGO_PKG_VERSION"),
+        board.qemu_machine(),
+        board.core()
+    );
+    // SAFETY: the PSRAM is not used by the linker (memory.x) and is the bus.
+    let bus = unsafe { BusView::new(board.psram_base() as *mut u32) };
+    if !bus.header_valid() {
         defmt::error!(
-            "no analogue bus at PSRAM 0x2100_0000 (magic/version): start QEMU through the sts-twin HIL harness"
+            "no analogue bus at PSRAM {=usize:#x} (magic/version): start QEMU through the sts-twin HIL harness",
+            board.psram_base()
         );
         fail();
     }
-    diag_write(qemu::DIAG_MAGIC, qemu::DIAG_MAGIC_VALUE);
-    diag_write(qemu::DIAG_PERIOD_COUNTS, qemu::SERVO_PERIOD_COUNTS);
-    diag_write(qemu::DIAG_PAPER_EVAL_COUNTS, paper_eval_counts());
+    let diag = Diag::of(board);
+    diag.write(qemu::DIAG_MAGIC, qemu::DIAG_MAGIC_VALUE);
+    diag.write(qemu::DIAG_PERIOD_COUNTS, qemu::SERVO_PERIOD_COUNTS);
+    diag.write(qemu::DIAG_PAPER_EVAL_COUNTS, paper_eval_counts());
 
     let (app, background, shared) = make_app();
     // SAFETY: no interrupt is enabled yet.
@@ -164,14 +197,17 @@ fn main() -> ! {
         let shared: &'static SharedCell<AppShared> = SHARED.init(SharedCell::new(shared));
         SERVO.init(ServoContext {
             app,
-            adc: BusAdc::new(BUS, qemu::BUS_SPIN_BOUND),
-            dac: BusDac::new(BUS),
+            bus,
+            diag,
+            adc: BusAdc::new(bus, qemu::BUS_SPIN_BOUND),
+            dac: BusDac::new(bus),
             timer: Timer0,
             state: TickState::default(),
             handler_last: 0,
             handler_max: 0,
         });
-        (shared, BACKGROUND.init((background, config_store())))
+        RX_DIAG.init(diag);
+        (shared, BACKGROUND.init((background, config_store(board))))
     };
     // What the boot hook loads (stored settings) is in force from tick 0.
     let mut link = Uart0Link;
@@ -181,9 +217,9 @@ fn main() -> ! {
     // SAFETY: priority set before the executor unmasks its interrupt.
     unsafe { core.NVIC.set_priority(Irq::ModelExecutor, hw::prio::MODEL) };
     let spawner = MODEL_EXEC.start(Irq::ModelExecutor);
-    spawner.spawn(background_task(background, config, shared).unwrap());
+    spawner.spawn(background_task(background, config, shared, diag).unwrap());
 
-    BUS.set_ready(0);
+    bus.set_ready(0);
     defmt::info!("serving the bus: 8 kHz tick, spin bound {=u32} polls", qemu::BUS_SPIN_BOUND);
     Timer0::start(&mut core.NVIC);
     loop {
@@ -197,6 +233,7 @@ async fn background_task(
     app: &'static mut AppBackground,
     config: &'static mut QemuConfigStore,
     shared: &'static SharedCell<AppShared>,
+    diag: Diag,
 ) {
     let mut link = Uart0Link;
     let mut ctx = BackgroundCtx { shared, link: &mut link, config, counters: &COUNTERS };
@@ -211,11 +248,11 @@ async fn background_task(
             for v in [ticks, into_period] {
                 timing_hash = (timing_hash ^ v).wrapping_mul(0x0100_0193);
             }
-            diag_write(qemu::DIAG_MODEL_TIMING_HASH, timing_hash);
+            diag.write(qemu::DIAG_MODEL_TIMING_HASH, timing_hash);
         }
-        diag_write(qemu::DIAG_MODEL_REQUESTS, counters.model_requests.load(Ordering::Relaxed));
-        diag_write(qemu::DIAG_MODEL_RUNS, counters.model_runs.load(Ordering::Relaxed));
-        diag_write(qemu::DIAG_CONTROL_RX_DROPPED, hw::UART_RX.dropped() as u32);
+        diag.write(qemu::DIAG_MODEL_REQUESTS, counters.model_requests.load(Ordering::Relaxed));
+        diag.write(qemu::DIAG_MODEL_RUNS, counters.model_runs.load(Ordering::Relaxed));
+        diag.write(qemu::DIAG_CONTROL_RX_DROPPED, hw::UART_RX.dropped() as u32);
         if bits & EVENT_UNDERRUN != 0 {
             let underruns = counters.underruns.load(Ordering::Relaxed);
             defmt::warn!(
@@ -242,16 +279,16 @@ unsafe extern "C" fn TIMER0() {
     let shared = unsafe { SHARED.get() };
     let result = run_tick(&mut s.adc, &mut s.dac, &mut s.timer, &mut s.app, shared, &mut s.state, &COUNTERS, &EVENTS);
     let t = &s.state.timing;
-    diag_write(qemu::DIAG_HANDLER_LAST, s.handler_last);
-    diag_write(qemu::DIAG_HANDLER_MAX, s.handler_max);
-    BUS.write_counters(COUNTERS.underruns.load(Ordering::Relaxed), COUNTERS.overruns.load(Ordering::Relaxed));
-    diag_write(qemu::DIAG_ENTRY_LAST, t.entry_last);
-    diag_write(qemu::DIAG_ENTRY_MAX, t.entry_max);
-    diag_write(qemu::DIAG_BUSY_LAST, t.busy_last);
-    diag_write(qemu::DIAG_BUSY_MAX, t.busy_max);
-    diag_write(qemu::DIAG_BUSY_SUM_LO, t.busy_sum as u32);
-    diag_write(qemu::DIAG_BUSY_SUM_HI, (t.busy_sum >> 32) as u32);
-    diag_write(qemu::DIAG_INPUT_FAULTS, COUNTERS.input_faults.load(Ordering::Relaxed));
+    s.diag.write(qemu::DIAG_HANDLER_LAST, s.handler_last);
+    s.diag.write(qemu::DIAG_HANDLER_MAX, s.handler_max);
+    s.bus.write_counters(COUNTERS.underruns.load(Ordering::Relaxed), COUNTERS.overruns.load(Ordering::Relaxed));
+    s.diag.write(qemu::DIAG_ENTRY_LAST, t.entry_last);
+    s.diag.write(qemu::DIAG_ENTRY_MAX, t.entry_max);
+    s.diag.write(qemu::DIAG_BUSY_LAST, t.busy_last);
+    s.diag.write(qemu::DIAG_BUSY_MAX, t.busy_max);
+    s.diag.write(qemu::DIAG_BUSY_SUM_LO, t.busy_sum as u32);
+    s.diag.write(qemu::DIAG_BUSY_SUM_HI, (t.busy_sum >> 32) as u32);
+    s.diag.write(qemu::DIAG_INPUT_FAULTS, COUNTERS.input_faults.load(Ordering::Relaxed));
     if result == TickResult::Served {
         // The whole handler after the input arrived, publication included; published with
         // the next tick.
@@ -270,7 +307,8 @@ unsafe extern "C" fn UART0RX() {
         RX_BYTES = RX_BYTES.wrapping_add(n);
         RX_BYTES
     };
-    diag_write(qemu::DIAG_CONTROL_RX_BYTES, total);
+    // SAFETY: initialised before the UART interrupts were unmasked; read-only.
+    unsafe { RX_DIAG.get() }.write(qemu::DIAG_CONTROL_RX_BYTES, total);
     EVENTS.raise(EVENT_CONTROL_RX);
 }
 

@@ -5,6 +5,8 @@ use std::time::Instant;
 
 use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
 
+use sts_twin_board::qemu::Mps2Image;
+
 use super::{Hil, HilConfig, HilError};
 
 /// The `-icount` shift the instruction benchmark runs at: one instruction is 64 ns of guest
@@ -40,6 +42,8 @@ pub fn bench_inputs(ticks: u32) -> Vec<InputSlot> {
 pub struct InstructionReport {
     /// The ELF measured.
     pub elf: String,
+    /// The board it ran on.
+    pub board: Mps2Image,
     /// Ticks measured.
     pub ticks: u32,
     /// The `-icount` shift used.
@@ -70,7 +74,14 @@ pub struct InstructionReport {
 
 impl std::fmt::Display for InstructionReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "servo tick, guest instructions ({} ticks, -icount shift={}):", self.ticks, self.icount_shift)?;
+        writeln!(
+            f,
+            "servo tick on {} ({}), guest instructions ({} ticks, -icount shift={}):",
+            self.board.qemu_machine(),
+            self.board.core(),
+            self.ticks,
+            self.icount_shift
+        )?;
         writeln!(
             f,
             "  input arrival -> output written (app + bus): median {:.0}, mean {:.1}, p99 {:.0}, worst {:.0}",
@@ -119,6 +130,7 @@ pub fn bench_instructions_prepared(
     prepare: impl FnOnce(&mut Hil) -> Result<(), HilError>,
 ) -> Result<InstructionReport, HilError> {
     config.icount_shift = INSTRUCTION_BENCH_SHIFT;
+    let board = config.board;
     let mut hil = Hil::start(config)?;
     prepare(&mut hil)?;
     let per_count = 40.0 / f64::from(1u32 << INSTRUCTION_BENCH_SHIFT);
@@ -145,6 +157,7 @@ pub fn bench_instructions_prepared(
     let at = |q: f64| quantile(&busy, q);
     Ok(InstructionReport {
         elf,
+        board,
         ticks,
         icount_shift: INSTRUCTION_BENCH_SHIFT,
         busy_median: at(0.5),

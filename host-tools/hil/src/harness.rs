@@ -6,6 +6,7 @@ use std::process::{Command, ExitStatus, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use sts_twin_board::qemu::Mps2Image;
 use sts_twin_core::bus::{InputSlot, OutputSlot, RING_SLOTS};
 
 use super::bus::{BusCounters, BusFile, Diagnostics};
@@ -21,6 +22,9 @@ pub struct HilConfig {
     pub elf: Option<PathBuf>,
     /// Which application, when `elf` is `None`.
     pub variant: firmware::FirmwareVariant,
+    /// The emulated board: AN386 (Cortex-M4F) or AN500 (Cortex-M7, the STM32H7's core). The
+    /// same firmware image runs on both.
+    pub board: Mps2Image,
     /// Keep the bus paused whenever no tick call ([`Hil::step`], the streams) is under way,
     /// so that the host's own work between ticks (the plant, control requests) is never
     /// counted as an underrun. Off: a host that stops feeding is seen as one.
@@ -45,6 +49,7 @@ impl Default for HilConfig {
         Self {
             elf: None,
             variant: firmware::FirmwareVariant::Twin,
+            board: Mps2Image::An386,
             idle_paused: true,
             icount_shift: 2,
             boot_timeout: Duration::from_secs(20),
@@ -127,7 +132,7 @@ impl Hil {
         let serial_addr = SocketAddr::from(([127, 0, 0, 1], port));
         bus.reset_for_boot();
         let mut cmd = Command::new(program);
-        cmd.args(qemu_args(config.icount_shift, &bus.qemu_mem_path(), port, elf))
+        cmd.args(qemu_args(config.board, config.icount_shift, &bus.qemu_mem_path(), port, elf))
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
@@ -412,10 +417,16 @@ impl Hil {
 }
 
 /// The QEMU command line (without the program).
-pub(crate) fn qemu_args(icount_shift: u32, mem_path: &str, port: u16, elf: &std::path::Path) -> Vec<String> {
+pub(crate) fn qemu_args(
+    board: Mps2Image,
+    icount_shift: u32,
+    mem_path: &str,
+    port: u16,
+    elf: &std::path::Path,
+) -> Vec<String> {
     [
         "-machine",
-        "mps2-an386,memory-backend=psram",
+        &format!("{},memory-backend=psram", board.qemu_machine()),
         "-object",
         &format!("memory-backend-file,id=psram,size=16M,mem-path={mem_path},share=on"),
         "-display",

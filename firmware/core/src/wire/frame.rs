@@ -178,7 +178,7 @@ mod tests {
     #[test]
     fn corruption_is_detected_and_the_stream_recovers() {
         let mut out = [0u8; MAX_ENCODED_FRAME];
-        let len = encode_frame(3, &Response::Pong { nonce: 9 }, &mut out).unwrap();
+        let len = encode_frame(3, &Response::Pong { nonce: 9, protocol_version: 2 }, &mut out).unwrap();
         let mut stream: heapless::Vec<u8, 256> = heapless::Vec::new();
         // A frame with one flipped bit, a truncated frame, then a good one.
         let mut bad = out;
@@ -191,7 +191,7 @@ mod tests {
         assert_eq!(got.len(), 3);
         assert!(got[0].is_err());
         assert!(got[1].is_err());
-        assert_eq!(got[2].as_ref().unwrap().body, Response::Pong { nonce: 9 });
+        assert_eq!(got[2].as_ref().unwrap().body, Response::Pong { nonce: 9, protocol_version: 2 });
     }
 
     #[test]

@@ -23,7 +23,9 @@ pub struct Envelope<T> {
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Request {
-    /// Answered by [`Response::Pong`] with the same nonce.
+    /// Answered by [`Response::Pong`] with the same nonce. The handshake: this variant and
+    /// the answer's first two fields keep their place in every protocol version, so that a
+    /// host can always tell which version a firmware speaks.
     Ping {
         /// Echoed back.
         nonce: u32,
@@ -65,6 +67,8 @@ pub enum Response {
     Pong {
         /// The request's nonce.
         nonce: u32,
+        /// The firmware's [`super::PROTOCOL_VERSION`].
+        protocol_version: u16,
     },
     /// Answer to [`Request::GetStatus`].
     Status(Status),

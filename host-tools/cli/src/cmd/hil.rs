@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use sts_twin_core::wire::{Request, Response};
 
+use sts_hil::board::qemu::Mps2Image;
 use sts_hil::{bench_instructions_prepared, bench_throughput, FirmwareVariant, HilConfig};
 use sts_rig::{request_on, Coprocessor, HilCoprocessor};
 
@@ -23,6 +24,28 @@ pub struct Args {
     /// Print the firmware's decoded log lines as they arrive.
     #[arg(long, global = true)]
     pub logs: bool,
+    /// The emulated board: `an386` (Cortex-M4F) or `an500` (Cortex-M7, the STM32H7's core).
+    /// The same firmware image runs on both.
+    #[arg(long, global = true, value_enum, default_value_t = Board::An386)]
+    pub board: Board,
+}
+
+/// The QEMU boards the firmware runs on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Board {
+    /// MPS2 AN386: Cortex-M4F.
+    An386,
+    /// MPS2 AN500: Cortex-M7.
+    An500,
+}
+
+impl From<Board> for Mps2Image {
+    fn from(board: Board) -> Self {
+        match board {
+            Board::An386 => Mps2Image::An386,
+            Board::An500 => Mps2Image::An500,
+        }
+    }
 }
 
 /// `sts-twin hil` actions.
@@ -54,6 +77,7 @@ fn config(args: &Args) -> HilConfig {
         elf: args.firmware.clone(),
         variant: if args.bringup { FirmwareVariant::BringUp } else { FirmwareVariant::Twin },
         echo_logs: args.logs || HilConfig::default().echo_logs,
+        board: args.board.into(),
         ..HilConfig::default()
     }
 }
@@ -80,6 +104,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 return Ok(());
             }
             let c = &status.counters;
+            let board = Mps2Image::from(args.board);
+            println!("board: QEMU {} ({})", board.qemu_machine(), board.core());
             println!("config: {:?}", status.config_source);
             println!(
                 "compensation: {} (gain {:.3}), program {:?} (staged {:?}), inputs {}",

@@ -14,6 +14,24 @@ pub fn twin_config() -> HilConfig {
     HilConfig::default()
 }
 
+/// A named bus file in the temporary directory, removed when the test ends.
+pub struct BusPath(pub std::path::PathBuf);
+
+impl BusPath {
+    /// A fresh path whose file name holds `name`.
+    pub fn new(name: &str) -> Self {
+        let nanos =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
+        Self(std::env::temp_dir().join(format!("sts-twin-{name}-{}-{nanos}.bus", std::process::id())))
+    }
+}
+
+impl Drop for BusPath {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
 /// Runs the HIL tests of one test binary one at a time: each boots a QEMU whose guest spins
 /// on the bus, and on a 2-core machine several at once starve the host side of the lockstep
 /// (a stalled host is, rightly, counted as an underrun by the firmware). Hold the guard for

@@ -3,7 +3,9 @@
 //! switching compensation on at rest moving the axis by less than one motion pulse (by more
 //! without the calibration); a corrupt store boots on safe defaults and is reported.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+use sts_hil_tests::BusPath;
 
 use sts_hil::board::qemu::{CONFIG_OFFSET, CONFIG_SLOT_BYTES};
 use sts_hil::HilConfig;
@@ -14,23 +16,6 @@ use sts_rig::trial::stored_params;
 use sts_rig::{expect_ack, Coprocessor, SimCoprocessor};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::{frame_crc32, ConfigSource, Request};
-
-/// A named bus file in the temporary directory, removed when the test ends.
-struct BusPath(PathBuf);
-
-impl BusPath {
-    fn new(name: &str) -> Self {
-        let nanos =
-            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
-        Self(std::env::temp_dir().join(format!("sts-twin-{name}-{}-{nanos}.bus", std::process::id())))
-    }
-}
-
-impl Drop for BusPath {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.0);
-    }
-}
 
 fn boot(bus: &Path) -> HilBoard {
     HilBoard::start(HilConfig { bus_path: Some(bus.to_path_buf()), ..sts_hil_tests::twin_config() })

@@ -2,6 +2,7 @@
 //! firmware ELF (from `cargo xtask firmware`) in QEMU; `sts_hil_tests::serial` runs them one
 //! at a time. Run one group with `cargo test -p sts-hil-tests --release -- twin_hil::`.
 
+mod board_pty;
 mod calibrate_hil;
 mod cortex_m7;
 mod firmware_paths;

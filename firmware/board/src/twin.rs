@@ -129,16 +129,21 @@ impl BackgroundApp for TwinBackground {
             Err(_) => Err(RecordError::Crc),
         };
         self.config_source = match loaded {
-            // Both were validated with the record; the checks keep a failure visible anyway.
-            Ok(config)
-                if ctx.shared.with(|s| {
+            // All was validated with the record; the checks keep a failure visible anyway.
+            // The same steps, in the same order, as the host's `sts_twin_core::twin::Twin::boot`.
+            Ok(config) => {
+                let settings = ctx.shared.with(|s| {
                     s.servo.set_params(config.params).is_ok()
                         && s.servo.set_supervisor_params(config.supervisor).is_ok()
-                }) =>
-            {
-                ConfigSource::Stored
+                        && s.servo.set_feature_config(config.feature_config).is_ok()
+                });
+                let program = config.program.is_none_or(|program| self.models.upload(program, true).is_ok());
+                if settings && program {
+                    ConfigSource::Stored
+                } else {
+                    ConfigSource::DefaultsAfterCorrupt
+                }
             }
-            Ok(_) => ConfigSource::DefaultsAfterCorrupt,
             Err(RecordError::Blank) => ConfigSource::Defaults,
             Err(_) => ConfigSource::DefaultsAfterCorrupt,
         };

@@ -8,7 +8,9 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::features::{DefaultFeatureState, FeatureConfig};
 use crate::feedforward::FeedforwardParams;
+use crate::program::Program;
 use crate::supervisor::SupervisorParams;
 use crate::wire::frame_crc32;
 
@@ -16,19 +18,26 @@ use crate::wire::frame_crc32;
 pub const CONFIG_MAGIC: [u8; 4] = *b"STSC";
 /// Format version of the record (2: the feedforward parameters carry the analogue-path table;
 /// 3: the table holds ten points with their gains and amplitude, and the supervisor's
-/// thresholds are stored beside the parameters).
-pub const CONFIG_VERSION: u16 = 3;
-/// Largest record, bytes.
-pub const MAX_CONFIG_BYTES: usize = 256;
+/// thresholds are stored beside the parameters; 4: the feature settings and the active twin
+/// program too, so that a board keeps its twin across a power cycle).
+pub const CONFIG_VERSION: u16 = 4;
+/// Largest record, bytes: the header, the parameters (a full analogue-path table), the
+/// supervisor's thresholds, the feature settings and the largest program a control frame
+/// carries.
+pub const MAX_CONFIG_BYTES: usize = 1024;
 
 /// What the firmware keeps across power cycles.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PersistentConfig {
     /// Feedforward parameters, including the calibrated offset and K_dv.
     pub params: FeedforwardParams,
     /// The supervisor's thresholds in force when the record was saved (a lab's own, kept
     /// across a power cycle; the defaults where none were set).
     pub supervisor: SupervisorParams,
+    /// The feature extraction's settings in force (the twin's window and scale).
+    pub feature_config: FeatureConfig,
+    /// The active twin program, if one was in force.
+    pub program: Option<Program>,
 }
 
 /// Why a stored record was not used.
@@ -122,6 +131,10 @@ impl PersistentConfig {
         };
         config.params.validate().map_err(|_| ConfigError::Invalid)?;
         config.supervisor.validate().map_err(|_| ConfigError::Invalid)?;
+        config.feature_config.validate(DefaultFeatureState::CAPACITY_SAMPLES).map_err(|_| ConfigError::Invalid)?;
+        if let Some(program) = &config.program {
+            program.validate().map_err(|_| ConfigError::Invalid)?;
+        }
         Ok(config)
     }
 }
@@ -135,10 +148,12 @@ mod tests {
         let config = PersistentConfig {
             params: FeedforwardParams { offset_v: 0.0123, ..Default::default() },
             supervisor: SupervisorParams { worse_ratio: 1.3, ..SupervisorParams::DEFAULT },
+            feature_config: FeatureConfig { window_samples: 800, ..FeatureConfig::DEFAULT },
+            program: Some(crate::program::paper_program()),
         };
         let mut buf = [0u8; MAX_CONFIG_BYTES];
         let len = config.encode(&mut buf).unwrap();
-        assert_eq!(PersistentConfig::decode(&buf[..len]), Ok(config));
+        assert_eq!(PersistentConfig::decode(&buf[..len]), Ok(config.clone()));
         assert_eq!(PersistentConfig::decode(&[0u8; 64]), Err(ConfigError::Blank));
         for byte in 0..len {
             let mut bad = buf;
@@ -153,20 +168,64 @@ mod tests {
         let full = PersistentConfig {
             params: FeedforwardParams { analogue_path: path, ..Default::default() },
             supervisor: SupervisorParams::DEFAULT,
+            feature_config: FeatureConfig::DEFAULT,
+            program: None,
         };
         let full_len = full.encode(&mut buf).unwrap();
         assert_eq!(PersistentConfig::decode(&buf[..full_len]), Ok(full));
         let invalid = PersistentConfig {
             params: FeedforwardParams { k_dv_um_per_v: 0.0, ..Default::default() },
             supervisor: SupervisorParams::DEFAULT,
+            feature_config: FeatureConfig::DEFAULT,
+            program: None,
         };
         let len = invalid.encode(&mut buf).unwrap();
         assert_eq!(PersistentConfig::decode(&buf[..len]), Err(ConfigError::Invalid));
         let bad_supervisor = PersistentConfig {
             params: FeedforwardParams::default(),
             supervisor: SupervisorParams { worse_ratio: 0.5, ..SupervisorParams::DEFAULT },
+            feature_config: FeatureConfig::DEFAULT,
+            program: None,
         };
         let len = bad_supervisor.encode(&mut buf).unwrap();
         assert_eq!(PersistentConfig::decode(&buf[..len]), Err(ConfigError::Invalid));
+        // A stored program that does not validate is not loaded.
+        let mut bad_program = crate::program::paper_program();
+        bad_program.version += 1;
+        let len = PersistentConfig { program: Some(bad_program), ..config.clone() }.encode(&mut buf).unwrap();
+        assert_eq!(PersistentConfig::decode(&buf[..len]), Err(ConfigError::Invalid));
+        let bad_window = FeatureConfig { window_samples: 0, ..FeatureConfig::DEFAULT };
+        let len = PersistentConfig { feature_config: bad_window, ..config }.encode(&mut buf).unwrap();
+        assert_eq!(PersistentConfig::decode(&buf[..len]), Err(ConfigError::Invalid));
+    }
+
+    /// The largest record fits: a full analogue-path table and the largest program a
+    /// control frame carries.
+    #[test]
+    fn the_largest_program_a_frame_carries_fits_a_record() {
+        use crate::wire::{encode_frame, Request, MAX_ENCODED_FRAME};
+        let mut program = crate::program::paper_program();
+        let mut frame = [0u8; MAX_ENCODED_FRAME];
+        // Grow the program by constants until an upload no longer fits a frame.
+        while program.consts.push(1.0e-3 * program.consts.len() as f32).is_ok() {
+            let upload = Request::UploadProgram { program: program.clone(), activate: true };
+            if encode_frame(1, &upload, &mut frame).is_err() {
+                program.consts.pop();
+                break;
+            }
+        }
+        let points: [(f32, f32, f32); crate::analogue_path::PATH_POINTS] =
+            core::array::from_fn(|i| (5.0 * (i + 1) as f32, 1.0 + 0.5 * i as f32, -1.5 * i as f32));
+        let path = crate::analogue_path::AnaloguePath::from_responses(8.0, &points).unwrap();
+        let config = PersistentConfig {
+            params: FeedforwardParams { analogue_path: path, ..Default::default() },
+            supervisor: SupervisorParams::DEFAULT,
+            feature_config: FeatureConfig::DEFAULT,
+            program: Some(program),
+        };
+        let mut buf = [0u8; MAX_CONFIG_BYTES];
+        let len = config.encode(&mut buf).expect("the largest record fits");
+        assert!(len <= MAX_CONFIG_BYTES);
+        assert_eq!(PersistentConfig::decode(&buf[..len]).map(|c| c.program), Ok(config.program));
     }
 }

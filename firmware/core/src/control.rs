@@ -62,7 +62,10 @@ pub fn handle_request(
             Response::Ack
         }
         Request::SaveConfig => {
-            let config = servo.with(|s| PersistentConfig { params: s.params(), supervisor: s.supervisor_params() });
+            let (params, supervisor, feature_config) =
+                servo.with(|s| (s.params(), s.supervisor_params(), *s.feature_config()));
+            let config =
+                PersistentConfig { params, supervisor, feature_config, program: models.active_program().cloned() };
             let mut record = [0u8; MAX_CONFIG_BYTES];
             let written = config.encode(&mut record).ok().is_some_and(|len| store.write_config(&record[..len]));
             if written {

@@ -44,17 +44,23 @@ impl Twin {
             Err(ConfigError::Blank) => (None, ConfigSource::Defaults),
             Err(_) => (None, ConfigSource::DefaultsAfterCorrupt),
         };
-        let params = config.map_or_else(FeedforwardParams::default, |c| c.params);
+        let params = config.as_ref().map_or_else(FeedforwardParams::default, |c| c.params);
         let (mut servo, _) = Servo::new(feature_config, servo_config, params);
+        let mut models = Models::new();
         if let Some(config) = config {
-            // Validated with the record.
+            // The same steps, in the same order, as the firmware's boot
+            // (`sts_twin_board::twin::TwinBackground::on_boot`). Validated with the record.
             let _ = servo.set_supervisor_params(config.supervisor);
+            let _ = servo.set_feature_config(config.feature_config);
+            if let Some(program) = config.program {
+                let _ = models.upload(program, true);
+            }
         }
         let mut store = MemoryStore::default();
         let _ = store.record.extend_from_slice(stored);
         Self {
             servo,
-            models: Models::new(),
+            models,
             rings: DefaultSpectralRings::new(),
             commands: DefaultCommandRing::new(),
             config_source,

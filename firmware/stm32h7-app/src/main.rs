@@ -1,8 +1,9 @@
 //! # sts-twin-board-stm32h7
 //!
 //! The sts-twin firmware on a real co-processor board: an STM32H743ZI (NUCLEO-H743ZI)
-//! next to the motion controller. Same application seam as the QEMU firmware
-//! ([`ServoApp`] / [`BackgroundApp`] from `sts-twin-board`), real converters:
+//! next to the motion controller. The same twin application as the QEMU firmware (the
+//! servo and background halves of `sts_twin_board::twin`, on the seam of `sts-twin-board`),
+//! on real converters:
 //!
 //! | what | peripheral | pins (NUCLEO-H743ZI) |
 //! |---|---|---|
@@ -38,24 +39,24 @@ use embassy_stm32::timer::qei::{self, Qei};
 use embassy_stm32::usart::{self, BufferedUart};
 use embassy_stm32::{bind_interrupts, peripherals, Peri};
 use panic_probe as _;
-use sts_twin_board::bringup::{BringUpBackground, BringUpServo, BringUpShared};
 use sts_twin_board::config::{AbStore, RecordMedium, HEADER_BYTES};
 use sts_twin_board::servo::{
     background_loop, run_tick, BackgroundApp, BackgroundCtx, ServoCounters, TickState, EVENT_CONTROL_RX,
 };
 use sts_twin_board::sync::{BootCell, Events, SharedCell};
+use sts_twin_board::twin::{TwinBackground, TwinServo, TwinShared};
 use sts_twin_board::{AdcSource, ConfigError, ControlLink, DacSink, InputSlot, OutputSlot, SampleError, TickSource};
 use sts_twin_core::bus::IN_FLAG_PHASE_VALID;
 
-/// The servo half of the application.
-pub type App = BringUpServo;
-/// The background half of the application.
-pub type AppBackground = BringUpBackground;
+/// The servo half of the application: the twin, as in the QEMU firmware.
+pub type App = TwinServo;
+/// The background half of the application: model work and the control protocol.
+pub type AppBackground = TwinBackground;
 /// The state the two halves share.
-pub type AppShared = BringUpShared;
+pub type AppShared = TwinShared;
 
 fn make_app() -> (App, AppBackground, AppShared) {
-    (BringUpServo::new(), BringUpBackground::new(), BringUpShared::new())
+    (TwinServo, TwinBackground::new(), TwinShared::new())
 }
 
 /// Servo rate.

@@ -12,6 +12,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// A co-processor board on a serial port: status, upload a twin, parameters, enable, save, counters, watch.
+    Board(cmd::board::Args),
     /// Calibrate before a cut: interface offset, K_dv and analogue path, stored in the co-processor and verified.
     #[command(alias = "calibrate")]
     CalibrateOffset(cmd::calibrate::Args),
@@ -70,6 +72,7 @@ fn is_closed_stdout(payload: &(dyn std::any::Any + Send)) -> bool {
 
 fn run(cli: &Cli) -> std::process::ExitCode {
     let result = match &cli.command {
+        Command::Board(args) => cmd::board::run(args),
         Command::CalibrateOffset(args) => cmd::calibrate::run(args),
         Command::Compare(args) => cmd::compare::run(args),
         Command::Demo(args) => cmd::demo::run(args),

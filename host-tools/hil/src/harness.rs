@@ -42,6 +42,11 @@ pub struct HilConfig {
     pub echo_logs: bool,
     /// Use this named bus file (kept, with its config store) instead of an anonymous one.
     pub bus_path: Option<PathBuf>,
+    /// Put the control link on a pseudo-terminal (`-serial pty`) instead of a loopback TCP
+    /// socket: the host then talks to the firmware with the serial-port code a lab uses
+    /// (`sts_link`), through [`Hil::control_pty`]; [`Hil::link`] and [`Hil::transact`] are
+    /// not available.
+    pub control_pty: bool,
 }
 
 impl Default for HilConfig {
@@ -57,6 +62,7 @@ impl Default for HilConfig {
             handle_signals: true,
             echo_logs: std::env::var_os("STS_TWIN_HIL_ECHO").is_some(),
             bus_path: None,
+            control_pty: false,
         }
     }
 }
@@ -75,10 +81,11 @@ pub struct Hil {
     elf: PathBuf,
     bus: Arc<BusFile>,
     qemu: QemuProcess,
-    link: ControlPort,
+    link: Option<ControlPort>,
     logs: SharedLog,
     next_tick: u32,
-    serial_addr: SocketAddr,
+    serial_addr: Option<SocketAddr>,
+    pty: Option<PathBuf>,
 }
 
 impl Hil {
@@ -130,9 +137,14 @@ impl Hil {
             l.local_addr().map_err(|e| HilError::io("finding a free port", e))?.port()
         };
         let serial_addr = SocketAddr::from(([127, 0, 0, 1], port));
+        let serial = if config.control_pty {
+            "pty".to_string()
+        } else {
+            format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on")
+        };
         bus.reset_for_boot();
         let mut cmd = Command::new(program);
-        cmd.args(qemu_args(config.board, config.icount_shift, &bus.qemu_mem_path(), port, elf))
+        cmd.args(qemu_args(config.board, config.icount_shift, &bus.qemu_mem_path(), &serial, elf))
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
@@ -140,14 +152,16 @@ impl Hil {
             QemuProcess::spawn(cmd, bus.inherited_fds()).map_err(|e| HilError::io(format!("starting {program}"), e))?;
         let logs: SharedLog = Arc::new(Mutex::new(LogSink::default()));
         if let Some(out) = qemu.take_stdout() {
-            log::spawn_decoder(elf.to_path_buf(), out, logs.clone(), config.echo_logs);
+            log::spawn_decoder(elf.to_path_buf(), out, logs.clone(), config.echo_logs, config.control_pty);
         }
         if let Some(err) = qemu.take_stderr() {
             log::spawn_stderr_reader(err, logs.clone());
         }
-        let link = {
+        let (link, pty) = if config.control_pty {
+            (None, Some(wait_for_pty(&mut qemu, &logs, config.boot_timeout)?))
+        } else {
             let mut alive = || check_alive(&mut qemu, &logs, "connecting the control link");
-            ControlPort::connect(serial_addr, config.boot_timeout, &mut alive)?
+            (Some(ControlPort::connect(serial_addr, config.boot_timeout, &mut alive)?), None)
         };
         let mut hil = Self {
             config: config.clone(),
@@ -157,7 +171,8 @@ impl Hil {
             link,
             logs,
             next_tick: 0,
-            serial_addr,
+            serial_addr: (!config.control_pty).then_some(serial_addr),
+            pty,
         };
         let deadline = Instant::now() + hil.config.boot_timeout;
         while !hil.bus.firmware_ready() {
@@ -193,9 +208,14 @@ impl Hil {
         self.qemu.pid()
     }
 
-    /// The loopback address of the control link.
-    pub fn serial_addr(&self) -> SocketAddr {
+    /// The loopback address of the control link (`None` with [`HilConfig::control_pty`]).
+    pub fn serial_addr(&self) -> Option<SocketAddr> {
         self.serial_addr
+    }
+
+    /// The pseudo-terminal QEMU put the control link on (with [`HilConfig::control_pty`]).
+    pub fn control_pty(&self) -> Option<&std::path::Path> {
+        self.pty.as_deref()
     }
 
     /// The bus file (shared, e.g. for a reboot).
@@ -338,9 +358,12 @@ impl Hil {
         self.bus.set_host_stop(false);
     }
 
-    /// The control link.
+    /// The control link (a loopback TCP socket).
+    ///
+    /// # Panics
+    /// With [`HilConfig::control_pty`], where the link is the pseudo-terminal instead.
     pub fn link(&mut self) -> &mut ControlPort {
-        &mut self.link
+        self.link.as_mut().expect("the control link is on a pseudo-terminal (HilConfig::control_pty)")
     }
 
     /// With the bus paused: sends `request`, receives until `done(reply so far)`, resumes.
@@ -350,8 +373,13 @@ impl Hil {
         timeout: Duration,
         done: impl FnMut(&[u8]) -> bool,
     ) -> Result<Vec<u8>, HilError> {
-        self.pause();
-        let result = self.link.send(request).and_then(|()| self.link.recv_until(timeout, done));
+        let Some(link) = self.link.as_mut() else {
+            return Err(HilError::Protocol(
+                "the control link is on a pseudo-terminal (HilConfig::control_pty): talk to it with sts_link".into(),
+            ));
+        };
+        self.bus.set_host_stop(true);
+        let result = link.send(request).and_then(|()| link.recv_until(timeout, done));
         if !self.config.idle_paused {
             self.resume();
         }
@@ -421,7 +449,7 @@ pub(crate) fn qemu_args(
     board: Mps2Image,
     icount_shift: u32,
     mem_path: &str,
-    port: u16,
+    serial: &str,
     elf: &std::path::Path,
 ) -> Vec<String> {
     [
@@ -434,7 +462,7 @@ pub(crate) fn qemu_args(
         "-monitor",
         "none",
         "-serial",
-        &format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"),
+        serial,
         "-semihosting-config",
         "enable=on,target=native",
         "-icount",
@@ -456,6 +484,34 @@ fn exited(status: ExitStatus, logs: &SharedLog, during: &str) -> HilError {
         tail.push(format!("qemu stderr: {}", sink.stderr.trim()));
     }
     HilError::QemuExited { status, during: during.into(), log_tail: tail.join("\n") }
+}
+
+/// Waits for QEMU's "char device redirected to /dev/pts/N (label serial0)", its first line
+/// on stdout.
+fn wait_for_pty(qemu: &mut QemuProcess, logs: &SharedLog, timeout: Duration) -> Result<PathBuf, HilError> {
+    const MARK: &str = "char device redirected to ";
+    let deadline = Instant::now() + timeout;
+    loop {
+        {
+            let sink = logs.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(banner) = &sink.banner {
+                return match banner.strip_prefix(MARK).and_then(|rest| rest.split_whitespace().next()) {
+                    Some(path) => Ok(PathBuf::from(path)),
+                    None => Err(HilError::Protocol(format!(
+                        "QEMU did not name the control link's pseudo-terminal (its first line: {banner:?})"
+                    ))),
+                };
+            }
+        }
+        check_alive(qemu, logs, "waiting for QEMU's pseudo-terminal")?;
+        if Instant::now() >= deadline {
+            return Err(HilError::Timeout {
+                what: "QEMU to name the pseudo-terminal of the control link".into(),
+                seconds: timeout.as_secs_f64(),
+            });
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
 }
 
 fn check_alive(qemu: &mut QemuProcess, logs: &SharedLog, during: &str) -> Result<(), HilError> {

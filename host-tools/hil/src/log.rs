@@ -36,6 +36,9 @@ pub(crate) struct LogSink {
     pub(crate) lines: Vec<LogLine>,
     pub(crate) stderr: String,
     pub(crate) malformed_frames: usize,
+    /// QEMU's own first line on stdout, before the defmt frames, when it has one to print
+    /// ("char device redirected to /dev/pts/N (label serial0)" with `-serial pty`).
+    pub(crate) banner: Option<String>,
 }
 
 pub(crate) type SharedLog = Arc<Mutex<LogSink>>;
@@ -51,8 +54,15 @@ pub(crate) fn check_table(elf: &Path) -> Result<(), HilError> {
 }
 
 /// Decodes `stdout` (defmt frames) into `sink` until QEMU closes it. When `echo` is set,
-/// every line is also printed to stderr as it arrives.
-pub(crate) fn spawn_decoder(elf: PathBuf, mut stdout: impl Read + Send + 'static, sink: SharedLog, echo: bool) {
+/// every line is also printed to stderr as it arrives. With `banner`, QEMU's first line of
+/// text (which precedes the guest's frames) is taken out into [`LogSink::banner`] first.
+pub(crate) fn spawn_decoder(
+    elf: PathBuf,
+    mut stdout: impl Read + Send + 'static,
+    sink: SharedLog,
+    echo: bool,
+    banner: bool,
+) {
     std::thread::Builder::new()
         .name("sts-hil-defmt".into())
         .spawn(move || {
@@ -61,12 +71,23 @@ pub(crate) fn spawn_decoder(elf: PathBuf, mut stdout: impl Read + Send + 'static
             let locations = table.get_locations(&bytes).unwrap_or_default();
             let mut decoder = table.new_stream_decoder();
             let mut buf = [0u8; 4096];
+            let mut head: Option<Vec<u8>> = banner.then(Vec::new);
             loop {
                 let n = match stdout.read(&mut buf) {
                     Ok(0) | Err(_) => return,
                     Ok(n) => n,
                 };
-                decoder.received(&buf[..n]);
+                match head.as_mut() {
+                    Some(text) => {
+                        text.extend_from_slice(&buf[..n]);
+                        let Some(end) = text.iter().position(|&b| b == b'\n') else { continue };
+                        let line = String::from_utf8_lossy(&text[..end]).trim().to_string();
+                        decoder.received(&text[end + 1..]);
+                        sink.lock().unwrap_or_else(|e| e.into_inner()).banner = Some(line);
+                        head = None;
+                    }
+                    None => decoder.received(&buf[..n]),
+                }
                 // A malformed frame is dropped by the decoder; the bound only guards against
                 // a decoder that would not make progress.
                 for _ in 0..100_000 {

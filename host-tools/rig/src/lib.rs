@@ -13,8 +13,9 @@ pub mod trial;
 
 pub use faults::{degraded_reasons, fault_report, print_fault_report};
 pub use hil::{request_on, HilCoprocessor, REQUEST_TIMEOUT};
-pub use lossy::{FrameFate, FrameInjector, InjectedFaults, LinkFaults, LinkStats, LossyHilCoprocessor, RetryPolicy};
+pub use lossy::LossyHilCoprocessor;
 pub use sim::SimCoprocessor;
+pub use sts_link::{FrameFate, FrameInjector, InjectedFaults, LinkFaults, LinkStats, RetryPolicy};
 pub use trajectory::{Bicuspid, Sinusoid, Trajectory, TrajectoryPoint};
 
 pub use coprocessor::*;

@@ -171,6 +171,11 @@ impl Models {
         self.activated();
     }
 
+    /// The active program.
+    pub fn active_program(&self) -> Option<&Program> {
+        self.active.as_ref()
+    }
+
     /// Id of the active program.
     pub fn active_id(&self) -> Option<u32> {
         self.active.as_ref().map(|p| p.id)

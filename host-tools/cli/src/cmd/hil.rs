@@ -60,6 +60,16 @@ pub enum Action {
         #[arg(long)]
         raw: bool,
     },
+    /// Boot the firmware with its control link on a pseudo-terminal and keep it running (until
+    /// Ctrl-C or `--seconds`): a board to try `sts-twin board --port` on without hardware.
+    Serve {
+        /// A named bus file whose config store (the board's flash) is kept across runs.
+        #[arg(long)]
+        bus_file: Option<PathBuf>,
+        /// Stop after this many seconds (default: run until Ctrl-C).
+        #[arg(long)]
+        seconds: Option<f64>,
+    },
     /// Measure instructions per servo tick and HIL throughput.
     Bench {
         /// Ticks per measurement.
@@ -103,34 +113,31 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 println!("{diagnostics:#?}");
                 return Ok(());
             }
-            let c = &status.counters;
             let board = Mps2Image::from(args.board);
             println!("board: QEMU {} ({})", board.qemu_machine(), board.core());
-            println!("config: {:?}", status.config_source);
+            super::status::print_status(&status);
+            Ok(())
+        }
+        Action::Serve { bus_file, seconds } => {
+            if args.bringup {
+                anyhow::bail!("`hil serve` needs the twin firmware (the bring-up application has no control protocol)");
+            }
+            let mut hil =
+                sts_hil::Hil::start(HilConfig { bus_path: bus_file.clone(), control_pty: true, ..config(args) })?;
+            let pty = hil.control_pty().map(|p| p.display().to_string()).unwrap_or_default();
+            let board = Mps2Image::from(args.board);
             println!(
-                "compensation: {} (gain {:.3}), program {:?} (staged {:?}), inputs {}",
-                if status.enabled { "enabled" } else { "disabled" },
-                status.gain,
-                status.program_id,
-                status.staged_program_id,
-                if status.degraded == 0 {
-                    "trusted".to_string()
-                } else {
-                    format!("degraded (bits {:#06b})", status.degraded)
-                }
+                "the twin firmware runs on QEMU {} ({}); its control link is {pty}",
+                board.qemu_machine(),
+                board.core()
             );
-            let p = &status.params;
-            println!(
-                "feedforward: K_dv {} um/V, K_vc {} pulses/V, offset {} V, slew {} V/tick, DAC full scale {} V, enable ramp {} ticks, analogue-path points {}",
-                p.k_dv_um_per_v, p.k_vc_pulses_per_v, p.offset_v, p.slew_v_per_tick, p.dac_full_scale_v, p.enable_ramp_ticks, p.analogue_path.count
-            );
-            println!(
-                "features: window {} samples at {} Hz, {} m/s^2 per LSB",
-                status.feature_config.window_samples,
-                status.feature_config.sample_rate_hz,
-                status.feature_config.acc_mps2_per_lsb
-            );
-            println!("counters: {c:?}");
+            println!("try: sts-twin board --port {pty} status");
+            let started = std::time::Instant::now();
+            while seconds.is_none_or(|s| started.elapsed().as_secs_f64() < s) {
+                hil.alive("serving the control link")?;
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+            hil.shutdown()?;
             Ok(())
         }
         Action::Bench { ticks, model } => {

@@ -1,5 +1,6 @@
 //! One module per `sts-twin` subcommand: its arguments and its `run`.
 
+pub mod board;
 pub mod calibrate;
 pub mod compare;
 pub mod demo;
@@ -11,6 +12,7 @@ pub mod machine;
 pub mod measure;
 pub mod paper_table;
 pub mod regress;
+mod status;
 pub mod trial_table;
 
 /// Named parameters (name with unit, value) as a JSON object, in their order.

@@ -1,0 +1,102 @@
+//! `sts-twin board --port` as a lab runs it, against the twin firmware in QEMU with its UART
+//! on a pseudo-terminal (`-serial pty`): status, upload, params, enable, save, a reboot and
+//! the status read back; a missing port, a busy one and a twin the board refuses get clear
+//! errors that name the port, and the refused twin changes nothing.
+//! Needs the firmware ELF (`cargo xtask firmware`).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use sts_hil::{Hil, HilConfig};
+
+fn sts_twin(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sts-twin")).args(args).output().expect("sts-twin runs")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = sts_twin(args);
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "sts-twin {args:?} failed:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    stdout
+}
+
+fn failing(args: &[&str]) -> String {
+    let out = sts_twin(args);
+    assert!(!out.status.success(), "sts-twin {args:?} should fail");
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    stderr
+}
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../hil-tests/fixtures").join(name)
+}
+
+/// A bus file in the temporary directory (the board's flash across the reboot), removed at
+/// the end.
+struct BusFile(PathBuf);
+
+impl Drop for BusFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+fn boot(bus: &Path) -> Hil {
+    Hil::start(HilConfig { bus_path: Some(bus.to_path_buf()), control_pty: true, ..HilConfig::default() })
+        .expect("the twin firmware boots in QEMU (build it with `cargo xtask firmware`)")
+}
+
+#[test]
+fn a_lab_uploads_sets_enables_and_saves_a_twin_on_a_board_on_a_serial_port() {
+    let bus = BusFile(std::env::temp_dir().join(format!("sts-twin-board-cli-{}.bus", std::process::id())));
+    let hil = boot(&bus.0);
+    let pty = hil.control_pty().unwrap().to_str().unwrap().to_string();
+    let port = ["--port", pty.as_str()];
+    let with = |action: &[&str]| -> Vec<String> { action.iter().chain(&port).map(|s| s.to_string()).collect() };
+    let run = |action: &[&str]| ok(&with(action).iter().map(String::as_str).collect::<Vec<_>>());
+    let fail = |action: &[&str]| failing(&with(action).iter().map(String::as_str).collect::<Vec<_>>());
+
+    let fresh = run(&["board", "status"]);
+    assert!(fresh.contains("config: Defaults") && fresh.contains("no twin model is active"), "{fresh}");
+
+    let twin = fixture("twin-default-machine.json");
+    let uploaded = run(&["board", "upload", twin.to_str().unwrap()]);
+    assert!(uploaded.contains("active on serial port") && uploaded.contains(&pty), "{uploaded}");
+    let params = run(&["board", "params", "--offset-v", "-0.0125", "--k-dv-um-per-v", "2.5"]);
+    assert!(params.contains("K_dv 2.5 um/V") && params.contains("offset -0.0125 V"), "{params}");
+    assert!(run(&["board", "enable"]).contains("compensation enabled"));
+    let saved = run(&["board", "save"]);
+    assert!(saved.starts_with("saved:"), "{saved}");
+    let watched = run(&["board", "watch", "--hz", "20", "--count", "3"]);
+    assert_eq!(watched.lines().count(), 4, "a header and three lines: {watched}");
+    assert!(watched.lines().nth(1).unwrap().contains(" on "), "{watched}");
+
+    // Refused: parameters out of range, and a twin that is not a twin. Nothing changes.
+    let refused = fail(&["board", "params", "--k-dv-um-per-v", "0"]);
+    assert!(refused.contains(&pty) && refused.contains("refused the parameters"), "{refused}");
+    let not_a_twin = std::env::temp_dir().join(format!("sts-twin-not-a-twin-{}.json", std::process::id()));
+    std::fs::write(&not_a_twin, "{\"format\": \"sts-twin model\"}").unwrap();
+    let bad = fail(&["board", "upload", not_a_twin.to_str().unwrap()]);
+    let _ = std::fs::remove_file(&not_a_twin);
+    assert!(bad.contains("sts-twin-not-a-twin"), "names the file: {bad}");
+
+    // Busy while another program holds the port.
+    let holder = sts_link::SerialLink::open(&pty, sts_link::DEFAULT_BAUD).unwrap();
+    let busy = fail(&["board", "status"]);
+    assert!(busy.contains(&pty) && busy.contains("busy"), "{busy}");
+    drop(holder);
+
+    let hil = hil.reboot().expect("the reboot");
+    let pty = hil.control_pty().unwrap().to_str().unwrap().to_string();
+    let back = ok(&["board", "status", "--port", &pty]);
+    assert!(back.contains("config: Stored"), "{back}");
+    assert!(back.contains("K_dv 2.5 um/V") && back.contains("offset -0.0125 V"), "{back}");
+    assert!(back.contains("compensation: disabled") && !back.contains("program none"), "{back}");
+    hil.shutdown().unwrap();
+
+    let missing = failing(&["board", "status", "--port", "/dev/sts-twin-no-such-port"]);
+    assert!(missing.contains("/dev/sts-twin-no-such-port: no such serial port"), "{missing}");
+    let no_port = failing(&["board", "status"]);
+    assert!(no_port.contains("--port DEV"), "{no_port}");
+}

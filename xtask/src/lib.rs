@@ -8,6 +8,7 @@
 //! the two agree).
 
 pub mod layering;
+pub mod size;
 
 /// The firmware's Rust target (`rustup target add thumbv7em-none-eabihf`).
 pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";

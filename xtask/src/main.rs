@@ -22,6 +22,9 @@ enum Task {
     /// Check that no crate of the root workspace has an import cycle between its top-level
     /// modules, and print each crate's module graph.
     Layering,
+    /// Print the flash and RAM use of each built firmware image (from its ELF's load
+    /// segments; the stack is not counted).
+    Size,
 }
 
 const FIRMWARE_ABOUT: &str = "\
@@ -84,6 +87,7 @@ fn main() -> ExitCode {
     let result = match cli.task {
         Task::Firmware(args) => firmware(&args),
         Task::Layering => layering(),
+        Task::Size => size(),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -121,6 +125,21 @@ fn firmware(args: &FirmwareArgs) -> Result<(), String> {
             (true, None) => String::new(),
         };
         println!("  {:<8} {}{note}", image.name, elf.display());
+    }
+    Ok(())
+}
+
+fn size() -> Result<(), String> {
+    let root = repo_root();
+    println!("{:<8} {:>12} {:>12}  ELF", "image", "flash bytes", "RAM bytes");
+    for image in IMAGES {
+        let elf = root.join(image.elf);
+        if !elf.is_file() {
+            println!("{:<8} (not built: {BUILD_COMMAND} --only {})", image.name, image.name);
+            continue;
+        }
+        let use_ = xtask::size::memory_use(&elf)?;
+        println!("{:<8} {:>12} {:>12}  {}", image.name, use_.flash_bytes, use_.ram_bytes, image.elf);
     }
     Ok(())
 }

@@ -100,3 +100,54 @@ fn a_lab_uploads_sets_enables_and_saves_a_twin_on_a_board_on_a_serial_port() {
     let no_port = failing(&["board", "status"]);
     assert!(no_port.contains("--port DEV"), "{no_port}");
 }
+
+/// `calibrate-offset --port` with the lab's instruments as commands. The instruments are
+/// emulated from the board's own DAC output, which the test publishes to a file while it
+/// steps the board's ticks: a controller that reads 0.9 V per DAC volt plus 12.3 mV, and an
+/// axis that moves the tool 2.25 um per volt read.
+#[test]
+fn calibrate_offset_on_a_serial_port_stores_what_the_labs_instruments_read() {
+    let bus = BusFile(std::env::temp_dir().join(format!("sts-twin-board-cal-{}.bus", std::process::id())));
+    let dac_file = BusFile(std::env::temp_dir().join(format!("sts-twin-board-cal-{}.dac", std::process::id())));
+    let publish = |code: i16| {
+        let tmp = dac_file.0.with_extension("tmp");
+        std::fs::write(&tmp, format!("{code}\n")).unwrap();
+        std::fs::rename(&tmp, &dac_file.0).unwrap();
+    };
+    publish(0);
+    let mut hil = boot(&bus.0);
+    let pty = hil.control_pty().unwrap().to_str().unwrap().to_string();
+    let read_v = "0.9 * $1 * 10 / 32767 + 0.0123";
+    let reading = format!("awk '{{ printf \"%.6f\\n\", {read_v} }}' {}", dac_file.0.display());
+    let probe = format!("awk '{{ printf \"%.6f\\n\", 2.25 * ({read_v}) }}' {}", dac_file.0.display());
+    let mut child = Command::new(env!("CARGO_BIN_EXE_sts-twin"))
+        .args(["calibrate-offset", "--port", &pty, "--json", "--feedforward-on-cmd", "true"])
+        .args(["--controller-reading-cmd", &reading, "--probe-cmd", &probe])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    let mut k = 0u32;
+    while child.try_wait().unwrap().is_none() {
+        assert!(started.elapsed() < std::time::Duration::from_secs(120), "calibrate-offset --port did not end");
+        let output = hil.step(sts_twin_core::bus::InputSlot { tick: k, ..Default::default() }).unwrap();
+        publish(output.dac_code);
+        k += 1;
+    }
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let offset_v = report["offset_v"].as_f64().unwrap();
+    let k_dv = report["k_dv_um_per_v"].as_f64().unwrap();
+    let code_v = 10.0 / 32767.0;
+    assert!((offset_v - 0.0123 / 0.9).abs() < 2.0 * code_v, "offset {offset_v} V");
+    assert!((k_dv - 2.25 * 0.9).abs() < 0.01 * 2.025, "K_dv {k_dv} um/V");
+
+    let hil = hil.reboot().expect("the reboot");
+    let pty = hil.control_pty().unwrap().to_str().unwrap().to_string();
+    let back = ok(&["board", "status", "--port", &pty]);
+    assert!(back.contains("config: Stored") && back.contains(&format!("offset {} V", offset_v as f32)), "{back}");
+    hil.shutdown().unwrap();
+}

@@ -24,6 +24,29 @@ pub enum RigError {
     /// The firmware could not be rebooted under QEMU.
     #[error("rebooting the firmware under QEMU")]
     Reboot(#[source] HilError),
+    /// The lab calibration cannot go on.
+    #[error("the calibration cannot go on: {reason}")]
+    LabSettings {
+        /// Why.
+        reason: &'static str,
+    },
+    /// A lab instrument (the operator, or the lab's command) gave no usable reading.
+    #[error("{instrument}: {detail}")]
+    Instrument {
+        /// Which reading, and from where.
+        instrument: String,
+        /// What went wrong.
+        detail: String,
+    },
+    /// The control link to a board on a serial port failed.
+    #[error(transparent)]
+    Link(#[from] sts_link::LinkError),
+    /// A board on a serial port runs its own ticks.
+    #[error("{port}: a board on a serial port runs its servo ticks on its own timer; the host cannot step it (use the firmware in QEMU for a simulated cut)")]
+    NotTickable {
+        /// The port.
+        port: String,
+    },
     /// The board is not running: an earlier reboot failed.
     #[error("the co-processor is not running ({reason})")]
     NotRunning {

@@ -146,11 +146,16 @@ fn connect(args: &Args) -> anyhow::Result<Board<SerialLink>> {
     let Some(port) = &args.port else {
         anyhow::bail!("`sts-twin board` needs the board's serial port: --port DEV (e.g. --port /dev/ttyACM0)");
     };
-    if !(args.timeout_s.is_finite() && args.timeout_s > 0.0) {
-        anyhow::bail!("--timeout-s {}: must be a positive number of seconds", args.timeout_s);
+    connect_port(port, args.baud, args.timeout_s)
+}
+
+/// Opens `port` and connects with the handshake, giving up on an answer after `timeout_s`.
+pub(crate) fn connect_port(port: &str, baud: u32, timeout_s: f64) -> anyhow::Result<Board<SerialLink>> {
+    if !(timeout_s.is_finite() && timeout_s > 0.0) {
+        anyhow::bail!("--timeout-s {timeout_s}: must be a positive number of seconds");
     }
-    let link = SerialLink::open(port, args.baud)?;
-    Ok(Board::connect(link, policy(args.timeout_s))?)
+    let link = SerialLink::open(port, baud)?;
+    Ok(Board::connect(link, policy(timeout_s))?)
 }
 
 /// Retries that give up after about `timeout_s`: 80 ms first, doubling to 1 s.

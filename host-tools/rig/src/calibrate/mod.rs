@@ -4,7 +4,9 @@
 
 pub mod board;
 pub mod enable;
+pub mod instruments;
 pub mod kdv;
+pub mod lab;
 
 pub mod offset;
 pub mod path;
@@ -13,7 +15,9 @@ pub mod rest;
 
 pub use board::{Board, HilBoard};
 pub use enable::{enable_check, EnableCheck, EnableConfig};
+pub use instruments::{CommandInstruments, PromptInstruments};
 pub use kdv::{measure_kdv, KdvConfig, KdvPoint, KdvReport};
+pub use lab::{calibrate_lab, LabCalibration, LabConfig, LabInstruments, LabPoint};
 pub use offset::{measure_offset, OffsetConfig, OffsetPoint, OffsetReport};
 pub use path::{measure_path, path_table, PathConfig, PathPoint};
 pub use procedure::{calibrate, describe_config_source, BootState, CalibrationConfig, CalibrationReport, StoreCheck};

@@ -79,3 +79,26 @@ impl Transport for SerialLink {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_way_a_port_fails_to_open_gets_its_own_error_naming_the_port() {
+        use serialport::{Error, ErrorKind};
+        let cases = [
+            (ErrorKind::Io(io::ErrorKind::NotFound), "no such serial port"),
+            (ErrorKind::Io(io::ErrorKind::PermissionDenied), "no permission"),
+            (ErrorKind::NoDevice, "the port is busy"),
+            (ErrorKind::InvalidInput, "cannot open the port"),
+        ];
+        for (kind, says) in cases {
+            let err = open_error("/dev/ttyACM7", Error::new(kind, "as the OS said"));
+            let text = err.to_string();
+            assert!(text.starts_with("/dev/ttyACM7: ") && text.contains(says), "{text}");
+        }
+        let missing = SerialLink::open("/dev/sts-twin-no-such-port", DEFAULT_BAUD).err().unwrap();
+        assert!(matches!(missing, LinkError::Missing { .. }), "{missing}");
+    }
+}

@@ -132,9 +132,9 @@ struct RequestSlot {
 }
 
 impl RequestSlot {
-    /// An empty slot.
-    const fn new() -> Self {
-        Self { request: ModelRequest::EMPTY, full: false }
+    /// An empty slot for a synthesiser that ramps to each result over `ramp_ticks`.
+    const fn new(ramp_ticks: u32) -> Self {
+        Self { request: ModelRequest { output_ramp_ticks: ramp_ticks, ..ModelRequest::EMPTY }, full: false }
     }
 
     /// Takes the request out, if there is one.
@@ -249,7 +249,7 @@ impl Servo {
             config,
             counters: Counters::default(),
             health: Health::default(),
-            request: RequestSlot::new(),
+            request: RequestSlot::new(config.synth_ramp_ticks),
             results: [None, None],
             applied: 0,
             pending_effect: PendingEffect::NoProgram,

@@ -34,6 +34,9 @@ pub struct ModelRequest {
     pub gain_zero: bool,
     /// DAC saturations counted up to the request.
     pub clamped_total: u32,
+    /// Ticks over which the synthesiser ramps to a result (set once, with the servo): the
+    /// output reaches a result's values that long after its due tick.
+    pub output_ramp_ticks: u32,
 }
 
 impl ModelRequest {
@@ -46,6 +49,7 @@ impl ModelRequest {
         cmd_phase_turns: 0,
         gain_zero: true,
         clamped_total: 0,
+        output_ramp_ticks: 0,
     };
 }
 
@@ -251,7 +255,11 @@ impl Models {
                     match &mut self.compensator {
                         Some(compensator) => {
                             let ratios = path_ratios(compensator, path, capture.cfg.sample_rate_hz);
-                            result.targets = compensated_targets(&mut output, &program.terms, compensator, ratios)
+                            // The output reaches this result a ramp after its due tick.
+                            let lead_ticks = (request.due_tick.saturating_sub(request.tick) as u32)
+                                .saturating_add(request.output_ramp_ticks);
+                            result.targets =
+                                compensated_targets(&mut output, &program.terms, compensator, ratios, lead_ticks)
                         }
                         None => result.targets = SynthTargets::new(&output, &program.terms),
                     }
@@ -333,8 +341,9 @@ fn compensated_targets(
     terms: &[TickTerm],
     compensator: &Compensator,
     ratios: [Phasor; ORDERS.len()],
+    lead_ticks: u32,
 ) -> SynthTargets {
-    let mut correction_nm = compensator.correction_nm();
+    let mut correction_nm = compensator.output_correction_nm(lead_ticks);
     for (correction, ratio) in correction_nm.iter_mut().zip(ratios) {
         *correction = *correction * ratio;
     }

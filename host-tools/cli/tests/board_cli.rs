@@ -65,6 +65,22 @@ fn a_lab_uploads_sets_enables_and_saves_a_twin_on_a_board_on_a_serial_port() {
     assert!(uploaded.contains("active on serial port") && uploaded.contains(&pty), "{uploaded}");
     let params = run(&["board", "params", "--offset-v", "-0.0125", "--k-dv-um-per-v", "2.5"]);
     assert!(params.contains("K_dv 2.5 um/V") && params.contains("offset -0.0125 V"), "{params}");
+    // The analogue-path table from a lab's CSV file; a malformed one names its line and
+    // changes nothing.
+    let table = std::env::temp_dir().join(format!("sts-twin-path-{}.csv", std::process::id()));
+    std::fs::write(&table, "# measured by hand\nfreq_hz,gain,phase_deg\n10,1.0,-1.5\n40,0.98,-6.0\n80,,-12.5\n")
+        .unwrap();
+    let shown = run(&["board", "params", "--path", table.to_str().unwrap(), "--path-amp-um", "8"]);
+    assert!(shown.contains("analogue path (3 points, measured with a 8 um sine)"), "{shown}");
+    assert!(shown.contains("40.0 Hz  gain 0.9800, phase -6.000 deg") && shown.contains("gain not measured"), "{shown}");
+    std::fs::write(&table, "freq_hz,gain,phase_deg\n10,1.0,-1.5\n40,0.98,minus six\n").unwrap();
+    let bad = fail(&["board", "params", "--path", table.to_str().unwrap()]);
+    assert!(bad.contains("sts-twin-path-") && bad.contains("line: 3"), "{bad}");
+    std::fs::write(&table, "freq_hz,gain,phase_deg\n40,1.0,-1.5\n10,1.0,-6\n").unwrap();
+    let unordered = fail(&["board", "params", "--path", table.to_str().unwrap()]);
+    assert!(unordered.contains("strictly increasing"), "{unordered}");
+    let _ = std::fs::remove_file(&table);
+    assert!(run(&["board", "params"]).contains("analogue path (3 points"), "the bad tables changed nothing");
     assert!(run(&["board", "enable"]).contains("compensation enabled"));
     let saved = run(&["board", "save"]);
     assert!(saved.starts_with("saved:"), "{saved}");
@@ -93,6 +109,7 @@ fn a_lab_uploads_sets_enables_and_saves_a_twin_on_a_board_on_a_serial_port() {
     assert!(back.contains("config: Stored"), "{back}");
     assert!(back.contains("K_dv 2.5 um/V") && back.contains("offset -0.0125 V"), "{back}");
     assert!(back.contains("compensation: disabled") && !back.contains("program none"), "{back}");
+    assert!(back.contains("analogue path (3 points"), "{back}");
     hil.shutdown().unwrap();
 
     let missing = failing(&["board", "status", "--port", "/dev/sts-twin-no-such-port"]);

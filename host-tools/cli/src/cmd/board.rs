@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use sts_link::{Board, RetryPolicy, SerialLink, DEFAULT_BAUD};
 use sts_model::ModelFile;
+use sts_twin_core::analogue_path::AnaloguePath;
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::{Rejection, Request, Response, Status};
 
@@ -60,6 +61,15 @@ pub enum Action {
         /// The largest DAC change per servo tick, V.
         #[arg(long, allow_negative_numbers = true)]
         slew_v_per_tick: Option<f32>,
+        /// Set the analogue-path table from a CSV file with the columns `freq_hz`, `phase_deg`
+        /// and, optionally, `gain` (|H| relative to K_dv; 0 or missing: not measured), at most
+        /// 10 rows with increasing frequencies; `#` starts a comment line.
+        #[arg(long, value_name = "CSV", conflicts_with = "clear_path")]
+        path: Option<PathBuf>,
+        /// The amplitude of the sine the table was measured with, um (with --path; 0: not
+        /// stated).
+        #[arg(long, default_value_t = 0.0, requires = "path")]
+        path_amp_um: f32,
         /// Forget the analogue-path table (the twin's phases are then used as they are).
         #[arg(long)]
         clear_path: bool,
@@ -97,7 +107,17 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             super::status::print_status(&status(&mut board)?);
         }
         Action::Upload { model, stage_only } => upload(&mut board, model, *stage_only)?,
-        Action::Params { k_dv_um_per_v, k_vc_pulses_per_v, offset_v, slew_v_per_tick, clear_path } => {
+        Action::Params {
+            k_dv_um_per_v,
+            k_vc_pulses_per_v,
+            offset_v,
+            slew_v_per_tick,
+            path,
+            path_amp_um,
+            clear_path,
+        } => {
+            // The file is read before anything is sent: a bad table changes nothing.
+            let table = path.as_deref().map(|p| read_path_table(p, *path_amp_um)).transpose()?;
             let before = status(&mut board)?;
             let mut params = before.params;
             let set = [
@@ -106,6 +126,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 offset_v.map(|v| params.offset_v = v),
                 slew_v_per_tick.map(|v| params.slew_v_per_tick = v),
                 clear_path.then(|| params.analogue_path = FeedforwardParams::default().analogue_path),
+                table.map(|t| params.analogue_path = t),
             ];
             if set.iter().any(Option::is_some) {
                 accepted(&mut board, Request::SetParams(params), "the parameters")?;
@@ -140,6 +161,38 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         Action::Watch { hz, count } => watch(&mut board, *hz, *count)?,
     }
     Ok(())
+}
+
+/// One row of an analogue-path CSV file.
+#[derive(Debug, serde::Deserialize)]
+struct PathRow {
+    freq_hz: f32,
+    /// Empty or missing: not measured.
+    #[serde(default)]
+    gain: Option<f32>,
+    phase_deg: f32,
+}
+
+/// The analogue-path table in the CSV file `path`, validated; errors name the file, and the
+/// line and field where there is one.
+fn read_path_table(path: &std::path::Path, amp_um: f32) -> anyhow::Result<AnaloguePath> {
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_path(path)
+        .with_context(|| format!("{}: cannot read the analogue-path table", path.display()))?;
+    let mut points = Vec::new();
+    for row in reader.deserialize::<PathRow>() {
+        let row = row.map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        points.push((row.freq_hz, row.gain.unwrap_or(0.0), row.phase_deg));
+    }
+    if points.is_empty() {
+        anyhow::bail!(
+            "{}: no rows (the header is `freq_hz,gain,phase_deg`; use --clear-path for no table)",
+            path.display()
+        );
+    }
+    AnaloguePath::from_responses(amp_um, &points).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 fn connect(args: &Args) -> anyhow::Result<Board<SerialLink>> {

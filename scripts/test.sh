@@ -24,28 +24,8 @@ step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none
 cargo --locked xtask firmware --locked
 step "core library for RISC-V (riscv32imac-unknown-none-elf)"
 cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
+step "tests: core, host tools, HIL"
 # The HIL harness finds the ELFs at these places by itself; named here to be explicit.
-export STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
-export STS_TWIN_BRINGUP_ELF="$PWD/firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
-step "tests: building them all"
-cargo test --workspace --locked --release --no-run
-# The HIL tests (one binary, one QEMU at a time, mostly waiting on the lockstep) run beside
-# the others, which keep both cores busy; their log is printed when both are done. Cargo
-# holds its build lock only while building, so the two runs do not wait for each other.
-step "tests: core and host tools, and beside them the HIL tests (their log follows)"
-hil_log=$(mktemp)
-# In a process group of its own (setsid), so that one signal ends cargo and the test binary
-# alike; on any exit of this script the group ends (the harness ends every QEMU it started).
-setsid -w cargo test --locked --release -p sts-hil-tests >"$hil_log" 2>&1 &
-hil_pid=$!
-trap 'kill -TERM -- "-$hil_pid" 2>/dev/null || true; rm -f "$hil_log"' EXIT
-host_status=0
-cargo test --workspace --locked --release --exclude sts-hil-tests || host_status=$?
-hil_status=0
-wait "$hil_pid" || hil_status=$?
-step "tests: HIL (ran beside the others)"
-cat "$hil_log"
-if [ "$host_status" -ne 0 ] || [ "$hil_status" -ne 0 ]; then
-    echo "tests failed: core and host tools exit $host_status, HIL exit $hil_status" >&2
-    exit 1
-fi
+STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
+STS_TWIN_BRINGUP_ELF="$PWD/firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
+    cargo test --workspace --locked --release

@@ -96,6 +96,21 @@ pub enum Rejection {
     Supervisor(SupervisorParamError),
 }
 
+impl core::fmt::Display for Rejection {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Program(e) => write!(f, "the twin program is malformed ({e})"),
+            Self::Params(e) => write!(f, "invalid parameter ({e})"),
+            Self::NoStagedProgram => f.write_str("no twin is staged"),
+            Self::Store => f.write_str("the config store could not be written"),
+            Self::FeatureConfig => f.write_str("the feature settings are invalid"),
+            Self::Supervisor(e) => write!(f, "invalid supervisor threshold ({e})"),
+        }
+    }
+}
+
+impl core::error::Error for Rejection {}
+
 /// Where the configuration in force came from at boot.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -10,8 +10,7 @@ use anyhow::Context;
 use sts_link::{Board, RetryPolicy, SerialLink, DEFAULT_BAUD};
 use sts_model::ModelFile;
 use sts_twin_core::analogue_path::AnaloguePath;
-use sts_twin_core::feedforward::FeedforwardParams;
-use sts_twin_core::wire::{Rejection, Request, Response, Status};
+use sts_twin_core::wire::{Request, Response, Status};
 
 /// Arguments of `sts-twin board`.
 #[derive(Debug, clap::Args)]
@@ -125,7 +124,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 k_vc_pulses_per_v.map(|v| params.k_vc_pulses_per_v = v),
                 offset_v.map(|v| params.offset_v = v),
                 slew_v_per_tick.map(|v| params.slew_v_per_tick = v),
-                clear_path.then(|| params.analogue_path = FeedforwardParams::default().analogue_path),
+                clear_path.then(|| params.analogue_path = AnaloguePath::NONE),
                 table.map(|t| params.analogue_path = t),
             ];
             if set.iter().any(Option::is_some) {
@@ -236,20 +235,9 @@ fn accepted(board: &mut Board<SerialLink>, request: Request, what: &str) -> anyh
     match board.request(request)? {
         Response::Ack => Ok(()),
         Response::Rejected(why) => {
-            anyhow::bail!("{}: the board refused {what}: {}; nothing changed", board.describe(), rejection_text(&why))
+            anyhow::bail!("{}: the board refused {what}: {why}; nothing changed", board.describe())
         }
         other => anyhow::bail!("{}: {what} was answered with {other:?}", board.describe()),
-    }
-}
-
-fn rejection_text(why: &Rejection) -> String {
-    match why {
-        Rejection::Program(e) => format!("the twin program is malformed ({e})"),
-        Rejection::Params(e) => format!("invalid parameter ({e})"),
-        Rejection::NoStagedProgram => "no twin is staged".into(),
-        Rejection::Store => "its config store could not be written".into(),
-        Rejection::FeatureConfig => "the feature settings are invalid".into(),
-        Rejection::Supervisor(e) => format!("invalid supervisor threshold ({e})"),
     }
 }
 

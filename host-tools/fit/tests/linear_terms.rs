@@ -51,3 +51,29 @@ fn a_late_setpoint_shows_as_the_velocity_banks_lag() {
     println!("lag added by a setpoint 300 us late: {added:.1} us");
     assert!((added - 300.0).abs() < 15.0, "lag added {added} us");
 }
+
+/// The evidence `diagnose` names an in-band mode from: found where `fit --effect
+/// structural-mode` carries one, at its frequency, and held out it takes most of what the
+/// velocity bank alone leaves in nearly every group; none on a clean machine or a late
+/// setpoint, whose best resonance lies above the band (the axis's own mode).
+#[test]
+fn the_in_band_evidence_is_held_out_and_absent_without_a_mode() {
+    use sts_fit::effects::in_band_mode_evidence;
+    let data = measure(&["structural-mode:freq_hz=22,damping=0.05,tcp_gain=0.008,acc_shape=1"]);
+    let e = in_band_mode_evidence(&data, 5).expect("evidence").expect("an in-band mode");
+    assert!((e.freq_hz / 22.0 - 1.0).abs() < 0.03, "frequency {} Hz", e.freq_hz);
+    let n = e.bank_only_ss_um2.len();
+    assert_eq!(n, data.groups.len());
+    assert!(e.bank_only_ss_um2.iter().chain(&e.with_mode_ss_um2).all(|x| x.is_finite() && *x >= 0.0));
+    let better = e.bank_only_ss_um2.iter().zip(&e.with_mode_ss_um2).filter(|(a, b)| b < a).count();
+    let (bank, mode): (f64, f64) = (e.bank_only_ss_um2.iter().sum(), e.with_mode_ss_um2.iter().sum());
+    println!(
+        "held out: {better} of {n} groups better, {:.1}% of the bank's leftover taken",
+        100.0 * (1.0 - mode / bank)
+    );
+    assert!(better * 10 >= n * 8, "only {better} of {n} groups better");
+    assert!(mode < 0.2 * bank, "with the mode {mode} of the bank's {bank} um^2");
+    for effects in [&[][..], &["setpoint-delay:delay_us=300"][..]] {
+        assert!(in_band_mode_evidence(&measure(effects), 5).expect("evidence").is_none(), "{effects:?}");
+    }
+}

@@ -17,8 +17,8 @@ pub struct Args {
     #[arg(long)]
     pub plant: Option<PathBuf>,
     /// A physical effect to switch on, `NAME[:key=value,...]` (repeatable). Names:
-    /// coulomb-friction, presliding-hysteresis, structural-mode, loop-delay, thermal-drift,
-    /// force-ripple, axis-coupling, sensor-gain.
+    /// coulomb-friction, presliding-hysteresis, structural-mode, loop-delay, setpoint-delay,
+    /// thermal-drift, force-ripple, axis-coupling, sensor-gain.
     #[arg(long = "effect", value_name = "NAME[:k=v,...]")]
     pub effects: Vec<String>,
     /// Seed of all noise (same seed, same bytes).
@@ -98,4 +98,23 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         start.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::{CommandFactory, Parser};
+
+    #[derive(Parser)]
+    struct Measure {
+        #[command(flatten)]
+        args: super::Args,
+    }
+
+    #[test]
+    fn the_help_names_every_effect_the_emulator_has() {
+        let help = Measure::command().render_long_help().to_string();
+        for name in sts_emulator::EFFECT_NAMES {
+            assert!(help.contains(name), "`measure --help` does not name {name}");
+        }
+    }
 }

@@ -123,6 +123,155 @@ pub(super) fn fit_setpoint_delay(
     ))
 }
 
+/// Per group the command's and the whole dynamic error's phasors at the command frequency,
+/// and the frequencies: what the mode's grid is scored on.
+struct ModePhasors {
+    phasors: Vec<(Complex, Complex)>,
+    freqs_hz: Vec<f64>,
+    smooth: f64,
+    top_hz: f64,
+}
+
+impl ModePhasors {
+    fn new(dataset: &Dataset, inputs: &[GroupInputs], kind: &TermInput) -> Self {
+        let freqs_hz: Vec<f64> = dataset.manifest.groups.iter().map(|g| g.freq_hz).collect();
+        let top_hz = freqs_hz.iter().copied().fold(0.0, f64::max);
+        let phasors = inputs
+            .par_iter()
+            .enumerate()
+            .map(|(i, gi)| {
+                let theta = &gi.theta[gi.start..];
+                let g = &dataset.groups[i];
+                (phasor(theta, &g.z_cmd_um[gi.start..]), phasor(theta, &dynamic_error(dataset, i, gi)))
+            })
+            .collect();
+        Self { phasors, freqs_hz, smooth: smoothing(kind), top_hz }
+    }
+
+    /// Group `i`'s real and imaginary rows: the bank's stages, then the resonance when given.
+    fn rows(&self, i: usize, mode: Option<(f64, f64)>) -> [[f64; LAGUERRE_STAGES + 1]; 2] {
+        let (x, f) = (self.phasors[i].0, self.freqs_hz[i]);
+        let bank: [Complex; LAGUERRE_STAGES] = velocity_bank(f, x, self.smooth, POLE);
+        let m = mode.map_or((0.0, 0.0), |(mode_hz, zeta)| mul(mode_high_pass(f, mode_hz, zeta), x));
+        let row =
+            |part: fn(Complex) -> f64| std::array::from_fn(|k| part(if k < LAGUERRE_STAGES { bank[k] } else { m }));
+        [row(|c| c.0), row(|c| c.1)]
+    }
+
+    /// Least squares of the error's phasors of the groups `train` allows on the bank and (when
+    /// given) the mode: the coefficients and the residual RMS.
+    fn fit(&self, train: &(dyn Fn(usize) -> bool + Sync), mode: Option<(f64, f64)>) -> Option<(Vec<f64>, f64)> {
+        let mut rows = Vec::with_capacity(2 * self.phasors.len());
+        let mut y = Vec::with_capacity(2 * self.phasors.len());
+        for (i, (_, e)) in self.phasors.iter().enumerate().filter(|(i, _)| train(*i)) {
+            rows.extend(self.rows(i, mode));
+            y.extend([e.0, e.1]);
+        }
+        if mode.is_some() {
+            least_squares(&rows, &y).map(|f| (f.coefficients.clone(), f.residual_rms))
+        } else {
+            let bank: Vec<[f64; LAGUERRE_STAGES]> = rows.iter().map(|r| std::array::from_fn(|k| r[k])).collect();
+            least_squares(&bank, &y).map(|f| {
+                let mut c = f.coefficients.clone();
+                c.push(0.0);
+                (c, f.residual_rms)
+            })
+        }
+    }
+
+    fn sse_at(&self, train: &(dyn Fn(usize) -> bool + Sync), point: (f64, f64)) -> f64 {
+        self.fit(train, Some(point)).map_or(f64::INFINITY, |(_, rms)| rms)
+    }
+
+    /// Group `i`'s squared phasor error left by the coefficients, um^2.
+    fn group_ss(&self, i: usize, coefficients: &[f64], mode: Option<(f64, f64)>) -> f64 {
+        let e = self.phasors[i].1;
+        let [re, im] = self.rows(i, mode);
+        let dot = |r: &[f64; LAGUERRE_STAGES + 1]| r.iter().zip(coefficients).map(|(a, b)| a * b).sum::<f64>();
+        (e.0 - dot(&re)).powi(2) + (e.1 - dot(&im)).powi(2)
+    }
+
+    fn best_of(&self, train: &(dyn Fn(usize) -> bool + Sync), grid: &[(f64, f64)]) -> (f64, f64) {
+        let scores: Vec<f64> = grid.par_iter().map(|p| self.sse_at(train, *p)).collect();
+        let best = scores.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).map_or(0, |(i, _)| i);
+        grid[best]
+    }
+
+    /// The mode that fits the groups `train` allows best: the grid, then 0.5% and 10% steps
+    /// around its best point (between two of the test's frequencies a mode's frequency and
+    /// damping trade against each other, and the groups beside the resonance see a few percent
+    /// of either). `None` when the best lies above the band (the formulas carry that one);
+    /// `in_band_only` searches inside the band alone.
+    fn search(&self, train: &(dyn Fn(usize) -> bool + Sync), in_band_only: bool) -> Option<(f64, f64)> {
+        let mut grid = mode_grid(self.top_hz);
+        if in_band_only {
+            grid.retain(|(f, _)| *f < self.top_hz);
+        }
+        let (coarse_hz, coarse_zeta) = self.best_of(train, &grid);
+        if coarse_hz >= self.top_hz {
+            return None;
+        }
+        let fine: Vec<(f64, f64)> = (-8..=8)
+            .flat_map(|i| {
+                (-7..=7).map(move |j| {
+                    let zeta = (coarse_zeta * 1.1f64.powi(j)).clamp(0.01, 0.9);
+                    (coarse_hz * (1.0 + 0.005 * f64::from(i)), zeta)
+                })
+            })
+            .collect();
+        Some(self.best_of(train, &fine))
+    }
+}
+
+/// A structural mode inside the band, found in the data's own error: where its frequency and
+/// damping lie, and per group how much of the error at the command frequency it takes beyond
+/// the axis's linear response, held out.
+#[derive(Clone, Debug)]
+pub struct InBandModeEvidence {
+    /// The mode's frequency, Hz (from every group).
+    pub freq_hz: f64,
+    /// Its damping ratio.
+    pub damping: f64,
+    /// Per group, held out (k folds by group, round robin, the mode searched on the other
+    /// folds): the squared phasor error at the command frequency that the velocity bank alone
+    /// leaves, and that the bank with the resonance leaves, um^2. A phasor `q` is the sine
+    /// `Re(q e^(j theta))`, of RMS `|q| / sqrt(2)`.
+    pub bank_only_ss_um2: Vec<f64>,
+    /// As `bank_only_ss_um2`, with the resonance.
+    pub with_mode_ss_um2: Vec<f64>,
+}
+
+/// Looks for a structural mode inside the measurement's band in the data's own error (not a
+/// twin's residual, which a twin fitted on the same data has distorted where its formulas
+/// absorbed the mode): the grid `fit --effect structural-mode` chooses from, so `None` exactly
+/// where that fit would leave the mode to the formulas. `folds` score it held out.
+pub fn in_band_mode_evidence(dataset: &Dataset, folds: usize) -> Result<Option<InBandModeEvidence>, FitError> {
+    let inputs = super::all_group_inputs(dataset)?;
+    let kind = velocity_input(&inputs);
+    let m = ModePhasors::new(dataset, &inputs, &kind);
+    let Some((freq_hz, damping)) = m.search(&|_| true, false) else {
+        return Ok(None);
+    };
+    let n = m.phasors.len();
+    let folds = folds.clamp(2, n.max(2));
+    let mut bank_only_ss_um2 = vec![f64::NAN; n];
+    let mut with_mode_ss_um2 = vec![f64::NAN; n];
+    for fold in 0..folds {
+        let train = |i: usize| i % folds != fold;
+        let (Some((bank, _)), Some(mode)) = (m.fit(&train, None), m.search(&train, true)) else {
+            continue;
+        };
+        let Some((with_mode, _)) = m.fit(&train, Some(mode)) else {
+            continue;
+        };
+        for i in (0..n).filter(|i| !train(*i)) {
+            bank_only_ss_um2[i] = m.group_ss(i, &bank, None);
+            with_mode_ss_um2[i] = m.group_ss(i, &with_mode, Some(mode));
+        }
+    }
+    Ok(Some(InBandModeEvidence { freq_hz, damping, bank_only_ss_um2, with_mode_ss_um2 }))
+}
+
 /// A structural mode inside the band: its frequency and damping from a grid (the error's
 /// phasors against the velocity bank beside the resonance), then the bank and the resonance
 /// fitted together on the samples. `None` when the best mode lies above the band (the
@@ -133,54 +282,9 @@ pub(super) fn fit_mode(
     inputs: &[GroupInputs],
 ) -> Result<Option<(Vec<TickTerm>, Vec<(String, f64)>)>, FitError> {
     let kind = velocity_input(inputs);
-    let smooth = smoothing(&kind);
-    let freqs_hz: Vec<f64> = dataset.manifest.groups.iter().map(|g| g.freq_hz).collect();
-    let top_hz = freqs_hz.iter().copied().fold(0.0, f64::max);
-    // Per group: the command's and the error's phasors.
-    let phasors: Vec<(Complex, Complex)> = inputs
-        .par_iter()
-        .enumerate()
-        .map(|(i, gi)| {
-            let theta = &gi.theta[gi.start..];
-            let g = &dataset.groups[i];
-            (phasor(theta, &g.z_cmd_um[gi.start..]), phasor(theta, &dynamic_error(dataset, i, gi)))
-        })
-        .collect();
-    // The grid `diagnose` names a mode from.
-    let grid = mode_grid(top_hz);
-    let sse_at = |&(mode_hz, zeta): &(f64, f64)| -> f64 {
-        let mut rows: Vec<[f64; LAGUERRE_STAGES + 1]> = Vec::with_capacity(2 * phasors.len());
-        let mut y = Vec::with_capacity(2 * phasors.len());
-        for ((x, e), f) in phasors.iter().zip(&freqs_hz) {
-            let bank: [Complex; LAGUERRE_STAGES] = velocity_bank(*f, *x, smooth, POLE);
-            let mode = mul(mode_high_pass(*f, mode_hz, zeta), *x);
-            rows.push(std::array::from_fn(|k| if k < LAGUERRE_STAGES { bank[k].0 } else { mode.0 }));
-            rows.push(std::array::from_fn(|k| if k < LAGUERRE_STAGES { bank[k].1 } else { mode.1 }));
-            y.extend([e.0, e.1]);
-        }
-        least_squares(&rows, &y).map_or(f64::INFINITY, |fit| fit.residual_rms)
-    };
-    let best_of = |grid: &[(f64, f64)]| -> (f64, f64) {
-        let scores: Vec<f64> = grid.par_iter().map(sse_at).collect();
-        let best = scores.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).map_or(0, |(i, _)| i);
-        grid[best]
-    };
-    let (coarse_hz, coarse_zeta) = best_of(&grid);
-    if coarse_hz >= top_hz {
+    let Some((mode_hz, zeta)) = ModePhasors::new(dataset, inputs, &kind).search(&|_| true, false) else {
         return Ok(None);
-    }
-    // Then 0.5% and 10% steps around it: between two of the test's frequencies a mode's
-    // frequency and damping trade against each other, and the groups beside the resonance
-    // see a few percent of either.
-    let fine: Vec<(f64, f64)> = (-8..=8)
-        .flat_map(|i| {
-            (-7..=7).map(move |j| {
-                let zeta = (coarse_zeta * 1.1f64.powi(j)).clamp(0.01, 0.9);
-                (coarse_hz * (1.0 + 0.005 * f64::from(i)), zeta)
-            })
-        })
-        .collect();
-    let (mode_hz, zeta) = best_of(&fine);
+    };
     // A band reaching past what the term holds (a mode above 1 kHz): the formulas carry it.
     if !resonance_params_ok(mode_hz as f32, zeta as f32, 1.0) {
         return Ok(None);

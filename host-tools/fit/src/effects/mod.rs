@@ -28,6 +28,7 @@
 
 pub mod axis;
 mod linear;
+pub use linear::{in_band_mode_evidence, InBandModeEvidence};
 
 use std::f64::consts::PI;
 use std::path::Path;

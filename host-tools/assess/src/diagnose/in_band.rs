@@ -1,0 +1,83 @@
+//! A structural mode inside the band, looked for in the data's own error when no candidate
+//! explains a twin's residual at the command frequency.
+//!
+//! A twin fitted on the data it is diagnosed on (the lab's workflow) has bent its amplitude
+//! and phase formulas towards a resonance between the test's frequencies as far as smooth
+//! formulas can, so what it leaves is the resonance minus the formulas' bend: no longer a
+//! resonance's shape, and the candidate scored on it falls short of significance (1 of 6
+//! in-band draws named before this stage). The data's own error keeps the shape. So, where
+//! the residual at the command frequency stands well above the data's floor and the twin
+//! carries no resonance, the error's phasors are fitted with the axis's linear response (a
+//! velocity bank) alone and with a resonance beside it, held out by fold of groups, and the
+//! per-group reductions go through the same sign-flip test as every candidate. The search
+//! is the one `fit --effect structural-mode` chooses from ([`sts_fit::effects::in_band_mode_evidence`]),
+//! so this stage names a mode exactly where that fit would carry one with a term.
+
+use sts_dataset::Dataset;
+use sts_model::ModelFile;
+use sts_twin_core::program::TickTerm;
+
+use super::{relative_improvement, sign_flip_p, significance_threshold, Diagnosis, Ranked, FOLDS, MIN_EXPLAINED};
+use sts_analysis::repeat::NOT_REPEATING_MIN_UM;
+
+/// The residual at the command frequency must be this many times the data's floor (or
+/// [`NOT_REPEATING_MIN_UM`]) for the stage to look.
+pub const FUNDAMENTAL_OVER_FLOOR: f64 = 2.0;
+
+/// Whether the model's program already carries a resonance term.
+fn carries_resonance(model: &ModelFile) -> bool {
+    model.firmware_program().is_ok_and(|p| p.terms.iter().any(|t| matches!(t, TickTerm::Resonance { .. })))
+}
+
+/// The stage's ranked result, when it applies and the data holds an in-band mode; `None`
+/// otherwise. `floor_um` is the data's floor.
+pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis, floor_um: f64) -> Option<Ranked> {
+    let floor_um = floor_um.max(NOT_REPEATING_MIN_UM);
+    if d.verdict != "none"
+        || carries_resonance(model)
+        || d.structure.fundamental.rms_um <= FUNDAMENTAL_OVER_FLOOR * floor_um
+    {
+        return None;
+    }
+    let evidence = sts_fit::effects::in_band_mode_evidence(dataset, FOLDS).ok()??;
+    let pairs: Vec<(f64, f64)> = evidence
+        .bank_only_ss_um2
+        .iter()
+        .zip(&evidence.with_mode_ss_um2)
+        .filter(|(a, b)| a.is_finite() && b.is_finite())
+        .map(|(a, b)| (*a, *b))
+        .collect();
+    if pairs.is_empty() {
+        return None;
+    }
+    let reductions: Vec<f64> = pairs.iter().map(|(a, b)| a - b).collect();
+    let relative: Vec<f64> = pairs.iter().map(|(a, b)| relative_improvement(a - b, *a)).collect();
+    let p_value = sign_flip_p(&reductions).min(sign_flip_p(&relative));
+    let bank_ss: f64 = pairs.iter().map(|(a, _)| a).sum();
+    let gained: f64 = reductions.iter().sum();
+    let explained_fraction = if bank_ss > 0.0 { gained / bank_ss } else { 0.0 };
+    // A phasor q is a sine of RMS |q| / sqrt(2).
+    let explained_rms_um = (gained.max(0.0) / 2.0 / pairs.len() as f64).sqrt();
+    let significant =
+        explained_fraction >= MIN_EXPLAINED && p_value < significance_threshold() && explained_rms_um > floor_um;
+    Some(Ranked {
+        effect: "structural-mode".into(),
+        explained_fraction,
+        p_value,
+        groups_improved: reductions.iter().filter(|r| **r > 0.0).count(),
+        params: vec![("freq_hz".into(), evidence.freq_hz), ("damping".into(), evidence.damping)],
+        evidence: format!(
+            "the twin leaves {:.1} nm at the command frequency ({:.1}x the data's floor) and no candidate explains it there; in the data's own error a resonance at {:.1} Hz (damping {:.3}) beside the axis's linear response (a velocity bank) takes {:.0}% of what the bank alone leaves at the command frequency, held out ({} of {} groups better): a mode between the test's frequencies, whose peak the twin's formulas do not follow",
+            d.structure.fundamental.rms_um * 1e3,
+            d.structure.fundamental.rms_um / floor_um,
+            evidence.freq_hz,
+            evidence.damping,
+            explained_fraction * 100.0,
+            reductions.iter().filter(|r| **r > 0.0).count(),
+            reductions.len()
+        ),
+        significant,
+        explained_rms_um,
+        without_fundamental: false,
+    })
+}

@@ -30,13 +30,11 @@ fn carries_resonance(model: &ModelFile) -> bool {
 }
 
 /// The stage's ranked result, when it applies and the data holds an in-band mode; `None`
-/// otherwise. `floor_um` is the data's floor.
-pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis, floor_um: f64) -> Option<Ranked> {
+/// otherwise. `dataset` as the model reads it (its probe gain divided out).
+pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Option<Ranked> {
+    let floor_um = if d.repeatability.floor_um.is_finite() { d.repeatability.floor_um } else { 0.0 };
     let floor_um = floor_um.max(NOT_REPEATING_MIN_UM);
-    if d.verdict != "none"
-        || carries_resonance(model)
-        || d.structure.fundamental.rms_um <= FUNDAMENTAL_OVER_FLOOR * floor_um
-    {
+    if carries_resonance(model) || d.structure.fundamental.rms_um <= FUNDAMENTAL_OVER_FLOOR * floor_um {
         return None;
     }
     let evidence = sts_fit::effects::in_band_mode_evidence(dataset, FOLDS).ok()??;
@@ -67,7 +65,7 @@ pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis, floor_um
         groups_improved: reductions.iter().filter(|r| **r > 0.0).count(),
         params: vec![("freq_hz".into(), evidence.freq_hz), ("damping".into(), evidence.damping)],
         evidence: format!(
-            "the twin leaves {:.1} nm at the command frequency ({:.1}x the data's floor) and no candidate explains it there; in the data's own error a resonance at {:.1} Hz (damping {:.3}) beside the axis's linear response (a velocity bank) takes {:.0}% of what the bank alone leaves at the command frequency, held out ({} of {} groups better): a mode between the test's frequencies, whose peak the twin's formulas do not follow",
+            "the twin leaves {:.1} nm at the command frequency ({:.1}x the data's floor); in the data's own error a resonance at {:.1} Hz (damping {:.3}) beside the axis's linear response (a velocity bank) takes {:.0}% of what the bank alone leaves at the command frequency, held out ({} of {} groups better): a mode between the test's frequencies, whose peak the twin's formulas do not follow",
             d.structure.fundamental.rms_um * 1e3,
             d.structure.fundamental.rms_um / floor_um,
             evidence.freq_hz,

@@ -317,12 +317,14 @@ pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> Result<Diagnosis, Asses
     let samples = analysis::group_samples_skipping(dataset, &feature_config, skip_s)?;
     let ctx = contexts(dataset, &samples, model)?;
     let mut d = diagnose_contexts(&ctx, model.validation.waveform_rms_um);
-    let floor_um = if d.repeatability.floor_um.is_finite() { d.repeatability.floor_um } else { 0.0 };
     d.test.push_str(&format!(
         " Where none is significant, the residual at the command frequency exceeds {:.0}x the data's floor and the twin carries no resonance, the data's own error is searched for a mode inside the band: its phasors at the command frequency fitted with a velocity bank alone and with a resonance beside it, held out by fold of groups, the per-group reductions through the same test; a significant mode is the verdict.",
         in_band::FUNDAMENTAL_OVER_FLOOR
     ));
-    if let Some(mode) = in_band::look(dataset, model, &d, floor_um).filter(|m| m.significant) {
+    if d.verdict != "none" {
+        return Ok(d);
+    }
+    if let Some(mode) = in_band::look(dataset, model, &d).filter(|m| m.significant) {
         d.ranking.retain(|r| r.effect != mode.effect);
         d.verdict = mode.effect.clone();
         d.summary = format!("{}: {}", mode.effect, mode.evidence);

@@ -34,3 +34,13 @@ for target in thumbv7em-none-eabihf riscv32imac-unknown-none-elf; do
         rustup target add "$target"
     fi
 done
+
+# `export --to sympy` is tested by importing what it writes: Python 3 with SymPy.
+if ! command -v python3 >/dev/null; then
+    echo "error: python3 not found; install Python 3 (the export test runs what export writes)" >&2
+    exit 1
+fi
+if ! python3 -c "import sympy" 2>/dev/null; then
+    echo "setup: pip install sympy"
+    python3 -m pip install --quiet sympy
+fi

@@ -27,6 +27,8 @@ enum Command {
     Diagnose(cmd::diagnose::Args),
     /// The lab's loop by itself: fit, diagnose, add the named effect, refit, until nothing is missing.
     Explain(cmd::explain::Args),
+    /// The twin's formulas and Eq. 4 out to C, MATLAB/Simulink, SymPy or LaTeX.
+    Export(cmd::export::Args),
     /// Train the explainable twin (amplitude and phase formulas) on a dataset.
     Fit(cmd::fit::Args),
     /// The firmware under QEMU on its own: status, benchmarks.
@@ -77,6 +79,7 @@ fn run(cli: &Cli) -> std::process::ExitCode {
         Command::Compare(args) => cmd::compare::run(args),
         Command::Demo(args) => cmd::demo::run(args),
         Command::Diagnose(args) => cmd::diagnose::run(args),
+        Command::Export(args) => cmd::export::run(args),
         Command::Explain(args) => cmd::explain::run(args),
         Command::Fit(args) => cmd::fit::run(args),
         Command::Hil(args) => cmd::hil::run(args),

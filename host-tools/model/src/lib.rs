@@ -3,6 +3,7 @@
 
 mod compile;
 mod error;
+pub mod export;
 mod file;
 pub mod replay;
 

@@ -431,6 +431,97 @@ impl Expr {
         src
     }
 
+    /// The expression alone in C (T = `float` or `double`, `<math.h>` functions) with the
+    /// firmware's semantics, the variables named by `var_names` (e.g. `f[0]`).
+    ///
+    /// ```
+    /// use sts_symreg::{Expr, UnaryOp, FloatType};
+    /// let e = Expr::unary(UnaryOp::Log, Expr::Var(0));
+    /// assert_eq!(e.to_c_expr(&["f[0]"], FloatType::F32), "logf(fabsf(f[0]))");
+    /// ```
+    pub fn to_c_expr<S: AsRef<str>>(&self, var_names: &[S], float: FloatType) -> String {
+        let mut body = String::new();
+        self.write_infix(&mut body, var_names, &Style { lang: Lang::C(float), digits: None }, 0);
+        body
+    }
+
+    /// The expression alone in MATLAB (scalar double, usable in a Simulink MATLAB Function
+    /// block) with the firmware's semantics: `pow(a,b)` as `power(abs(a), b)`, `sqrt(a)` as
+    /// `sqrt(abs(a))`, `log(a)` as `log(abs(a))`.
+    ///
+    /// ```
+    /// use sts_symreg::{Expr, BinaryOp};
+    /// let e = Expr::binary(BinaryOp::Pow, Expr::Var(0), Expr::Const(0.5));
+    /// assert_eq!(e.to_matlab(&["f(1)"]), "power(abs(f(1)), 0.5)");
+    /// ```
+    pub fn to_matlab<S: AsRef<str>>(&self, var_names: &[S]) -> String {
+        let mut body = String::new();
+        self.write_infix(&mut body, var_names, &Style { lang: Lang::Matlab, digits: None }, 0);
+        body
+    }
+
+    /// LaTeX math of the expression, constants to `digits` significant digits (for a paper;
+    /// [`Expr::to_infix`] keeps every digit), the firmware's semantics written out
+    /// (`|a|^{b}`, `\sqrt{|a|}`, `\ln|a|`).
+    ///
+    /// ```
+    /// use sts_symreg::{Expr, BinaryOp, UnaryOp};
+    /// let e = Expr::binary(BinaryOp::Div, Expr::unary(UnaryOp::Tanh, Expr::Var(0)), Expr::Const(1.23456));
+    /// assert_eq!(e.to_latex(&["f_{1}"], 3), "\\frac{\\tanh\\left(f_{1}\\right)}{1.23}");
+    /// ```
+    pub fn to_latex<S: AsRef<str>>(&self, var_names: &[S], digits: usize) -> String {
+        let mut s = String::new();
+        self.write_latex(&mut s, var_names, digits, 0);
+        s
+    }
+
+    /// `parent` is the binding of the surrounding context: 0 anywhere, 1 as the right
+    /// operand of `-`, 2 as a factor, 3 as a power's base.
+    fn write_latex<S: AsRef<str>>(&self, s: &mut String, names: &[S], digits: usize, parent: u8) {
+        let sub = |e: &Expr, p: u8| {
+            let mut t = String::new();
+            e.write_latex(&mut t, names, digits, p);
+            t
+        };
+        match self {
+            Expr::Const(c) => {
+                let text = latex_const(*c, digits);
+                if *c < 0.0 && parent > 0 {
+                    let _ = write!(s, "\\left({text}\\right)");
+                } else {
+                    s.push_str(&text);
+                }
+            }
+            Expr::Var(i) => s.push_str(&var_name(names, *i)),
+            Expr::Unary(op, a) => {
+                let inner = sub(a, 0);
+                let _ = match op {
+                    UnaryOp::Abs => write!(s, "\\left|{inner}\\right|"),
+                    UnaryOp::Sqrt => write!(s, "\\sqrt{{\\left|{inner}\\right|}}"),
+                    UnaryOp::Exp => write!(s, "e^{{{inner}}}"),
+                    UnaryOp::Log => write!(s, "\\ln\\left|{inner}\\right|"),
+                    UnaryOp::Tanh => write!(s, "\\tanh\\left({inner}\\right)"),
+                    UnaryOp::Sin => write!(s, "\\sin\\left({inner}\\right)"),
+                };
+            }
+            Expr::Binary(op, a, b) => {
+                let (text, binding) = match op {
+                    BinaryOp::Add => (format!("{} + {}", sub(a, 0), sub(b, 0)), 1),
+                    BinaryOp::Sub => (format!("{} - {}", sub(a, 0), sub(b, 1)), 1),
+                    BinaryOp::Mul => (format!("{} \\cdot {}", sub(a, 2), sub(b, 2)), 2),
+                    BinaryOp::Div => (format!("\\frac{{{}}}{{{}}}", sub(a, 0), sub(b, 0)), 9),
+                    BinaryOp::Pow => (format!("\\left|{}\\right|^{{{}}}", sub(a, 0), sub(b, 0)), 9),
+                };
+                // A sum or difference inside a product or after a minus is parenthesised.
+                if binding == 1 && parent >= 1 || binding == 2 && parent >= 3 {
+                    let _ = write!(s, "\\left({text}\\right)");
+                } else {
+                    s.push_str(&text);
+                }
+            }
+        }
+    }
+
     /// Precedence of the top node when printed infix (higher binds tighter).
     fn precedence(&self, lang: Lang) -> u8 {
         match self {
@@ -481,6 +572,14 @@ impl Expr {
                             UnaryOp::Sin => write!(s, "{inner}.sin()"),
                         }
                     }
+                    Lang::Matlab => match op {
+                        UnaryOp::Abs => write!(s, "abs({inner})"),
+                        UnaryOp::Sqrt => write!(s, "sqrt(abs({inner}))"),
+                        UnaryOp::Exp => write!(s, "exp({inner})"),
+                        UnaryOp::Log => write!(s, "log(abs({inner}))"),
+                        UnaryOp::Tanh => write!(s, "tanh({inner})"),
+                        UnaryOp::Sin => write!(s, "sin({inner})"),
+                    },
                     Lang::C(float) => {
                         let f = if float == FloatType::F32 { "f" } else { "" };
                         match op {
@@ -524,6 +623,10 @@ impl Expr {
                             b.write_infix(&mut expo, names, style, 0);
                             let f = if float == FloatType::F32 { "f" } else { "" };
                             let _ = write!(s, "pow{f}(fabs{f}({base}), {expo})");
+                        }
+                        Lang::Matlab => {
+                            b.write_infix(&mut expo, names, style, 0);
+                            let _ = write!(s, "power(abs({base}), {expo})");
                         }
                     }
                     return;
@@ -574,6 +677,8 @@ enum Lang {
     Python,
     Rust(FloatType),
     C(FloatType),
+    /// MATLAB (and Simulink's MATLAB Function block): scalar double arithmetic.
+    Matlab,
 }
 
 struct Style {
@@ -621,7 +726,28 @@ fn format_const(c: f64, style: &Style) -> String {
             }
             format!("{t}f")
         }
-        Lang::C(FloatType::F64) | Lang::Python => float_text(c),
+        Lang::C(FloatType::F64) | Lang::Python | Lang::Matlab => float_text(c),
+    }
+}
+
+/// A constant for LaTeX: `digits` significant digits, powers of ten as `\times 10^{n}`.
+fn latex_const(c: f64, digits: usize) -> String {
+    if c == 0.0 || !c.is_finite() {
+        return format!("{c}");
+    }
+    let exponent = c.abs().log10().floor() as i32;
+    if (-3..=4).contains(&exponent) {
+        let decimals = (digits as i32 - 1 - exponent).max(0) as usize;
+        let text = format!("{c:.decimals$}");
+        // Trailing zeros after the point say nothing.
+        if text.contains('.') {
+            text.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            text
+        }
+    } else {
+        let mantissa = c / 10f64.powi(exponent);
+        format!("{} \\times 10^{{{exponent}}}", latex_const(mantissa, digits))
     }
 }
 

@@ -6,6 +6,7 @@ pub mod compare;
 pub mod demo;
 pub mod diagnose;
 pub mod explain;
+pub mod export;
 pub mod fit;
 pub mod hil;
 pub mod machine;

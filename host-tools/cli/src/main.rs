@@ -33,6 +33,8 @@ enum Command {
     Fit(cmd::fit::Args),
     /// The firmware under QEMU on its own: status, benchmarks.
     Hil(cmd::hil::Args),
+    /// A lab's own recording (CSV or TSV, its own channel names and units) to a dataset, the groups found from the command.
+    Import(cmd::import::Args),
     /// Run the offline dynamic-error measurement test on the emulated machine.
     Measure(cmd::measure::Args),
     /// The emulated machine's measurement test against the paper's figures.
@@ -80,6 +82,7 @@ fn run(cli: &Cli) -> std::process::ExitCode {
         Command::Demo(args) => cmd::demo::run(args),
         Command::Diagnose(args) => cmd::diagnose::run(args),
         Command::Export(args) => cmd::export::run(args),
+        Command::Import(args) => cmd::import::run(args),
         Command::Explain(args) => cmd::explain::run(args),
         Command::Fit(args) => cmd::fit::run(args),
         Command::Hil(args) => cmd::hil::run(args),

@@ -9,6 +9,7 @@ pub mod explain;
 pub mod export;
 pub mod fit;
 pub mod hil;
+pub mod import;
 pub mod machine;
 pub mod measure;
 pub mod paper_table;

@@ -1,0 +1,278 @@
+//! `import`: a lab's long recording, written by an independent tool (Python's csv module)
+//! from an emulator measurement with pauses between the groups and the lab's own channel
+//! names and units, comes back as the same dataset (the same group files, byte for byte, and
+//! the same frequencies and strokes), and `fit` on it gives the same twin. Bad input (a
+//! missing channel, a truncated file, a wrong unit, overlapping scheduled groups) gets an
+//! error that names the file and the row, channel or field.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use sts_emulator::MeasureConfig;
+use sts_fit::{fit, FitConfig};
+
+fn sts_twin(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_sts-twin")).args(args).output().expect("sts-twin runs")
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().expect("a UTF-8 path")
+}
+
+fn stderr(out: &std::process::Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// The recording as a lab's logger writes it: time in ms, the command in mm, the encoder in
+/// nm, the probe in volts (2.5 um per volt), the accelerometer in g; half a second at rest
+/// before each group and after the last. `delimiter` and whether to write the time column.
+const WRITER: &str = r#"
+import csv, json, sys
+src, out, delim, with_time = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4] == "1"
+m = json.load(open(src + "/manifest.json"))
+fs = m["sample_rate_hz"]
+pause = int(0.5 * fs)
+k = 0
+with open(out, "w", newline="") as f:
+    w = csv.writer(f, delimiter="\t" if delim == "tab" else ",")
+    w.writerow((["Time [ms]"] if with_time else []) + ["Z setpoint", "Z encoder", "Cap probe", "Acc Z"])
+    def row(cmd, enc, tcp, acc):
+        global k
+        w.writerow(([repr(k * 1000.0 / fs)] if with_time else []) + [repr(cmd / 1000.0), repr(enc * 1000.0), repr(tcp / 2.5), repr(acc / 9.80665)])
+        k += 1
+    for g in m["groups"]:
+        for _ in range(pause):
+            row(0.0, 0.0, 0.0, 0.0)
+        with open(src + "/" + g["file"]) as gf:
+            for r in csv.DictReader(gf):
+                row(float(r["z_cmd_um"]), float(r["z_enc_um"]), float(r["z_tcp_um"]), float(r["acc_mps2"]))
+    for _ in range(pause):
+        row(0.0, 0.0, 0.0, 0.0)
+"#;
+
+const MAP: &str = r#"
+[channels]
+time = { name = "Time [ms]", unit = "ms" }
+command = { name = "Z setpoint", unit = "mm" }
+encoder = { name = "Z encoder", unit = "nm" }
+probe = { name = "Cap probe", unit = "V", scale = 2.5 }
+accelerometer = { name = "Acc Z", unit = "g" }
+"#;
+
+struct Dir(PathBuf);
+
+impl Dir {
+    fn new(name: &str) -> Self {
+        let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        Self(d)
+    }
+}
+
+impl Drop for Dir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// The original: the emulated machine, 9 groups (1, 20 and 40 Hz at 1, 6 and 11 um; the same
+/// columns as the recording, no optional ones).
+fn original(dir: &Path) -> sts_dataset::Dataset {
+    let config = MeasureConfig {
+        freqs_hz: vec![1.0, 20.0, 40.0],
+        amps_um: vec![1.0, 6.0, 11.0],
+        duration_s: 5.5,
+        seed: 4,
+        ..MeasureConfig::default()
+    };
+    let mut data = sts_emulator::measure::run(&config, &|_| {}).expect("measurement");
+    for g in &mut data.groups {
+        (g.x_mm, g.x_acc_mps2, g.spindle_deg, g.temp_c) = (None, None, None, None);
+    }
+    sts_dataset::write(dir, &data).unwrap();
+    data
+}
+
+fn write_recording(src: &Path, out: &Path, delimiter: &str, with_time: bool) {
+    let py = Command::new("python3")
+        .args(["-c", WRITER, path(src), path(out), delimiter, if with_time { "1" } else { "0" }])
+        .output()
+        .expect("python3 runs");
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+}
+
+#[test]
+fn a_labs_recording_comes_back_as_the_same_dataset_and_the_same_twin() {
+    let dir = Dir::new("import-roundtrip");
+    let src = dir.0.join("original");
+    let data = original(&src);
+    let recording = dir.0.join("logger.csv");
+    write_recording(&src, &recording, "comma", true);
+    // The accelerometer's ADC scale, as the lab knows it from its co-processor.
+    let lsb = data.manifest.acc_mps2_per_lsb.expect("the emulator states its ADC scale");
+    std::fs::write(dir.0.join("map.toml"), format!("acc_mps2_per_lsb = {lsb:?}\n{MAP}")).unwrap();
+    let imported = dir.0.join("imported");
+    let out = sts_twin(&[
+        "import",
+        path(&recording),
+        "--out",
+        path(&imported),
+        "--map",
+        path(&dir.0.join("map.toml")),
+        "--quiet",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let table = String::from_utf8_lossy(&out.stdout);
+    println!("{table}");
+    assert_eq!(table.lines().count(), 1 + data.groups.len(), "a header and a line per group");
+
+    let back = sts_dataset::read(&imported).expect("the imported dataset reads");
+    assert_eq!(back.manifest.groups.len(), data.manifest.groups.len());
+    assert_eq!(back.manifest.sample_rate_hz, data.manifest.sample_rate_hz);
+    assert_eq!(back.manifest.acc_mps2_per_lsb, data.manifest.acc_mps2_per_lsb);
+    for (i, (a, b)) in data.manifest.groups.iter().zip(&back.manifest.groups).enumerate() {
+        assert_eq!((a.freq_hz, a.amp_um), (b.freq_hz, b.amp_um), "group {i}");
+        // Each group follows half a second at rest.
+        let expected_start_s = a.start_s + 0.5 * (i + 1) as f64;
+        assert!(
+            (b.start_s - expected_start_s).abs() < 1e-9,
+            "group {i}: {} s, expected {expected_start_s} s",
+            b.start_s
+        );
+        let (fa, fb) = (std::fs::read(src.join(&a.file)).unwrap(), std::fs::read(imported.join(&b.file)).unwrap());
+        assert!(fa == fb, "group {i}: {} differs from the original", b.file);
+    }
+
+    // The same twin: the same formulas and held-out error from both.
+    let config = FitConfig { max_epochs: 6, folds: 3, ..FitConfig::default() };
+    let data = sts_dataset::read(&src).expect("the original reads");
+    let m0 = fit(&data, "original", &config, &mut |_| {}).expect("fit on the original");
+    let m1 = fit(&back, "imported", &config, &mut |_| {}).expect("fit on the import");
+    assert_eq!(m0.amplitude.formula, m1.amplitude.formula);
+    assert_eq!(m0.phase.formula, m1.phase.formula);
+    assert_eq!(m0.program_postcard_hex, m1.program_postcard_hex);
+    assert_eq!(m0.validation.waveform_rms_um.to_bits(), m1.validation.waveform_rms_um.to_bits());
+
+    // A TSV without a time channel: the mapping gives the sample rate.
+    let tsv = dir.0.join("logger.tsv");
+    write_recording(&src, &tsv, "tab", false);
+    let no_time = MAP.replace("time = { name = \"Time [ms]\", unit = \"ms\" }\n", "");
+    std::fs::write(dir.0.join("no-time.toml"), format!("sample_rate_hz = 8000\n{no_time}")).unwrap();
+    let imported_tsv = dir.0.join("imported-tsv");
+    let out = sts_twin(&[
+        "import",
+        path(&tsv),
+        "--out",
+        path(&imported_tsv),
+        "--map",
+        path(&dir.0.join("no-time.toml")),
+        "--quiet",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    for g in &data.manifest.groups {
+        assert!(
+            std::fs::read(src.join(&g.file)).unwrap() == std::fs::read(imported_tsv.join(&g.file)).unwrap(),
+            "{}",
+            g.file
+        );
+    }
+}
+
+#[test]
+fn bad_recordings_and_mappings_are_refused_with_the_file_and_the_row_channel_or_field() {
+    let dir = Dir::new("import-errors");
+    let src = dir.0.join("original");
+    original(&src);
+    let recording = dir.0.join("logger.csv");
+    write_recording(&src, &recording, "comma", true);
+    let import = |rec: &Path, map_text: &str| {
+        let map = dir.0.join("map.toml");
+        std::fs::write(&map, map_text).unwrap();
+        let out = sts_twin(&["import", path(rec), "--out", path(&dir.0.join("out")), "--map", path(&map), "--quiet"]);
+        assert!(!out.status.success(), "accepted");
+        assert!(!stderr(&out).contains("panicked"), "{}", stderr(&out));
+        stderr(&out)
+    };
+    // A channel the recording lacks: named, with the channels it has.
+    let err = import(&recording, &MAP.replace("\"Acc Z\"", "\"Acc X\""));
+    assert!(
+        err.contains("logger.csv")
+            && err.contains("`Acc X`")
+            && err.contains("accelerometer")
+            && err.contains("Cap probe"),
+        "{err}"
+    );
+    // A truncated file: the last row cut in its middle.
+    let text = std::fs::read_to_string(&recording).unwrap();
+    let cut = text.trim_end().rfind(',').unwrap();
+    let truncated = dir.0.join("truncated.csv");
+    std::fs::write(&truncated, &text[..cut]).unwrap();
+    let rows = text.trim_end().lines().count();
+    let err = import(&truncated, MAP);
+    assert!(
+        err.contains(&format!("truncated.csv:{rows}:")) && err.contains("Acc Z") && err.contains("truncated"),
+        "{err}"
+    );
+    // A unit that is not the channel's.
+    let err = import(&recording, &MAP.replace("unit = \"nm\"", "unit = \"g\""));
+    assert!(err.contains("map.toml") && err.contains("channels.encoder.unit") && err.contains("`g`"), "{err}");
+    // A value that is not a number.
+    let bad = dir.0.join("bad-value.csv");
+    std::fs::write(&bad, text.replacen("\n0.125,0.0,", "\n0.125,n/a,", 1)).unwrap();
+    let err = import(&bad, MAP);
+    assert!(err.contains("bad-value.csv:3:") && err.contains("Z setpoint") && err.contains("`n/a`"), "{err}");
+    // A row missing in the middle: the time jumps two steps.
+    let skipped = dir.0.join("skipped.csv");
+    let lines: Vec<&str> = text.lines().collect();
+    std::fs::write(&skipped, [&lines[..99], &lines[100..]].concat().join("\n")).unwrap();
+    let err = import(&skipped, MAP);
+    assert!(
+        err.contains("skipped.csv:100:") && err.contains("Time [ms]") && err.contains("advances by 2.500000e-4 s"),
+        "{err}"
+    );
+    // Scheduled groups that overlap.
+    let err = import(
+        &recording,
+        &format!("{MAP}\n[[schedule]]\nstart_s = 0.5\nduration_s = 6\n\n[[schedule]]\nstart_s = 6.0\nduration_s = 6\n"),
+    );
+    assert!(err.contains("schedule[0] and schedule[1]") && err.contains("overlap"), "{err}");
+    // A format this importer does not read yet.
+    let mat = dir.0.join("log.mat");
+    std::fs::write(&mat, b"MATLAB 5.0 MAT-file").unwrap();
+    let err = import(&mat, MAP);
+    assert!(err.contains("log.mat") && err.contains(".mat"), "{err}");
+}
+
+#[test]
+fn a_schedule_cuts_the_groups_at_its_times() {
+    let dir = Dir::new("import-schedule");
+    let src = dir.0.join("original");
+    let data = original(&src);
+    let recording = dir.0.join("logger.csv");
+    write_recording(&src, &recording, "comma", true);
+    // The first two groups by their times in the recording (each after 0.5 s at rest).
+    let d = 5.5;
+    let map = format!(
+        "{MAP}\n[[schedule]]\nstart_s = 0.5\nduration_s = {d}\n\n[[schedule]]\nstart_s = {}\nduration_s = {d}\n",
+        0.5 + d + 0.5
+    );
+    std::fs::write(dir.0.join("map.toml"), map).unwrap();
+    let out_dir = dir.0.join("out");
+    let out = sts_twin(&[
+        "import",
+        path(&recording),
+        "--out",
+        path(&out_dir),
+        "--map",
+        path(&dir.0.join("map.toml")),
+        "--quiet",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let back = sts_dataset::read(&out_dir).unwrap();
+    assert_eq!(back.groups.len(), 2);
+    for (a, b) in data.manifest.groups.iter().zip(&back.manifest.groups) {
+        assert_eq!((a.freq_hz, a.amp_um), (b.freq_hz, b.amp_um));
+        assert!(std::fs::read(src.join(&a.file)).unwrap() == std::fs::read(out_dir.join(&b.file)).unwrap());
+    }
+}

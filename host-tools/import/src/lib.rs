@@ -1,0 +1,454 @@
+#![doc = include_str!("../README.md")]
+pub mod mapping;
+pub mod segment;
+
+use std::path::{Path, PathBuf};
+
+use sts_dataset::{GroupData, GroupInfo, Manifest};
+
+use mapping::{Mapping, Resolved};
+use segment::{significant, sine_of, Finder, Row, Scheduler, Segmenter};
+
+/// Why a recording could not be imported.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ImportError {
+    /// A file could not be read or written.
+    #[error("{}: {source}", .path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's reason.
+        source: std::io::Error,
+    },
+    /// The mapping file is malformed or names something impossible.
+    #[error("{}: {message}", .path.display())]
+    Mapping {
+        /// The mapping file.
+        path: PathBuf,
+        /// What is wrong, naming the field.
+        message: String,
+    },
+    /// The recording's format is not one this importer reads.
+    #[error("{}: cannot read .{extension} recordings yet (CSV and TSV: .csv, .tsv, .txt)", .path.display())]
+    Format {
+        /// The recording.
+        path: PathBuf,
+        /// Its extension.
+        extension: String,
+    },
+    /// A mapped channel is not in the recording.
+    #[error("{}: no channel `{name}` (the mapping's {role}); the recording has: {available}", .path.display())]
+    MissingChannel {
+        /// The recording.
+        path: PathBuf,
+        /// The role in the mapping.
+        role: &'static str,
+        /// The channel's name in the mapping.
+        name: String,
+        /// The recording's channels.
+        available: String,
+    },
+    /// A value is not a number, or a row is short (a truncated file).
+    #[error("{}:{line}: channel `{channel}`: {message}", .path.display())]
+    Value {
+        /// The recording.
+        path: PathBuf,
+        /// The line (1-based, the header is line 1).
+        line: u64,
+        /// The channel.
+        channel: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The time channel does not advance by one sample step.
+    #[error("{}:{line}: channel `{channel}`: the time advances by {step_s:.6e} s, expected {expected_s:.6e} s (one sample)", .path.display())]
+    TimeStep {
+        /// The recording.
+        path: PathBuf,
+        /// The line.
+        line: u64,
+        /// The time channel.
+        channel: String,
+        /// The step found, s.
+        step_s: f64,
+        /// The step expected, s.
+        expected_s: f64,
+    },
+    /// A group's command is not a steady sine.
+    #[error("{}: the group at {start_s:.4}-{end_s:.4} s: its command (`{channel}`) crosses its mean fewer than twice: not a steady sine (a pause shorter than [segments] min_pause_s inside it?)", .path.display())]
+    NotASine {
+        /// The recording.
+        path: PathBuf,
+        /// The command channel.
+        channel: String,
+        /// The group's start, s.
+        start_s: f64,
+        /// Its end, s.
+        end_s: f64,
+    },
+    /// No group was found.
+    #[error("{}: no group found: the command (`{channel}`) never moves by more than [segments] rest_tolerance_um ({tolerance_um} um) between pauses", .path.display())]
+    NoGroups {
+        /// The recording.
+        path: PathBuf,
+        /// The command channel.
+        channel: String,
+        /// The rest tolerance, um.
+        tolerance_um: f64,
+    },
+    /// Writing the dataset failed.
+    #[error(transparent)]
+    Dataset(#[from] sts_dataset::DatasetError),
+}
+
+/// A group found, as the import reports it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FoundGroup {
+    /// The recording it came from.
+    pub recording: PathBuf,
+    /// Its file in the dataset.
+    pub file: String,
+    /// Its start in machine time (the recordings' times, one after another), s.
+    pub start_s: f64,
+    /// Its length, s.
+    pub duration_s: f64,
+    /// The command's frequency, Hz.
+    pub freq_hz: f64,
+    /// The command's amplitude, um.
+    pub amp_um: f64,
+    /// The pause before it, s (from the recording's start for its first group).
+    pub pause_before_s: f64,
+}
+
+/// What an import did.
+#[derive(Clone, Debug)]
+pub struct Imported {
+    /// The groups, in order.
+    pub groups: Vec<FoundGroup>,
+    /// Samples per second.
+    pub sample_rate_hz: f64,
+    /// Rows read.
+    pub rows: u64,
+}
+
+/// Progress: bytes read of all recordings, and their total.
+pub type Progress<'a> = &'a mut dyn FnMut(u64, u64);
+
+/// A recording's reader: the mapped columns' positions, the delimiter.
+struct Columns {
+    resolved: Vec<Resolved>,
+    index: Vec<usize>,
+}
+
+fn delimiter(path: &Path, first_line: &str) -> u8 {
+    let tsv = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("tsv"));
+    if tsv || first_line.contains('\t') {
+        b'\t'
+    } else if first_line.contains(';') && !first_line.contains(',') {
+        b';'
+    } else {
+        b','
+    }
+}
+
+/// Imports `recordings` (in order) into the dataset directory `out` with `mapping`.
+pub fn import(
+    recordings: &[PathBuf],
+    mapping: &Mapping,
+    mapping_path: &Path,
+    out: &Path,
+    progress: Progress,
+) -> Result<Imported, ImportError> {
+    let resolved = mapping.resolve(mapping_path)?;
+    std::fs::create_dir_all(out).map_err(|source| ImportError::Io { path: out.to_path_buf(), source })?;
+    let total_bytes: u64 = recordings.iter().map(|p| std::fs::metadata(p).map_or(0, |m| m.len())).sum();
+    let mut done_bytes = 0u64;
+    let mut groups: Vec<FoundGroup> = Vec::new();
+    let mut infos: Vec<GroupInfo> = Vec::new();
+    let mut sample_rate_hz = mapping.sample_rate_hz.unwrap_or(0.0);
+    let mut rows_read = 0u64;
+    // Machine time of the next recording's start: recordings follow one another.
+    let mut time_offset_s = 0.0;
+    for path in recordings {
+        let ext = path.extension().map_or(String::new(), |e| e.to_string_lossy().to_ascii_lowercase());
+        if !matches!(ext.as_str(), "csv" | "tsv" | "txt") {
+            return Err(ImportError::Format { path: path.clone(), extension: ext });
+        }
+        let io = |source| ImportError::Io { path: path.clone(), source };
+        let file = std::fs::File::open(path).map_err(io)?;
+        let mut first = String::new();
+        std::io::BufRead::read_line(&mut std::io::BufReader::new(std::fs::File::open(path).map_err(io)?), &mut first)
+            .map_err(io)?;
+        let mut reader = csv::ReaderBuilder::new()
+            .delimiter(delimiter(path, &first))
+            .flexible(true)
+            .trim(csv::Trim::All)
+            .from_reader(std::io::BufReader::with_capacity(1 << 20, file));
+        let header = reader.headers().map_err(|e| csv_error(path, e))?.clone();
+        let mut columns = Columns { resolved: resolved.clone(), index: Vec::new() };
+        for r in &columns.resolved {
+            let i = header.iter().position(|h| h == r.channel.name).ok_or_else(|| ImportError::MissingChannel {
+                path: path.clone(),
+                role: r.role,
+                name: r.channel.name.clone(),
+                available: header.iter().collect::<Vec<_>>().join(", "),
+            })?;
+            columns.index.push(i);
+        }
+        let has_time = columns.resolved[0].role == "time";
+        let mut segmenter: Option<Finder> = None;
+        // Rows wait here until the sample rate is known (the time channel's first step).
+        let mut pending: Vec<Row> = Vec::new();
+        let mut record = csv::StringRecord::new();
+        let mut k = 0u64;
+        let (mut first_t, mut last_t) = (f64::NAN, f64::NAN);
+        let mut last_end_s = 0.0;
+        let mut found: Vec<Vec<Row>> = Vec::new();
+        while reader.read_record(&mut record).map_err(|e| csv_error(path, e))? {
+            // One record per line after the header (the csv crate's own count is one short
+            // after a CRLF header, as Python's csv module writes them).
+            let line = k + 2;
+            let values = parse_row(path, line, &record, header.len(), &columns)?;
+            let time_channel = || columns.resolved[0].channel.name.clone();
+            let t = if has_time { values[0] } else { k as f64 / sample_rate_hz };
+            if has_time {
+                if k == 0 {
+                    first_t = t;
+                } else if k == 1 {
+                    let step = t - first_t;
+                    if step.is_nan() || step <= 0.0 {
+                        return Err(ImportError::TimeStep {
+                            path: path.clone(),
+                            line,
+                            channel: time_channel(),
+                            step_s: step,
+                            expected_s: f64::NAN,
+                        });
+                    }
+                    sample_rate_hz = significant(1.0 / step, 9);
+                } else {
+                    let expected = 1.0 / sample_rate_hz;
+                    if ((t - last_t) - expected).abs() > 0.05 * expected {
+                        return Err(ImportError::TimeStep {
+                            path: path.clone(),
+                            line,
+                            channel: time_channel(),
+                            step_s: t - last_t,
+                            expected_s: expected,
+                        });
+                    }
+                }
+                last_t = t;
+            }
+            pending.push(row_of(t, &values[usize::from(has_time)..], &columns));
+            k += 1;
+            if k >= 2 || !has_time {
+                let seg = segmenter.get_or_insert_with(|| finder(mapping, sample_rate_hz));
+                for row in pending.drain(..) {
+                    found.extend(seg.push(row));
+                }
+                for rows in found.drain(..) {
+                    write_group(
+                        path,
+                        out,
+                        rows,
+                        sample_rate_hz,
+                        time_offset_s,
+                        &columns,
+                        &mut groups,
+                        &mut infos,
+                        &mut last_end_s,
+                    )?;
+                }
+            }
+            if k % 65_536 == 0 {
+                progress(done_bytes + reader.position().byte(), total_bytes);
+            }
+        }
+        if let Some(rows) = segmenter.as_mut().and_then(Finder::finish) {
+            write_group(
+                path,
+                out,
+                rows,
+                sample_rate_hz,
+                time_offset_s,
+                &columns,
+                &mut groups,
+                &mut infos,
+                &mut last_end_s,
+            )?;
+        }
+        rows_read += k;
+        done_bytes += std::fs::metadata(path).map_or(0, |m| m.len());
+        progress(done_bytes, total_bytes);
+        if groups.iter().all(|g| &g.recording != path) {
+            return Err(ImportError::NoGroups {
+                path: path.clone(),
+                channel: mapping.channels.command.name.clone(),
+                tolerance_um: mapping.segments.rest_tolerance_um,
+            });
+        }
+        let span_s = if has_time { last_t - first_t } else { k as f64 / sample_rate_hz };
+        time_offset_s += span_s + 1.0 / sample_rate_hz;
+    }
+    let mut manifest = Manifest::new(sample_rate_hz, &format!("imported from {}", names(recordings)), infos);
+    manifest.acc_mps2_per_lsb = mapping.acc_mps2_per_lsb;
+    sts_dataset::write_manifest(out, &manifest)?;
+    Ok(Imported { groups, sample_rate_hz, rows: rows_read })
+}
+
+/// The mapped values of one record, in canonical units, in the order of `columns`.
+fn parse_row(
+    path: &Path,
+    line: u64,
+    record: &csv::StringRecord,
+    header_len: usize,
+    columns: &Columns,
+) -> Result<Vec<f64>, ImportError> {
+    columns
+        .resolved
+        .iter()
+        .zip(&columns.index)
+        .map(|(r, &i)| {
+            let value_error = |message: String| ImportError::Value {
+                path: path.to_path_buf(),
+                line,
+                channel: r.channel.name.clone(),
+                message,
+            };
+            let text = record.get(i).ok_or_else(|| {
+                value_error(format!("the row has {} values, the header {header_len} (a truncated file?)", record.len()))
+            })?;
+            let v: f64 = text
+                .parse()
+                .ok()
+                .filter(|v: &f64| v.is_finite())
+                .ok_or_else(|| value_error(format!("`{text}` is not a finite number")))?;
+            Ok(r.convert(v))
+        })
+        .collect()
+}
+
+/// A row from the mapped values after the time.
+fn row_of(t_s: f64, values: &[f64], columns: &Columns) -> Row {
+    let mut row = Row { t_s, ..Row::default() };
+    for (r, v) in columns.resolved.iter().filter(|r| r.role != "time").zip(values) {
+        match r.role {
+            "command" => row.cmd_um = *v,
+            "encoder" => row.enc_um = *v,
+            "probe" => row.tcp_um = *v,
+            "accelerometer" => row.acc_mps2 = *v,
+            "x_position" => row.x_mm = *v,
+            "x_acceleration" => row.x_acc_mps2 = *v,
+            "spindle" => row.spindle_deg = *v,
+            _ => row.temp_c = *v,
+        }
+    }
+    row
+}
+
+/// Writes a found group and records it.
+#[allow(clippy::too_many_arguments)]
+fn write_group(
+    path: &Path,
+    out: &Path,
+    rows: Vec<Row>,
+    sample_rate_hz: f64,
+    time_offset_s: f64,
+    columns: &Columns,
+    groups: &mut Vec<FoundGroup>,
+    infos: &mut Vec<GroupInfo>,
+    last_end_s: &mut f64,
+) -> Result<(), ImportError> {
+    let (start_s, end_s) = (rows[0].t_s, rows[rows.len() - 1].t_s);
+    let (freq_hz, amp_um) = sine_of(&rows, sample_rate_hz).ok_or_else(|| ImportError::NotASine {
+        path: path.to_path_buf(),
+        channel: columns
+            .resolved
+            .iter()
+            .find(|r| r.role == "command")
+            .map_or_else(String::new, |r| r.channel.name.clone()),
+        start_s,
+        end_s,
+    })?;
+    let has = |role: &str| columns.resolved.iter().any(|r| r.role == role);
+    let n = rows.len();
+    let mut g = GroupData::with_len(n);
+    g.x_mm = has("x_position").then(|| vec![0.0; n]);
+    g.x_acc_mps2 = has("x_acceleration").then(|| vec![0.0; n]);
+    g.spindle_deg = has("spindle").then(|| vec![0.0; n]);
+    g.temp_c = has("temperature").then(|| vec![0.0; n]);
+    for (k, r) in rows.iter().enumerate() {
+        g.t_s[k] = k as f64 / sample_rate_hz;
+        g.z_cmd_um[k] = r.cmd_um;
+        g.z_enc_um[k] = r.enc_um;
+        g.z_tcp_um[k] = r.tcp_um;
+        g.acc_mps2[k] = r.acc_mps2;
+        for (col, v) in [
+            (&mut g.x_mm, r.x_mm),
+            (&mut g.x_acc_mps2, r.x_acc_mps2),
+            (&mut g.spindle_deg, r.spindle_deg),
+            (&mut g.temp_c, r.temp_c),
+        ] {
+            if let Some(c) = col {
+                c[k] = v;
+            }
+        }
+    }
+    let file = format!("g{:03}.csv", infos.len());
+    sts_dataset::write_group(out, &file, &g)?;
+    let info = GroupInfo {
+        file: file.clone(),
+        freq_hz: significant(freq_hz, 6),
+        amp_um: significant(amp_um, 6),
+        start_s: time_offset_s + start_s,
+    };
+    groups.push(FoundGroup {
+        recording: path.to_path_buf(),
+        file,
+        start_s: info.start_s,
+        duration_s: n as f64 / sample_rate_hz,
+        freq_hz: info.freq_hz,
+        amp_um: info.amp_um,
+        pause_before_s: start_s - *last_end_s,
+    });
+    *last_end_s = end_s + 1.0 / sample_rate_hz;
+    infos.push(info);
+    Ok(())
+}
+
+fn csv_error(path: &Path, e: csv::Error) -> ImportError {
+    let line = e.position().map_or(0, |p| p.line());
+    match e.into_kind() {
+        csv::ErrorKind::Io(source) => ImportError::Io { path: path.to_path_buf(), source },
+        other => ImportError::Value {
+            path: path.to_path_buf(),
+            line,
+            channel: "(row)".into(),
+            message: format!("{other:?}"),
+        },
+    }
+}
+
+fn names(recordings: &[PathBuf]) -> String {
+    recordings
+        .iter()
+        .map(|p| p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into_owned()))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The mapping's way of finding groups: its schedule (times in each recording's own time), or
+/// the command's motion between pauses.
+fn finder(mapping: &Mapping, sample_rate_hz: f64) -> Finder {
+    if mapping.schedule.is_empty() {
+        let pause = (mapping.segments.min_pause_s * sample_rate_hz).ceil() as usize;
+        Finder::Motion(Segmenter::new(mapping.segments.rest_tolerance_um, pause))
+    } else {
+        let mut windows: Vec<(f64, f64)> =
+            mapping.schedule.iter().map(|s| (s.start_s, s.start_s + s.duration_s)).collect();
+        windows.sort_by(|a, b| a.0.total_cmp(&b.0));
+        Finder::Schedule(Scheduler::new(windows))
+    }
+}

@@ -35,12 +35,15 @@ for target in thumbv7em-none-eabihf riscv32imac-unknown-none-elf; do
     fi
 done
 
-# `export --to sympy` is tested by importing what it writes: Python 3 with SymPy.
+# Independent tools for the tests: `export --to sympy` is checked by importing what it writes
+# (SymPy), and `import` by reading recordings that SciPy's `savemat` wrote.
 if ! command -v python3 >/dev/null; then
-    echo "error: python3 not found; install Python 3 (the export test runs what export writes)" >&2
+    echo "error: python3 not found; install Python 3 (the export and import tests run it)" >&2
     exit 1
 fi
-if ! python3 -c "import sympy" 2>/dev/null; then
-    echo "setup: pip install sympy"
-    python3 -m pip install --quiet sympy
-fi
+for module in sympy scipy; do
+    if ! python3 -c "import $module" 2>/dev/null; then
+        echo "setup: pip install $module"
+        python3 -m pip install --quiet --root-user-action=ignore "$module"
+    fi
+done

@@ -179,6 +179,87 @@ fn a_labs_recording_comes_back_as_the_same_dataset_and_the_same_twin() {
     }
 }
 
+/// The recording as a Simulink Real-Time log saved by SciPy's `savemat` (MAT v5, compressed):
+/// the time in seconds as its own variable, the Z signals as the columns of one matrix (mm,
+/// mm, volts), the accelerometer in g.
+const MAT_WRITER: &str = r#"
+import csv, json, sys
+import numpy as np
+from scipy.io import savemat
+src, out = sys.argv[1], sys.argv[2]
+m = json.load(open(src + "/manifest.json"))
+fs = m["sample_rate_hz"]
+pause = int(0.5 * fs)
+cols = [[], [], [], []]
+def rest():
+    for c in cols:
+        c.extend([0.0] * pause)
+for g in m["groups"]:
+    rest()
+    with open(src + "/" + g["file"]) as gf:
+        for r in csv.DictReader(gf):
+            for c, key in zip(cols, ["z_cmd_um", "z_enc_um", "z_tcp_um", "acc_mps2"]):
+                c.append(float(r[key]))
+rest()
+n = len(cols[0])
+z = np.column_stack([np.array(cols[0]) / 1000.0, np.array(cols[1]) / 1000.0, np.array(cols[2]) / 2.5])
+savemat(out, {"tout": np.arange(n) / fs, "Z": z, "acc_g": np.array(cols[3]) / 9.80665}, oned_as="column", do_compression=True)
+"#;
+
+#[test]
+fn a_simulink_log_saved_as_a_mat_file_comes_back_as_the_same_dataset() {
+    let dir = Dir::new("import-mat");
+    let src = dir.0.join("original");
+    let data = original(&src);
+    let mat = dir.0.join("speedgoat.mat");
+    let py = Command::new("python3").args(["-c", MAT_WRITER, path(&src), path(&mat)]).output().expect("python3 runs");
+    assert!(
+        py.status.success(),
+        "python3 with scipy (scripts/setup.sh installs it): {}",
+        String::from_utf8_lossy(&py.stderr)
+    );
+    let lsb = data.manifest.acc_mps2_per_lsb.expect("the emulator states its ADC scale");
+    let map = format!(
+        "acc_mps2_per_lsb = {lsb:?}\n[channels]\ntime = {{ name = \"tout\", unit = \"s\" }}\n\
+         command = {{ name = \"Z[1]\", unit = \"mm\" }}\nencoder = {{ name = \"Z[2]\", unit = \"mm\" }}\n\
+         probe = {{ name = \"Z[3]\", unit = \"V\", scale = 2.5 }}\naccelerometer = {{ name = \"acc_g\", unit = \"g\" }}\n"
+    );
+    std::fs::write(dir.0.join("map.toml"), &map).unwrap();
+    let out_dir = dir.0.join("imported");
+    let out =
+        sts_twin(&["import", path(&mat), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let back = sts_dataset::read(&out_dir).unwrap();
+    assert_eq!(back.groups.len(), data.groups.len());
+    for (a, b) in data.manifest.groups.iter().zip(&back.manifest.groups) {
+        assert_eq!((a.freq_hz, a.amp_um), (b.freq_hz, b.amp_um));
+        assert!(
+            std::fs::read(src.join(&a.file)).unwrap() == std::fs::read(out_dir.join(&b.file)).unwrap(),
+            "{}",
+            b.file
+        );
+    }
+    // A column the matrix does not have, and a truncated file.
+    std::fs::write(dir.0.join("bad.toml"), map.replace("Z[3]", "Z[4]")).unwrap();
+    let out =
+        sts_twin(&["import", path(&mat), "--out", path(&out_dir), "--map", path(&dir.0.join("bad.toml")), "--quiet"]);
+    assert!(
+        !out.status.success() && stderr(&out).contains("`Z[4]`") && stderr(&out).contains("tout"),
+        "{}",
+        stderr(&out)
+    );
+    let bytes = std::fs::read(&mat).unwrap();
+    let cut = dir.0.join("cut.mat");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let out =
+        sts_twin(&["import", path(&cut), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
+    assert!(
+        !out.status.success() && stderr(&out).contains("cut.mat") && stderr(&out).contains("truncated"),
+        "{}",
+        stderr(&out)
+    );
+}
+
 #[test]
 fn bad_recordings_and_mappings_are_refused_with_the_file_and_the_row_channel_or_field() {
     let dir = Dir::new("import-errors");
@@ -238,10 +319,10 @@ fn bad_recordings_and_mappings_are_refused_with_the_file_and_the_row_channel_or_
     );
     assert!(err.contains("schedule[0] and schedule[1]") && err.contains("overlap"), "{err}");
     // A format this importer does not read yet.
-    let mat = dir.0.join("log.mat");
-    std::fs::write(&mat, b"MATLAB 5.0 MAT-file").unwrap();
-    let err = import(&mat, MAP);
-    assert!(err.contains("log.mat") && err.contains(".mat"), "{err}");
+    let tdms = dir.0.join("log.tdms");
+    std::fs::write(&tdms, b"TDSm").unwrap();
+    let err = import(&tdms, MAP);
+    assert!(err.contains("log.tdms") && err.contains(".tdms") && err.contains(".csv"), "{err}");
 }
 
 #[test]

@@ -1,6 +1,7 @@
 #![doc = include_str!("../README.md")]
 pub mod mapping;
 pub mod segment;
+pub mod source;
 
 use std::path::{Path, PathBuf};
 
@@ -8,6 +9,7 @@ use sts_dataset::{GroupData, GroupInfo, Manifest};
 
 use mapping::{Mapping, Resolved};
 use segment::{significant, sine_of, Finder, Row, Scheduler, Segmenter};
+use source::{At, Source};
 
 /// Why a recording could not be imported.
 #[derive(Debug, thiserror::Error)]
@@ -30,12 +32,20 @@ pub enum ImportError {
         message: String,
     },
     /// The recording's format is not one this importer reads.
-    #[error("{}: cannot read .{extension} recordings yet (CSV and TSV: .csv, .tsv, .txt)", .path.display())]
+    #[error("{}: cannot read .{extension} recordings yet (it reads {})", .path.display(), source::READ)]
     Format {
         /// The recording.
         path: PathBuf,
         /// Its extension.
         extension: String,
+    },
+    /// The recording cannot be read as its format.
+    #[error("{}: {message}", .path.display())]
+    Unreadable {
+        /// The recording.
+        path: PathBuf,
+        /// Why.
+        message: String,
     },
     /// A mapped channel is not in the recording.
     #[error("{}: no channel `{name}` (the mapping's {role}); the recording has: {available}", .path.display())]
@@ -50,24 +60,24 @@ pub enum ImportError {
         available: String,
     },
     /// A value is not a number, or a row is short (a truncated file).
-    #[error("{}:{line}: channel `{channel}`: {message}", .path.display())]
+    #[error("{}{at}: channel `{channel}`: {message}", .path.display())]
     Value {
         /// The recording.
         path: PathBuf,
-        /// The line (1-based, the header is line 1).
-        line: u64,
+        /// Where: the line (the header is line 1) or the sample.
+        at: At,
         /// The channel.
         channel: String,
         /// What is wrong.
         message: String,
     },
     /// The time channel does not advance by one sample step.
-    #[error("{}:{line}: channel `{channel}`: the time advances by {step_s:.6e} s, expected {expected_s:.6e} s (one sample)", .path.display())]
+    #[error("{}{at}: channel `{channel}`: the time advances by {step_s:.6e} s, expected {expected_s:.6e} s (one sample)", .path.display())]
     TimeStep {
         /// The recording.
         path: PathBuf,
-        /// The line.
-        line: u64,
+        /// Where.
+        at: At,
         /// The time channel.
         channel: String,
         /// The step found, s.
@@ -138,18 +148,6 @@ pub type Progress<'a> = &'a mut dyn FnMut(u64, u64);
 /// A recording's reader: the mapped columns' positions, the delimiter.
 struct Columns {
     resolved: Vec<Resolved>,
-    index: Vec<usize>,
-}
-
-fn delimiter(path: &Path, first_line: &str) -> u8 {
-    let tsv = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("tsv"));
-    if tsv || first_line.contains('\t') {
-        b'\t'
-    } else if first_line.contains(';') && !first_line.contains(',') {
-        b';'
-    } else {
-        b','
-    }
 }
 
 /// Imports `recordings` (in order) into the dataset directory `out` with `mapping`.
@@ -171,45 +169,18 @@ pub fn import(
     // Machine time of the next recording's start: recordings follow one another.
     let mut time_offset_s = 0.0;
     for path in recordings {
-        let ext = path.extension().map_or(String::new(), |e| e.to_string_lossy().to_ascii_lowercase());
-        if !matches!(ext.as_str(), "csv" | "tsv" | "txt") {
-            return Err(ImportError::Format { path: path.clone(), extension: ext });
-        }
-        let io = |source| ImportError::Io { path: path.clone(), source };
-        let file = std::fs::File::open(path).map_err(io)?;
-        let mut first = String::new();
-        std::io::BufRead::read_line(&mut std::io::BufReader::new(std::fs::File::open(path).map_err(io)?), &mut first)
-            .map_err(io)?;
-        let mut reader = csv::ReaderBuilder::new()
-            .delimiter(delimiter(path, &first))
-            .flexible(true)
-            .trim(csv::Trim::All)
-            .from_reader(std::io::BufReader::with_capacity(1 << 20, file));
-        let header = reader.headers().map_err(|e| csv_error(path, e))?.clone();
-        let mut columns = Columns { resolved: resolved.clone(), index: Vec::new() };
-        for r in &columns.resolved {
-            let i = header.iter().position(|h| h == r.channel.name).ok_or_else(|| ImportError::MissingChannel {
-                path: path.clone(),
-                role: r.role,
-                name: r.channel.name.clone(),
-                available: header.iter().collect::<Vec<_>>().join(", "),
-            })?;
-            columns.index.push(i);
-        }
+        let mut source = Source::open(path, &resolved)?;
+        let columns = Columns { resolved: resolved.clone() };
         let has_time = columns.resolved[0].role == "time";
         let mut segmenter: Option<Finder> = None;
         // Rows wait here until the sample rate is known (the time channel's first step).
         let mut pending: Vec<Row> = Vec::new();
-        let mut record = csv::StringRecord::new();
         let mut k = 0u64;
         let (mut first_t, mut last_t) = (f64::NAN, f64::NAN);
         let mut last_end_s = 0.0;
         let mut found: Vec<Vec<Row>> = Vec::new();
-        while reader.read_record(&mut record).map_err(|e| csv_error(path, e))? {
-            // One record per line after the header (the csv crate's own count is one short
-            // after a CRLF header, as Python's csv module writes them).
-            let line = k + 2;
-            let values = parse_row(path, line, &record, header.len(), &columns)?;
+        while let Some(values) = source.next(path, k, &resolved)? {
+            let at = source.at(k);
             let time_channel = || columns.resolved[0].channel.name.clone();
             let t = if has_time { values[0] } else { k as f64 / sample_rate_hz };
             if has_time {
@@ -220,7 +191,7 @@ pub fn import(
                     if step.is_nan() || step <= 0.0 {
                         return Err(ImportError::TimeStep {
                             path: path.clone(),
-                            line,
+                            at,
                             channel: time_channel(),
                             step_s: step,
                             expected_s: f64::NAN,
@@ -232,7 +203,7 @@ pub fn import(
                     if ((t - last_t) - expected).abs() > 0.05 * expected {
                         return Err(ImportError::TimeStep {
                             path: path.clone(),
-                            line,
+                            at,
                             channel: time_channel(),
                             step_s: t - last_t,
                             expected_s: expected,
@@ -263,7 +234,7 @@ pub fn import(
                 }
             }
             if k % 65_536 == 0 {
-                progress(done_bytes + reader.position().byte(), total_bytes);
+                progress(done_bytes + source.bytes_read(), total_bytes);
             }
         }
         if let Some(rows) = segmenter.as_mut().and_then(Finder::finish) {
@@ -296,38 +267,6 @@ pub fn import(
     manifest.acc_mps2_per_lsb = mapping.acc_mps2_per_lsb;
     sts_dataset::write_manifest(out, &manifest)?;
     Ok(Imported { groups, sample_rate_hz, rows: rows_read })
-}
-
-/// The mapped values of one record, in canonical units, in the order of `columns`.
-fn parse_row(
-    path: &Path,
-    line: u64,
-    record: &csv::StringRecord,
-    header_len: usize,
-    columns: &Columns,
-) -> Result<Vec<f64>, ImportError> {
-    columns
-        .resolved
-        .iter()
-        .zip(&columns.index)
-        .map(|(r, &i)| {
-            let value_error = |message: String| ImportError::Value {
-                path: path.to_path_buf(),
-                line,
-                channel: r.channel.name.clone(),
-                message,
-            };
-            let text = record.get(i).ok_or_else(|| {
-                value_error(format!("the row has {} values, the header {header_len} (a truncated file?)", record.len()))
-            })?;
-            let v: f64 = text
-                .parse()
-                .ok()
-                .filter(|v: &f64| v.is_finite())
-                .ok_or_else(|| value_error(format!("`{text}` is not a finite number")))?;
-            Ok(r.convert(v))
-        })
-        .collect()
 }
 
 /// A row from the mapped values after the time.
@@ -416,19 +355,6 @@ fn write_group(
     *last_end_s = end_s + 1.0 / sample_rate_hz;
     infos.push(info);
     Ok(())
-}
-
-fn csv_error(path: &Path, e: csv::Error) -> ImportError {
-    let line = e.position().map_or(0, |p| p.line());
-    match e.into_kind() {
-        csv::ErrorKind::Io(source) => ImportError::Io { path: path.to_path_buf(), source },
-        other => ImportError::Value {
-            path: path.to_path_buf(),
-            line,
-            channel: "(row)".into(),
-            message: format!("{other:?}"),
-        },
-    }
 }
 
 fn names(recordings: &[PathBuf]) -> String {

@@ -260,6 +260,94 @@ fn a_simulink_log_saved_as_a_mat_file_comes_back_as_the_same_dataset() {
     );
 }
 
+/// The recording as an NI DAQmx task logs it, written by npTDMS: no time channel, the
+/// channels by their physical names in the task's group, the positions as the controller's
+/// monitor voltages (10 um per volt), the probe at 2.5 um per volt; in segments of a second,
+/// as a logger streams them.
+const TDMS_WRITER: &str = r#"
+import csv, json, sys
+import numpy as np
+from nptdms import TdmsWriter, ChannelObject
+src, out = sys.argv[1], sys.argv[2]
+m = json.load(open(src + "/manifest.json"))
+fs = int(m["sample_rate_hz"])
+pause = fs // 2
+cols = [[], [], [], []]
+def rest():
+    for c in cols:
+        c.extend([0.0] * pause)
+for g in m["groups"]:
+    rest()
+    with open(src + "/" + g["file"]) as gf:
+        for r in csv.DictReader(gf):
+            for c, key in zip(cols, ["z_cmd_um", "z_enc_um", "z_tcp_um", "acc_mps2"]):
+                c.append(float(r[key]))
+rest()
+scaled = [np.array(cols[0]) / 10.0, np.array(cols[1]) / 10.0, np.array(cols[2]) / 2.5, np.array(cols[3])]
+names = ["Dev1/ai0", "Dev1/ai1", "Dev1/ai2", "Dev1/ai3"]
+with TdmsWriter(out) as w:
+    for start in range(0, len(cols[0]), fs):
+        w.write_segment([ChannelObject("STS task", n, v[start:start + fs]) for n, v in zip(names, scaled)])
+"#;
+
+#[test]
+fn an_ni_daq_log_in_tdms_comes_back_as_the_same_dataset() {
+    let dir = Dir::new("import-tdms");
+    let src = dir.0.join("original");
+    let data = original(&src);
+    let tdms = dir.0.join("daq.tdms");
+    let py = Command::new("python3").args(["-c", TDMS_WRITER, path(&src), path(&tdms)]).output().expect("python3 runs");
+    assert!(
+        py.status.success(),
+        "python3 with npTDMS (scripts/setup.sh installs it): {}",
+        String::from_utf8_lossy(&py.stderr)
+    );
+    let lsb = data.manifest.acc_mps2_per_lsb.expect("the emulator states its ADC scale");
+    let map = format!(
+        "sample_rate_hz = 8000\nacc_mps2_per_lsb = {lsb:?}\n[channels]\n\
+         command = {{ name = \"STS task/Dev1/ai0\", unit = \"V\", scale = 10.0 }}\n\
+         encoder = {{ name = \"STS task/Dev1/ai1\", unit = \"V\", scale = 10.0 }}\n\
+         probe = {{ name = \"STS task/Dev1/ai2\", unit = \"V\", scale = 2.5 }}\n\
+         accelerometer = {{ name = \"STS task/Dev1/ai3\", unit = \"m/s^2\" }}\n"
+    );
+    std::fs::write(dir.0.join("map.toml"), &map).unwrap();
+    let out_dir = dir.0.join("imported");
+    let out =
+        sts_twin(&["import", path(&tdms), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let back = sts_dataset::read(&out_dir).unwrap();
+    assert_eq!(back.groups.len(), data.groups.len());
+    for (a, b) in data.manifest.groups.iter().zip(&back.manifest.groups) {
+        assert_eq!((a.freq_hz, a.amp_um), (b.freq_hz, b.amp_um));
+        assert!(
+            std::fs::read(src.join(&a.file)).unwrap() == std::fs::read(out_dir.join(&b.file)).unwrap(),
+            "{}",
+            b.file
+        );
+    }
+    // A channel the task did not log, and a file cut in its last segment.
+    std::fs::write(dir.0.join("bad.toml"), map.replace("Dev1/ai3", "Dev1/ai7")).unwrap();
+    let out =
+        sts_twin(&["import", path(&tdms), "--out", path(&out_dir), "--map", path(&dir.0.join("bad.toml")), "--quiet"]);
+    assert!(
+        !out.status.success()
+            && stderr(&out).contains("`STS task/Dev1/ai7`")
+            && stderr(&out).contains("STS task/Dev1/ai0"),
+        "{}",
+        stderr(&out)
+    );
+    let bytes = std::fs::read(&tdms).unwrap();
+    let cut = dir.0.join("cut.tdms");
+    std::fs::write(&cut, &bytes[..bytes.len() - 1000]).unwrap();
+    let out =
+        sts_twin(&["import", path(&cut), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
+    assert!(
+        !out.status.success() && stderr(&out).contains("cut.tdms") && stderr(&out).contains("truncated"),
+        "{}",
+        stderr(&out)
+    );
+}
+
 #[test]
 fn bad_recordings_and_mappings_are_refused_with_the_file_and_the_row_channel_or_field() {
     let dir = Dir::new("import-errors");
@@ -319,10 +407,10 @@ fn bad_recordings_and_mappings_are_refused_with_the_file_and_the_row_channel_or_
     );
     assert!(err.contains("schedule[0] and schedule[1]") && err.contains("overlap"), "{err}");
     // A format this importer does not read yet.
-    let tdms = dir.0.join("log.tdms");
-    std::fs::write(&tdms, b"TDSm").unwrap();
-    let err = import(&tdms, MAP);
-    assert!(err.contains("log.tdms") && err.contains(".tdms") && err.contains(".csv"), "{err}");
+    let h5 = dir.0.join("log.h5");
+    std::fs::write(&h5, b"\x89HDF\r\n").unwrap();
+    let err = import(&h5, MAP);
+    assert!(err.contains("log.h5") && err.contains(".h5") && err.contains(".tdms"), "{err}");
 }
 
 #[test]

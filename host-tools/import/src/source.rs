@@ -1,7 +1,7 @@
 //! A recording's mapped channels, row by row, in canonical units: CSV or TSV read record by
-//! record (any length in bounded memory), or a MATLAB v5 MAT-file's variables (the `matfile`
-//! crate; the format compresses each variable as one stream, so the mapped variables are held
-//! whole).
+//! record, an NI TDMS file's channels read in chunks (the `tdms-rs` crate), both in bounded
+//! memory whatever the length; or a MATLAB v5 MAT-file's variables (the `matfile` crate; the
+//! format compresses each variable as one stream, so the mapped variables are held whole).
 
 use std::io::BufReader;
 use std::path::Path;
@@ -45,10 +45,28 @@ pub enum Source {
         /// Per mapped channel, its values.
         columns: Vec<Vec<f64>>,
     },
+    /// An NI TDMS file, read a chunk of samples at a time.
+    Tdms {
+        /// The file (its metadata indexed, the data read on demand).
+        file: Box<tdms_rs::TdmsFile>,
+        /// Per mapped channel: its group and channel names.
+        names: Vec<(String, String)>,
+        /// Samples per channel.
+        len: usize,
+        /// The current chunk's first sample.
+        chunk_start: usize,
+        /// Per mapped channel, the chunk's values in canonical units.
+        chunk: Vec<Vec<f64>>,
+        /// The file's size, bytes.
+        bytes_len: u64,
+    },
 }
 
+/// Samples per channel read from a TDMS file at a time.
+const TDMS_CHUNK: usize = 1 << 16;
+
 /// The extensions read.
-pub const READ: &str = "CSV and TSV (.csv, .tsv, .txt), MATLAB v5 and v7 (.mat)";
+pub const READ: &str = "CSV and TSV (.csv, .tsv, .txt), MATLAB v5 and v7 (.mat), NI TDMS (.tdms)";
 
 fn delimiter(path: &Path, first_line: &str) -> u8 {
     let tsv = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("tsv"));
@@ -68,6 +86,7 @@ impl Source {
         match ext.as_str() {
             "csv" | "tsv" | "txt" => Self::open_csv(path, resolved),
             "mat" => Self::open_mat(path, resolved),
+            "tdms" => Self::open_tdms(path, resolved),
             _ => Err(ImportError::Format { path: path.to_path_buf(), extension: ext }),
         }
     }
@@ -161,6 +180,52 @@ impl Source {
         Ok(Source::Mat { columns })
     }
 
+    fn open_tdms(path: &Path, resolved: &[Resolved]) -> Result<Self, ImportError> {
+        let unreadable = |message: String| ImportError::Unreadable { path: path.to_path_buf(), message };
+        let bytes_len =
+            std::fs::metadata(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?.len();
+        tdms_segments_complete(path, bytes_len).map_err(unreadable)?;
+        let file = tdms_rs::TdmsFile::open(path).map_err(|e| unreadable(format!("not a TDMS file: {e}")))?;
+        let available = || {
+            file.groups()
+                .flat_map(|g| {
+                    g.channels().map(move |c| format!("{}/{} [{}]", g.name(), c.name(), c.len())).collect::<Vec<_>>()
+                })
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let mut names = Vec::new();
+        let mut lengths = Vec::new();
+        for r in resolved {
+            // `group/channel`: the group's name up to the first `/` (a DAQmx channel's own name,
+            // `Dev1/ai0`, keeps its `/`).
+            let found = r.channel.name.split_once('/').and_then(|(g, c)| {
+                file.group(g).and_then(|group| group.channel(c)).map(|ch| ((g.to_string(), c.to_string()), ch.len()))
+            });
+            let ((g, c), len) = found.ok_or_else(|| ImportError::MissingChannel {
+                path: path.to_path_buf(),
+                role: r.role,
+                name: r.channel.name.clone(),
+                available: available(),
+            })?;
+            names.push((g, c));
+            lengths.push(len);
+        }
+        if lengths.windows(2).any(|w| w[0] != w[1]) {
+            return Err(unreadable(format!(
+                "the mapped channels differ in length ({}): one sample per row is needed",
+                resolved
+                    .iter()
+                    .zip(&lengths)
+                    .map(|(r, n)| format!("{} {n}", r.channel.name))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )));
+        }
+        let len = lengths.first().copied().unwrap_or(0);
+        Ok(Source::Tdms { file: Box::new(file), names, len, chunk_start: 0, chunk: Vec::new(), bytes_len })
+    }
+
     /// The `k`-th row's mapped values in canonical units (in the mapping's channel order), or
     /// `None` at the end.
     pub fn next(&mut self, path: &Path, k: u64, resolved: &[Resolved]) -> Result<Option<Vec<f64>>, ImportError> {
@@ -214,6 +279,47 @@ impl Source {
                 }
                 Ok(Some(values))
             }
+            Source::Tdms { file, names, len, chunk_start, chunk, .. } => {
+                let k = k as usize;
+                if k >= *len {
+                    return Ok(None);
+                }
+                if chunk.is_empty() || k >= *chunk_start + chunk[0].len() {
+                    let range = k..(k + TDMS_CHUNK).min(*len);
+                    *chunk_start = k;
+                    *chunk = names
+                        .iter()
+                        .zip(resolved)
+                        .map(|((g, c), r)| {
+                            let channel = file.group(g).and_then(|group| group.channel(c)).ok_or_else(|| {
+                                ImportError::Unreadable {
+                                    path: path.to_path_buf(),
+                                    message: format!("channel {g}/{c} vanished"),
+                                }
+                            })?;
+                            read_tdms(&channel, range.clone())
+                                .map(|v| v.into_iter().map(|x| r.convert(x)).collect())
+                                .map_err(|message| ImportError::Value {
+                                    path: path.to_path_buf(),
+                                    at: At::Sample(range.start as u64 + 1),
+                                    channel: r.channel.name.clone(),
+                                    message,
+                                })
+                        })
+                        .collect::<Result<_, _>>()?;
+                }
+                let i = k - *chunk_start;
+                let values: Vec<f64> = chunk.iter().map(|c| c[i]).collect();
+                if let Some((r, _)) = resolved.iter().zip(&values).find(|(_, v)| !v.is_finite()) {
+                    return Err(ImportError::Value {
+                        path: path.to_path_buf(),
+                        at: At::Sample(k as u64 + 1),
+                        channel: r.channel.name.clone(),
+                        message: "not a finite number (NaN or infinite)".into(),
+                    });
+                }
+                Ok(Some(values))
+            }
         }
     }
 
@@ -221,15 +327,19 @@ impl Source {
     pub fn at(&self, k: u64) -> At {
         match self {
             Source::Csv { .. } => At::Line(k + 2),
-            Source::Mat { .. } => At::Sample(k + 1),
+            Source::Mat { .. } | Source::Tdms { .. } => At::Sample(k + 1),
         }
     }
 
-    /// Bytes read so far (CSV; a MAT-file is read whole on opening).
+    /// Bytes read so far (a MAT-file is read whole on opening).
     pub fn bytes_read(&self) -> u64 {
         match self {
             Source::Csv { reader, .. } => reader.position().byte(),
             Source::Mat { .. } => 0,
+            // The file's share read, as the samples' share.
+            Source::Tdms { len, chunk_start, bytes_len, .. } => {
+                (*chunk_start as f64 / (*len).max(1) as f64 * *bytes_len as f64) as u64
+            }
         }
     }
 }
@@ -273,6 +383,65 @@ fn mat_elements_complete(bytes: &[u8]) -> Result<(), String> {
         }
         at = next;
         element += 1;
+    }
+    Ok(())
+}
+
+/// A TDMS channel's samples in `range` as f64, whatever its numeric type.
+fn read_tdms(channel: &tdms_rs::TdmsChannel, range: std::ops::Range<usize>) -> Result<Vec<f64>, String> {
+    use tdms_rs::DataType as T;
+    fn read<P: tdms_rs::api::reader::Pod + Default + Copy>(
+        channel: &tdms_rs::TdmsChannel,
+        range: std::ops::Range<usize>,
+        to_f64: impl Fn(P) -> f64,
+    ) -> Result<Vec<f64>, String> {
+        let mut buf = vec![P::default(); range.len()];
+        channel.read(range, &mut buf).map_err(|e| e.to_string())?;
+        Ok(buf.into_iter().map(to_f64).collect())
+    }
+    match channel.dtype() {
+        T::Double => read(channel, range, |v: f64| v),
+        T::Float => read(channel, range, |v: f32| f64::from(v)),
+        T::I8 => read(channel, range, |v: i8| f64::from(v)),
+        T::I16 => read(channel, range, |v: i16| f64::from(v)),
+        T::I32 => read(channel, range, |v: i32| f64::from(v)),
+        T::I64 => read(channel, range, |v: i64| v as f64),
+        T::U8 => read(channel, range, |v: u8| f64::from(v)),
+        T::U16 => read(channel, range, |v: u16| f64::from(v)),
+        T::U32 => read(channel, range, |v: u32| f64::from(v)),
+        T::U64 => read(channel, range, |v: u64| v as f64),
+        other => Err(format!("a channel of {other:?} values, not numbers")),
+    }
+}
+
+/// Whether every segment of a TDMS file is complete: the reader stops quietly at a cut
+/// segment, so a truncated file would look like a shorter recording. Walks the segments'
+/// lead-ins (`TDSm`, the table of contents, the version, the next segment's offset).
+fn tdms_segments_complete(path: &Path, len: u64) -> Result<(), String> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut file = std::fs::File::open(path).map_err(|e| e.to_string())?;
+    let (mut at, mut segment) = (0u64, 0usize);
+    while at < len {
+        let mut lead = [0u8; 28];
+        if at + 28 > len {
+            return Err(format!("truncated: segment {segment} at byte {at} has no complete lead-in"));
+        }
+        file.seek(SeekFrom::Start(at)).and_then(|_| file.read_exact(&mut lead)).map_err(|e| e.to_string())?;
+        if &lead[..4] != b"TDSm" {
+            return Err(format!("not a TDMS file: no `TDSm` tag at byte {at} (segment {segment})"));
+        }
+        let toc = u32::from_le_bytes(lead[4..8].try_into().unwrap_or([0; 4]));
+        let word: [u8; 8] = lead[12..20].try_into().unwrap_or([0; 8]);
+        let next = if toc & (1 << 6) != 0 { u64::from_be_bytes(word) } else { u64::from_le_bytes(word) };
+        let end = at.saturating_add(28).saturating_add(next);
+        if next == u64::MAX || end > len {
+            return Err(format!(
+                "truncated: segment {segment} at byte {at} announces {next} bytes, the file has {} after its lead-in",
+                len - at - 28
+            ));
+        }
+        at = end;
+        segment += 1;
     }
     Ok(())
 }

@@ -348,6 +348,102 @@ fn an_ni_daq_log_in_tdms_comes_back_as_the_same_dataset() {
     );
 }
 
+/// The recording in HDF5, written by h5py: plain (a group `log`, the time in seconds, the Z
+/// signals as a matrix with a row per sample, in mm, chunked and compressed) or as MATLAB
+/// writes a MAT-file v7.3 (a 512-byte user block with MATLAB's header, each variable stored
+/// transposed with its `MATLAB_class`).
+const HDF5_WRITER: &str = r#"
+import csv, json, sys
+import numpy as np
+import h5py
+src, out, matlab = sys.argv[1], sys.argv[2], sys.argv[3] == "1"
+m = json.load(open(src + "/manifest.json"))
+fs = m["sample_rate_hz"]
+pause = int(0.5 * fs)
+cols = [[], [], [], []]
+def rest():
+    for c in cols:
+        c.extend([0.0] * pause)
+for g in m["groups"]:
+    rest()
+    with open(src + "/" + g["file"]) as gf:
+        for r in csv.DictReader(gf):
+            for c, key in zip(cols, ["z_cmd_um", "z_enc_um", "z_tcp_um", "acc_mps2"]):
+                c.append(float(r[key]))
+rest()
+n = len(cols[0])
+t = np.arange(n) / fs
+z = np.column_stack([np.array(c) / 1000.0 for c in cols[:3]])
+acc = np.array(cols[3])
+if matlab:
+    with h5py.File(out, "w", userblock_size=512) as f:
+        for name, v in [("tout", t.reshape(n, 1)), ("Z", z), ("acc", acc.reshape(n, 1))]:
+            d = f.create_dataset(name, data=v.T)
+            d.attrs["MATLAB_class"] = np.bytes_("double")
+    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Fri Nov 27 12:00:00 2026 HDF5 schema 1.00 ."
+    with open(out, "r+b") as f:
+        f.write(header.ljust(116) + b"\0" * 8 + b"\x00\x02IM")
+else:
+    with h5py.File(out, "w") as f:
+        g = f.create_group("log")
+        g.create_dataset("time", data=t, chunks=(4096,), compression="gzip")
+        g.create_dataset("z", data=z, chunks=(4096, 3), compression="gzip")
+        g.create_dataset("acc", data=acc, chunks=(4096,), compression="gzip")
+"#;
+
+#[test]
+fn hdf5_and_mat_v7_3_recordings_come_back_as_the_same_dataset() {
+    let dir = Dir::new("import-hdf5");
+    let src = dir.0.join("original");
+    let data = original(&src);
+    let lsb = data.manifest.acc_mps2_per_lsb.expect("the emulator states its ADC scale");
+    for (file, matlab, map) in [
+        (
+            "log.h5",
+            false,
+            "[channels]\ntime = { name = \"log/time\", unit = \"s\" }\ncommand = { name = \"log/z[1]\", unit = \"mm\" }\n\
+             encoder = { name = \"log/z[2]\", unit = \"mm\" }\nprobe = { name = \"log/z[3]\", unit = \"mm\" }\n\
+             accelerometer = { name = \"log/acc\", unit = \"m/s^2\" }\n",
+        ),
+        (
+            "speedgoat73.mat",
+            true,
+            "[channels]\ntime = { name = \"tout\", unit = \"s\" }\ncommand = { name = \"Z[1]\", unit = \"mm\" }\n\
+             encoder = { name = \"Z[2]\", unit = \"mm\" }\nprobe = { name = \"Z[3]\", unit = \"mm\" }\n\
+             accelerometer = { name = \"acc\", unit = \"m/s^2\" }\n",
+        ),
+    ] {
+        let recording = dir.0.join(file);
+        let py = Command::new("python3")
+            .args(["-c", HDF5_WRITER, path(&src), path(&recording), if matlab { "1" } else { "0" }])
+            .output()
+            .expect("python3 runs");
+        assert!(py.status.success(), "python3 with h5py (scripts/setup.sh installs it): {}", String::from_utf8_lossy(&py.stderr));
+        let map = format!("acc_mps2_per_lsb = {lsb:?}\n{map}");
+        std::fs::write(dir.0.join("map.toml"), &map).unwrap();
+        let out_dir = dir.0.join(format!("imported-{file}"));
+        let out = sts_twin(&["import", path(&recording), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
+        assert!(out.status.success(), "{file}: {}", stderr(&out));
+        let back = sts_dataset::read(&out_dir).unwrap();
+        assert_eq!(back.groups.len(), data.groups.len(), "{file}");
+        for (a, b) in data.manifest.groups.iter().zip(&back.manifest.groups) {
+            assert_eq!((a.freq_hz, a.amp_um), (b.freq_hz, b.amp_um), "{file}");
+            assert!(std::fs::read(src.join(&a.file)).unwrap() == std::fs::read(out_dir.join(&b.file)).unwrap(), "{file}: {}", b.file);
+        }
+        // A dataset the file lacks is named, with what it has.
+        std::fs::write(dir.0.join("bad.toml"), map.replace("acc\"", "acc_x\"")).unwrap();
+        let out = sts_twin(&["import", path(&recording), "--out", path(&out_dir), "--map", path(&dir.0.join("bad.toml")), "--quiet"]);
+        assert!(!out.status.success() && stderr(&out).contains("acc_x`") && stderr(&out).contains(file), "{}", stderr(&out));
+        // A file cut in two.
+        let bytes = std::fs::read(&recording).unwrap();
+        let cut = dir.0.join(format!("cut-{file}"));
+        std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+        let out = sts_twin(&["import", path(&cut), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
+        assert!(!out.status.success() && stderr(&out).contains("cut-") && stderr(&out).contains("truncated"), "{}", stderr(&out));
+        println!("{file}, cut: {}", stderr(&out).trim());
+    }
+}
+
 #[test]
 fn bad_recordings_and_mappings_are_refused_with_the_file_and_the_row_channel_or_field() {
     let dir = Dir::new("import-errors");
@@ -407,10 +503,10 @@ fn bad_recordings_and_mappings_are_refused_with_the_file_and_the_row_channel_or_
     );
     assert!(err.contains("schedule[0] and schedule[1]") && err.contains("overlap"), "{err}");
     // A format this importer does not read yet.
-    let h5 = dir.0.join("log.h5");
-    std::fs::write(&h5, b"\x89HDF\r\n").unwrap();
-    let err = import(&h5, MAP);
-    assert!(err.contains("log.h5") && err.contains(".h5") && err.contains(".tdms"), "{err}");
+    let parquet = dir.0.join("log.parquet");
+    std::fs::write(&parquet, b"PAR1").unwrap();
+    let err = import(&parquet, MAP);
+    assert!(err.contains("log.parquet") && err.contains(".parquet") && err.contains(".tdms"), "{err}");
 }
 
 #[test]

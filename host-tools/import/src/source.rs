@@ -1,7 +1,9 @@
 //! A recording's mapped channels, row by row, in canonical units: CSV or TSV read record by
-//! record, an NI TDMS file's channels read in chunks (the `tdms-rs` crate), both in bounded
-//! memory whatever the length; or a MATLAB v5 MAT-file's variables (the `matfile` crate; the
-//! format compresses each variable as one stream, so the mapped variables are held whole).
+//! record, an NI TDMS file's channels and an HDF5 file's datasets read in chunks (the
+//! `tdms-rs` and `hdf5-pure` crates), in bounded memory whatever the length; or a MATLAB
+//! MAT-file's variables, held whole: v5/v7 through the `matfile` crate (the format compresses
+//! each variable as one stream), v7.3 (HDF5 inside, a variable stored transposed) through
+//! `hdf5-pure`.
 
 use std::io::BufReader;
 use std::path::Path;
@@ -60,13 +62,37 @@ pub enum Source {
         /// The file's size, bytes.
         bytes_len: u64,
     },
+    /// An HDF5 file, read a chunk of rows at a time.
+    Hdf5 {
+        /// The mapped channels' datasets.
+        channels: Vec<Hdf5Channel>,
+        /// Samples per channel.
+        len: usize,
+        /// The current chunk's first sample.
+        chunk_start: usize,
+        /// Per mapped channel, the chunk's values in canonical units.
+        chunk: Vec<Vec<f64>>,
+        /// The file's size, bytes.
+        bytes_len: u64,
+    },
 }
 
-/// Samples per channel read from a TDMS file at a time.
+/// An HDF5 dataset a channel reads, and its column.
+pub struct Hdf5Channel {
+    /// The dataset.
+    dataset: hdf5_pure::Dataset,
+    /// Columns per row (1 for a 1-D dataset).
+    width: usize,
+    /// The column read, from 0.
+    col: usize,
+}
+
+/// Samples per channel read from a TDMS or HDF5 file at a time.
 const TDMS_CHUNK: usize = 1 << 16;
 
 /// The extensions read.
-pub const READ: &str = "CSV and TSV (.csv, .tsv, .txt), MATLAB v5 and v7 (.mat), NI TDMS (.tdms)";
+pub const READ: &str =
+    "CSV and TSV (.csv, .tsv, .txt), MATLAB v5, v7 and v7.3 (.mat), NI TDMS (.tdms), HDF5 (.h5, .hdf5)";
 
 fn delimiter(path: &Path, first_line: &str) -> u8 {
     let tsv = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("tsv"));
@@ -87,6 +113,7 @@ impl Source {
             "csv" | "tsv" | "txt" => Self::open_csv(path, resolved),
             "mat" => Self::open_mat(path, resolved),
             "tdms" => Self::open_tdms(path, resolved),
+            "h5" | "hdf5" => Self::open_hdf5(path, resolved, false),
             _ => Err(ImportError::Format { path: path.to_path_buf(), extension: ext }),
         }
     }
@@ -122,12 +149,7 @@ impl Source {
         let bytes = std::fs::read(path).map_err(io)?;
         let head = String::from_utf8_lossy(&bytes[..bytes.len().min(116)]).into_owned();
         if head.starts_with("MATLAB 7.3") {
-            return Err(ImportError::Unreadable {
-                path: path.to_path_buf(),
-                message:
-                    "a MAT-file v7.3 (HDF5 inside) is not read yet: save it with `save(..., '-v7')` or export it to CSV"
-                        .into(),
-            });
+            return Self::open_hdf5(path, resolved, true);
         }
         if let Err(message) = mat_elements_complete(&bytes) {
             return Err(ImportError::Unreadable { path: path.to_path_buf(), message });
@@ -140,11 +162,7 @@ impl Source {
             || mat.arrays().iter().map(|a| format!("{} {:?}", a.name(), a.size())).collect::<Vec<_>>().join(", ");
         let mut columns = Vec::new();
         for r in resolved {
-            // `name` or `name[col]`, a 1-based column of a matrix with a row per sample.
-            let (var, col) = match r.channel.name.strip_suffix(']').and_then(|s| s.split_once('[')) {
-                Some((v, c)) => (v, c.trim().parse::<usize>().ok().filter(|c| *c >= 1)),
-                None => (r.channel.name.as_str(), Some(1)),
-            };
+            let (var, col) = channel_column(&r.channel.name);
             let missing = || ImportError::MissingChannel {
                 path: path.to_path_buf(),
                 role: r.role,
@@ -178,6 +196,82 @@ impl Source {
             });
         }
         Ok(Source::Mat { columns })
+    }
+
+    /// An HDF5 file, or a MAT-file v7.3 (`matlab`: a variable of MATLAB's N x k is stored as
+    /// k x N, so a column is a row of the dataset, and is read whole).
+    fn open_hdf5(path: &Path, resolved: &[Resolved], matlab: bool) -> Result<Self, ImportError> {
+        let unreadable = |message: String| ImportError::Unreadable { path: path.to_path_buf(), message };
+        let bytes_len =
+            std::fs::metadata(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?.len();
+        let file = hdf5_pure::File::open_streaming(path).map_err(|e| {
+            unreadable(format!("not an HDF5 file{}, or truncated: {e}", if matlab { " (MAT v7.3)" } else { "" }))
+        })?;
+        // The superblock states where the file ends: a file that stops short of it was cut,
+        // whatever the reader makes of the rest. (Writers with a user block, as MATLAB's, store
+        // it from the file's start; others from the superblock's: the smaller is the test, so
+        // a cut within the user block's length of the end may pass.)
+        let stated = file.superblock().eof_address;
+        let eof = stated.min(hdf5_superblock_at(path)?.saturating_add(stated));
+        if eof > bytes_len {
+            return Err(unreadable(format!(
+                "truncated: the HDF5 superblock says the file ends at byte {eof}, it has {bytes_len}"
+            )));
+        }
+        let available = || hdf5_datasets(&file).join(", ");
+        let mut channels = Vec::new();
+        let mut columns = Vec::new();
+        for r in resolved {
+            let (var, col) = channel_column(&r.channel.name);
+            let missing = || ImportError::MissingChannel {
+                path: path.to_path_buf(),
+                role: r.role,
+                name: r.channel.name.clone(),
+                available: available(),
+            };
+            let dataset = file.dataset(var).map_err(|_| missing())?;
+            let shape = dataset.shape().map_err(|e| unreadable(format!("dataset {var}: {e}")))?;
+            let col = col.ok_or_else(missing)?;
+            let read_error = |e: hdf5_pure::Error| unreadable(format!("dataset {var}: {e} (truncated?)"));
+            if matlab {
+                // MATLAB's N x k is the dataset's k x N: column `col` is row `col - 1`.
+                let [k, _] = shape[..] else { return Err(missing()) };
+                if col as u64 > k {
+                    return Err(missing());
+                }
+                let values = dataset.read_f64_rows(col as u64 - 1, 1).map_err(read_error)?;
+                columns.push(values.into_iter().map(|v| r.convert(v)).collect::<Vec<f64>>());
+            } else {
+                let width = match shape[..] {
+                    [_] => 1,
+                    [_, k] => k as usize,
+                    _ => return Err(missing()),
+                };
+                if col > width {
+                    return Err(missing());
+                }
+                channels.push((shape[0] as usize, Hdf5Channel { dataset, width, col: col - 1 }));
+            }
+        }
+        let lengths: Vec<usize> =
+            if matlab { columns.iter().map(Vec::len).collect() } else { channels.iter().map(|(n, _)| *n).collect() };
+        if lengths.windows(2).any(|w| w[0] != w[1]) {
+            return Err(unreadable(format!(
+                "the mapped datasets differ in length ({}): one sample per row is needed",
+                resolved
+                    .iter()
+                    .zip(&lengths)
+                    .map(|(r, n)| format!("{} {n}", r.channel.name))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )));
+        }
+        if matlab {
+            return Ok(Source::Mat { columns });
+        }
+        let len = lengths.first().copied().unwrap_or(0);
+        let channels = channels.into_iter().map(|(_, c)| c).collect();
+        Ok(Source::Hdf5 { channels, len, chunk_start: 0, chunk: Vec::new(), bytes_len })
     }
 
     fn open_tdms(path: &Path, resolved: &[Resolved]) -> Result<Self, ImportError> {
@@ -308,17 +402,32 @@ impl Source {
                         })
                         .collect::<Result<_, _>>()?;
                 }
-                let i = k - *chunk_start;
-                let values: Vec<f64> = chunk.iter().map(|c| c[i]).collect();
-                if let Some((r, _)) = resolved.iter().zip(&values).find(|(_, v)| !v.is_finite()) {
-                    return Err(ImportError::Value {
-                        path: path.to_path_buf(),
-                        at: At::Sample(k as u64 + 1),
-                        channel: r.channel.name.clone(),
-                        message: "not a finite number (NaN or infinite)".into(),
-                    });
+                chunk_row(path, k, *chunk_start, chunk, resolved)
+            }
+            Source::Hdf5 { channels, len, chunk_start, chunk, .. } => {
+                let k = k as usize;
+                if k >= *len {
+                    return Ok(None);
                 }
-                Ok(Some(values))
+                if chunk.is_empty() || k >= *chunk_start + chunk[0].len() {
+                    let count = TDMS_CHUNK.min(*len - k);
+                    *chunk_start = k;
+                    *chunk = channels
+                        .iter()
+                        .zip(resolved)
+                        .map(|(c, r)| {
+                            let raw =
+                                c.dataset.read_f64_rows(k as u64, count as u64).map_err(|e| ImportError::Value {
+                                    path: path.to_path_buf(),
+                                    at: At::Sample(k as u64 + 1),
+                                    channel: r.channel.name.clone(),
+                                    message: format!("{e} (truncated?)"),
+                                })?;
+                            Ok(raw.iter().skip(c.col).step_by(c.width).map(|v| r.convert(*v)).collect())
+                        })
+                        .collect::<Result<_, ImportError>>()?;
+                }
+                chunk_row(path, k, *chunk_start, chunk, resolved)
             }
         }
     }
@@ -327,7 +436,7 @@ impl Source {
     pub fn at(&self, k: u64) -> At {
         match self {
             Source::Csv { .. } => At::Line(k + 2),
-            Source::Mat { .. } | Source::Tdms { .. } => At::Sample(k + 1),
+            Source::Mat { .. } | Source::Tdms { .. } | Source::Hdf5 { .. } => At::Sample(k + 1),
         }
     }
 
@@ -337,7 +446,7 @@ impl Source {
             Source::Csv { reader, .. } => reader.position().byte(),
             Source::Mat { .. } => 0,
             // The file's share read, as the samples' share.
-            Source::Tdms { len, chunk_start, bytes_len, .. } => {
+            Source::Tdms { len, chunk_start, bytes_len, .. } | Source::Hdf5 { len, chunk_start, bytes_len, .. } => {
                 (*chunk_start as f64 / (*len).max(1) as f64 * *bytes_len as f64) as u64
             }
         }
@@ -385,6 +494,77 @@ fn mat_elements_complete(bytes: &[u8]) -> Result<(), String> {
         element += 1;
     }
     Ok(())
+}
+
+/// `name` or `name[col]`: a variable (or dataset) and a 1-based column of a matrix with a row
+/// per sample (`None` for a column that is not a positive number).
+fn channel_column(name: &str) -> (&str, Option<usize>) {
+    match name.strip_suffix(']').and_then(|s| s.split_once('[')) {
+        Some((v, c)) => (v, c.trim().parse::<usize>().ok().filter(|c| *c >= 1)),
+        None => (name, Some(1)),
+    }
+}
+
+/// Row `k` of a chunk that starts at `chunk_start`, refused where a value is not finite.
+fn chunk_row(
+    path: &Path,
+    k: usize,
+    chunk_start: usize,
+    chunk: &[Vec<f64>],
+    resolved: &[Resolved],
+) -> Result<Option<Vec<f64>>, ImportError> {
+    let values: Vec<f64> = chunk.iter().map(|c| c[k - chunk_start]).collect();
+    if let Some((r, _)) = resolved.iter().zip(&values).find(|(_, v)| !v.is_finite()) {
+        return Err(ImportError::Value {
+            path: path.to_path_buf(),
+            at: At::Sample(k as u64 + 1),
+            channel: r.channel.name.clone(),
+            message: "not a finite number (NaN or infinite)".into(),
+        });
+    }
+    Ok(Some(values))
+}
+
+/// Where an HDF5 file's superblock starts (0, or past a user block: 512, 1024, ...), the base
+/// its addresses count from.
+fn hdf5_superblock_at(path: &Path) -> Result<u64, ImportError> {
+    use std::io::{Read, Seek, SeekFrom};
+    let io = |source| ImportError::Io { path: path.to_path_buf(), source };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
+    let mut at = 0u64;
+    while at + 8 <= len {
+        let mut signature = [0u8; 8];
+        file.seek(SeekFrom::Start(at)).and_then(|_| file.read_exact(&mut signature)).map_err(io)?;
+        if &signature == b"\x89HDF\r\n\x1a\n" {
+            return Ok(at);
+        }
+        at = if at == 0 { 512 } else { at * 2 };
+    }
+    Err(ImportError::Unreadable {
+        path: path.to_path_buf(),
+        message: "no HDF5 signature at byte 0, 512, 1024, ...".into(),
+    })
+}
+
+/// The datasets of an HDF5 file with their shapes, three groups deep, for errors.
+fn hdf5_datasets(file: &hdf5_pure::File) -> Vec<String> {
+    fn walk(group: &hdf5_pure::Group, prefix: &str, depth: usize, out: &mut Vec<String>) {
+        for name in group.datasets().unwrap_or_default() {
+            let shape = group.dataset(&name).and_then(|d| d.shape()).map(|s| format!("{s:?}")).unwrap_or_default();
+            out.push(format!("{prefix}{name} {shape}"));
+        }
+        if depth < 3 {
+            for name in group.groups().unwrap_or_default() {
+                if let Ok(g) = group.group(&name) {
+                    walk(&g, &format!("{prefix}{name}/"), depth + 1, out);
+                }
+            }
+        }
+    }
+    let mut out = Vec::new();
+    walk(&file.root(), "", 0, &mut out);
+    out
 }
 
 /// A TDMS channel's samples in `range` as f64, whatever its numeric type.

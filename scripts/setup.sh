@@ -35,15 +35,8 @@ for target in thumbv7em-none-eabihf riscv32imac-unknown-none-elf; do
     fi
 done
 
-# Independent tools for the tests: `export --to sympy` is checked by importing what it writes
-# (SymPy), and `import` by reading recordings that SciPy's `savemat`, npTDMS and h5py wrote.
-if ! command -v python3 >/dev/null; then
-    echo "error: python3 not found; install Python 3 (the export and import tests run it)" >&2
-    exit 1
+# Python and the packages the tests use (scripts/setup-python.sh); `STS_TWIN_PYTHON_LATER=1`
+# leaves them to the caller (scripts/test.sh installs them while the firmware builds).
+if [ "${STS_TWIN_PYTHON_LATER:-0}" != 1 ]; then
+    bash "$(dirname "$0")/setup-python.sh"
 fi
-for module in sympy scipy nptdms h5py; do
-    if ! python3 -c "import $module" 2>/dev/null; then
-        echo "setup: pip install $module"
-        python3 -m pip install --quiet --root-user-action=ignore "$module"
-    fi
-done

@@ -4,7 +4,11 @@
 # firmware in QEMU).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/setup.sh
+STS_TWIN_PYTHON_LATER=1 bash scripts/setup.sh
+# The Python packages download while the builds below use the cores.
+python_log=$(mktemp)
+bash scripts/setup-python.sh >"$python_log" 2>&1 &
+python_setup=$!
 
 export CARGO_TERM_COLOR=${CARGO_TERM_COLOR:-never}
 step() { printf '\n== %s (%s)\n' "$*" "$(date -u +%H:%M:%S)"; }
@@ -24,6 +28,12 @@ step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none
 cargo --locked xtask firmware --locked
 step "core library for RISC-V (riscv32imac-unknown-none-elf)"
 cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
+step "Python packages for the tests (installed in the background)"
+if ! wait "$python_setup"; then
+    cat "$python_log" >&2
+    exit 1
+fi
+cat "$python_log"
 step "tests: core, host tools, HIL"
 # The HIL harness finds the ELFs at these places by itself; named here to be explicit.
 STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \

@@ -25,20 +25,20 @@ fn stderr(out: &std::process::Output) -> String {
 
 /// The recording as a lab's logger writes it: time in ms, the command in mm, the encoder in
 /// nm, the probe in volts (2.5 um per volt), the accelerometer in g; half a second at rest
-/// before each group and after the last. `delimiter` and whether to write the time column.
+/// before each group and after the last.
 const WRITER: &str = r#"
 import csv, json, sys
-src, out, delim, with_time = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4] == "1"
+src, out = sys.argv[1], sys.argv[2]
 m = json.load(open(src + "/manifest.json"))
 fs = m["sample_rate_hz"]
 pause = int(0.5 * fs)
 k = 0
 with open(out, "w", newline="") as f:
-    w = csv.writer(f, delimiter="\t" if delim == "tab" else ",")
-    w.writerow((["Time [ms]"] if with_time else []) + ["Z setpoint", "Z encoder", "Cap probe", "Acc Z"])
+    w = csv.writer(f)
+    w.writerow(["Time [ms]", "Z setpoint", "Z encoder", "Cap probe", "Acc Z"])
     def row(cmd, enc, tcp, acc):
         global k
-        w.writerow(([repr(k * 1000.0 / fs)] if with_time else []) + [repr(cmd / 1000.0), repr(enc * 1000.0), repr(tcp / 2.5), repr(acc / 9.80665)])
+        w.writerow([repr(k * 1000.0 / fs), repr(cmd / 1000.0), repr(enc * 1000.0), repr(tcp / 2.5), repr(acc / 9.80665)])
         k += 1
     for g in m["groups"]:
         for _ in range(pause):
@@ -48,6 +48,27 @@ with open(out, "w", newline="") as f:
                 row(float(r["z_cmd_um"]), float(r["z_enc_um"]), float(r["z_tcp_um"]), float(r["acc_mps2"]))
     for _ in range(pause):
         row(0.0, 0.0, 0.0, 0.0)
+"#;
+
+/// The recording as a pandas user writes it: `DataFrame.to_csv` with a tab, no index, no time.
+const PANDAS_WRITER: &str = r#"
+import json, sys
+import pandas as pd
+src, out = sys.argv[1], sys.argv[2]
+m = json.load(open(src + "/manifest.json"))
+pause = int(0.5 * m["sample_rate_hz"])
+rest = pd.DataFrame({"z_cmd_um": [0.0] * pause, "z_enc_um": 0.0, "z_tcp_um": 0.0, "acc_mps2": 0.0})
+parts = []
+for g in m["groups"]:
+    parts += [rest, pd.read_csv(src + "/" + g["file"])[["z_cmd_um", "z_enc_um", "z_tcp_um", "acc_mps2"]]]
+parts.append(rest)
+d = pd.concat(parts, ignore_index=True)
+pd.DataFrame({
+    "zref_nm": d["z_cmd_um"] * 1000.0,
+    "zenc_um": d["z_enc_um"],
+    "cap_nm": d["z_tcp_um"] * 1000.0,
+    "acc_mm_s2": d["acc_mps2"] * 1000.0,
+}).to_csv(out, sep="\t", index=False)
 "#;
 
 const MAP: &str = r#"
@@ -94,11 +115,8 @@ fn original(dir: &Path) -> sts_dataset::Dataset {
     data
 }
 
-fn write_recording(src: &Path, out: &Path, delimiter: &str, with_time: bool) {
-    let py = Command::new("python3")
-        .args(["-c", WRITER, path(src), path(out), delimiter, if with_time { "1" } else { "0" }])
-        .output()
-        .expect("python3 runs");
+fn write_recording(src: &Path, out: &Path) {
+    let py = Command::new("python3").args(["-c", WRITER, path(src), path(out)]).output().expect("python3 runs");
     assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
 }
 
@@ -108,7 +126,7 @@ fn a_labs_recording_comes_back_as_the_same_dataset_and_the_same_twin() {
     let src = dir.0.join("original");
     let data = original(&src);
     let recording = dir.0.join("logger.csv");
-    write_recording(&src, &recording, "comma", true);
+    write_recording(&src, &recording);
     // The accelerometer's ADC scale, as the lab knows it from its co-processor.
     let lsb = data.manifest.acc_mps2_per_lsb.expect("the emulator states its ADC scale");
     std::fs::write(dir.0.join("map.toml"), format!("acc_mps2_per_lsb = {lsb:?}\n{MAP}")).unwrap();
@@ -154,11 +172,20 @@ fn a_labs_recording_comes_back_as_the_same_dataset_and_the_same_twin() {
     assert_eq!(m0.program_postcard_hex, m1.program_postcard_hex);
     assert_eq!(m0.validation.waveform_rms_um.to_bits(), m1.validation.waveform_rms_um.to_bits());
 
-    // A TSV without a time channel: the mapping gives the sample rate.
+    // A TSV written by pandas without a time channel (the mapping gives the sample rate), in
+    // other units again: the command and probe in nm, the accelerometer in mm/s^2.
     let tsv = dir.0.join("logger.tsv");
-    write_recording(&src, &tsv, "tab", false);
-    let no_time = MAP.replace("time = { name = \"Time [ms]\", unit = \"ms\" }\n", "");
-    std::fs::write(dir.0.join("no-time.toml"), format!("sample_rate_hz = 8000\n{no_time}")).unwrap();
+    let py =
+        Command::new("python3").args(["-c", PANDAS_WRITER, path(&src), path(&tsv)]).output().expect("python3 runs");
+    assert!(
+        py.status.success(),
+        "python3 with pandas (scripts/setup.sh installs it): {}",
+        String::from_utf8_lossy(&py.stderr)
+    );
+    let pandas_map = "sample_rate_hz = 8000\n[channels]\ncommand = { name = \"zref_nm\", unit = \"nm\" }\n\
+                      encoder = { name = \"zenc_um\", unit = \"um\" }\nprobe = { name = \"cap_nm\", unit = \"nm\" }\n\
+                      accelerometer = { name = \"acc_mm_s2\", unit = \"mm/s^2\" }\n";
+    std::fs::write(dir.0.join("no-time.toml"), pandas_map).unwrap();
     let imported_tsv = dir.0.join("imported-tsv");
     let out = sts_twin(&[
         "import",
@@ -450,7 +477,7 @@ fn bad_recordings_and_mappings_are_refused_with_the_file_and_the_row_channel_or_
     let src = dir.0.join("original");
     original(&src);
     let recording = dir.0.join("logger.csv");
-    write_recording(&src, &recording, "comma", true);
+    write_recording(&src, &recording);
     let import = |rec: &Path, map_text: &str| {
         let map = dir.0.join("map.toml");
         std::fs::write(&map, map_text).unwrap();
@@ -515,7 +542,7 @@ fn a_schedule_cuts_the_groups_at_its_times() {
     let src = dir.0.join("original");
     let data = original(&src);
     let recording = dir.0.join("logger.csv");
-    write_recording(&src, &recording, "comma", true);
+    write_recording(&src, &recording);
     // The first two groups by their times in the recording (each after 0.5 s at rest).
     let d = 5.5;
     let map = format!(

@@ -50,24 +50,63 @@ with open(out, "w", newline="") as f:
         row(0.0, 0.0, 0.0, 0.0)
 "#;
 
-/// The recording as a pandas user writes it: `DataFrame.to_csv` with a tab, no index, no time.
-const PANDAS_WRITER: &str = r#"
-import json, sys
-import pandas as pd
+/// What every writer below starts from: the original dataset's groups as one recording, half a
+/// second at rest before each group and after the last: `fs`, `n` and the columns `cols` (the
+/// command, encoder, probe and accelerometer in the dataset's units), numpy arrays.
+const RECORDING: &str = r#"
+import csv, json, sys
+import numpy as np
 src, out = sys.argv[1], sys.argv[2]
 m = json.load(open(src + "/manifest.json"))
-pause = int(0.5 * m["sample_rate_hz"])
-rest = pd.DataFrame({"z_cmd_um": [0.0] * pause, "z_enc_um": 0.0, "z_tcp_um": 0.0, "acc_mps2": 0.0})
-parts = []
+fs = m["sample_rate_hz"]
+pause = int(0.5 * fs)
+lists = [[], [], [], []]
 for g in m["groups"]:
-    parts += [rest, pd.read_csv(src + "/" + g["file"])[["z_cmd_um", "z_enc_um", "z_tcp_um", "acc_mps2"]]]
-parts.append(rest)
-d = pd.concat(parts, ignore_index=True)
+    for c in lists:
+        c.extend([0.0] * pause)
+    with open(src + "/" + g["file"]) as gf:
+        for r in csv.DictReader(gf):
+            for c, key in zip(lists, ["z_cmd_um", "z_enc_um", "z_tcp_um", "acc_mps2"]):
+                c.append(float(r[key]))
+for c in lists:
+    c.extend([0.0] * pause)
+cols = [np.array(c) for c in lists]
+n = len(cols[0])
+"#;
+
+/// Runs `RECORDING` then `writer` with Python: the recording of the dataset in `src` to `out`
+/// (`extra`: more arguments); `needs` names the package setup installs, for the message.
+fn write_with(writer: &str, needs: &str, src: &Path, out: &Path, extra: &[&str]) {
+    let script = format!("{RECORDING}{writer}");
+    let py =
+        Command::new("python3").args(["-c", &script, path(src), path(out)]).args(extra).output().expect("python3 runs");
+    assert!(
+        py.status.success(),
+        "python3 with {needs} (scripts/setup-python.sh installs it): {}",
+        String::from_utf8_lossy(&py.stderr)
+    );
+}
+
+/// Every group file of the import equals the original's, byte for byte, with the same
+/// frequency and stroke.
+fn assert_same_groups(what: &str, original: &sts_dataset::Manifest, src: &Path, imported: &Path) {
+    let back = sts_dataset::read(imported).unwrap_or_else(|e| panic!("{what}: the import reads: {e}"));
+    assert_eq!(back.manifest.groups.len(), original.groups.len(), "{what}");
+    for (a, b) in original.groups.iter().zip(&back.manifest.groups) {
+        assert_eq!((a.freq_hz, a.amp_um), (b.freq_hz, b.amp_um), "{what}: {}", b.file);
+        let same = std::fs::read(src.join(&a.file)).unwrap() == std::fs::read(imported.join(&b.file)).unwrap();
+        assert!(same, "{what}: {} differs from the original", b.file);
+    }
+}
+
+/// The recording as a pandas user writes it: `DataFrame.to_csv` with a tab, no index, no time.
+const PANDAS_WRITER: &str = r#"
+import pandas as pd
 pd.DataFrame({
-    "zref_nm": d["z_cmd_um"] * 1000.0,
-    "zenc_um": d["z_enc_um"],
-    "cap_nm": d["z_tcp_um"] * 1000.0,
-    "acc_mm_s2": d["acc_mps2"] * 1000.0,
+    "zref_nm": cols[0] * 1000.0,
+    "zenc_um": cols[1],
+    "cap_nm": cols[2] * 1000.0,
+    "acc_mm_s2": cols[3] * 1000.0,
 }).to_csv(out, sep="\t", index=False)
 "#;
 
@@ -175,13 +214,7 @@ fn a_labs_recording_comes_back_as_the_same_dataset_and_the_same_twin() {
     // A TSV written by pandas without a time channel (the mapping gives the sample rate), in
     // other units again: the command and probe in nm, the accelerometer in mm/s^2.
     let tsv = dir.0.join("logger.tsv");
-    let py =
-        Command::new("python3").args(["-c", PANDAS_WRITER, path(&src), path(&tsv)]).output().expect("python3 runs");
-    assert!(
-        py.status.success(),
-        "python3 with pandas (scripts/setup.sh installs it): {}",
-        String::from_utf8_lossy(&py.stderr)
-    );
+    write_with(PANDAS_WRITER, "pandas", &src, &tsv, &[]);
     let pandas_map = "sample_rate_hz = 8000\n[channels]\ncommand = { name = \"zref_nm\", unit = \"nm\" }\n\
                       encoder = { name = \"zenc_um\", unit = \"um\" }\nprobe = { name = \"cap_nm\", unit = \"nm\" }\n\
                       accelerometer = { name = \"acc_mm_s2\", unit = \"mm/s^2\" }\n";
@@ -210,27 +243,9 @@ fn a_labs_recording_comes_back_as_the_same_dataset_and_the_same_twin() {
 /// the time in seconds as its own variable, the Z signals as the columns of one matrix (mm,
 /// mm, volts), the accelerometer in g.
 const MAT_WRITER: &str = r#"
-import csv, json, sys
-import numpy as np
 from scipy.io import savemat
-src, out = sys.argv[1], sys.argv[2]
-m = json.load(open(src + "/manifest.json"))
-fs = m["sample_rate_hz"]
-pause = int(0.5 * fs)
-cols = [[], [], [], []]
-def rest():
-    for c in cols:
-        c.extend([0.0] * pause)
-for g in m["groups"]:
-    rest()
-    with open(src + "/" + g["file"]) as gf:
-        for r in csv.DictReader(gf):
-            for c, key in zip(cols, ["z_cmd_um", "z_enc_um", "z_tcp_um", "acc_mps2"]):
-                c.append(float(r[key]))
-rest()
-n = len(cols[0])
-z = np.column_stack([np.array(cols[0]) / 1000.0, np.array(cols[1]) / 1000.0, np.array(cols[2]) / 2.5])
-savemat(out, {"tout": np.arange(n) / fs, "Z": z, "acc_g": np.array(cols[3]) / 9.80665}, oned_as="column", do_compression=True)
+z = np.column_stack([cols[0] / 1000.0, cols[1] / 1000.0, cols[2] / 2.5])
+savemat(out, {"tout": np.arange(n) / fs, "Z": z, "acc_g": cols[3] / 9.80665}, oned_as="column", do_compression=True)
 "#;
 
 #[test]
@@ -239,12 +254,7 @@ fn a_simulink_log_saved_as_a_mat_file_comes_back_as_the_same_dataset() {
     let src = dir.0.join("original");
     let data = original(&src);
     let mat = dir.0.join("speedgoat.mat");
-    let py = Command::new("python3").args(["-c", MAT_WRITER, path(&src), path(&mat)]).output().expect("python3 runs");
-    assert!(
-        py.status.success(),
-        "python3 with scipy (scripts/setup.sh installs it): {}",
-        String::from_utf8_lossy(&py.stderr)
-    );
+    write_with(MAT_WRITER, "SciPy", &src, &mat, &[]);
     let lsb = data.manifest.acc_mps2_per_lsb.expect("the emulator states its ADC scale");
     let map = format!(
         "acc_mps2_per_lsb = {lsb:?}\n[channels]\ntime = {{ name = \"tout\", unit = \"s\" }}\n\
@@ -256,16 +266,7 @@ fn a_simulink_log_saved_as_a_mat_file_comes_back_as_the_same_dataset() {
     let out =
         sts_twin(&["import", path(&mat), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
     assert!(out.status.success(), "{}", stderr(&out));
-    let back = sts_dataset::read(&out_dir).unwrap();
-    assert_eq!(back.groups.len(), data.groups.len());
-    for (a, b) in data.manifest.groups.iter().zip(&back.manifest.groups) {
-        assert_eq!((a.freq_hz, a.amp_um), (b.freq_hz, b.amp_um));
-        assert!(
-            std::fs::read(src.join(&a.file)).unwrap() == std::fs::read(out_dir.join(&b.file)).unwrap(),
-            "{}",
-            b.file
-        );
-    }
+    assert_same_groups("the MAT-file", &data.manifest, &src, &out_dir);
     // A column the matrix does not have, and a truncated file.
     std::fs::write(dir.0.join("bad.toml"), map.replace("Z[3]", "Z[4]")).unwrap();
     let out =
@@ -292,29 +293,13 @@ fn a_simulink_log_saved_as_a_mat_file_comes_back_as_the_same_dataset() {
 /// monitor voltages (10 um per volt), the probe at 2.5 um per volt; in segments of a second,
 /// as a logger streams them.
 const TDMS_WRITER: &str = r#"
-import csv, json, sys
-import numpy as np
 from nptdms import TdmsWriter, ChannelObject
-src, out = sys.argv[1], sys.argv[2]
-m = json.load(open(src + "/manifest.json"))
-fs = int(m["sample_rate_hz"])
-pause = fs // 2
-cols = [[], [], [], []]
-def rest():
-    for c in cols:
-        c.extend([0.0] * pause)
-for g in m["groups"]:
-    rest()
-    with open(src + "/" + g["file"]) as gf:
-        for r in csv.DictReader(gf):
-            for c, key in zip(cols, ["z_cmd_um", "z_enc_um", "z_tcp_um", "acc_mps2"]):
-                c.append(float(r[key]))
-rest()
-scaled = [np.array(cols[0]) / 10.0, np.array(cols[1]) / 10.0, np.array(cols[2]) / 2.5, np.array(cols[3])]
+scaled = [cols[0] / 10.0, cols[1] / 10.0, cols[2] / 2.5, cols[3]]
 names = ["Dev1/ai0", "Dev1/ai1", "Dev1/ai2", "Dev1/ai3"]
+step = int(fs)
 with TdmsWriter(out) as w:
-    for start in range(0, len(cols[0]), fs):
-        w.write_segment([ChannelObject("STS task", n, v[start:start + fs]) for n, v in zip(names, scaled)])
+    for start in range(0, n, step):
+        w.write_segment([ChannelObject("STS task", name, v[start:start + step]) for name, v in zip(names, scaled)])
 "#;
 
 #[test]
@@ -323,12 +308,7 @@ fn an_ni_daq_log_in_tdms_comes_back_as_the_same_dataset() {
     let src = dir.0.join("original");
     let data = original(&src);
     let tdms = dir.0.join("daq.tdms");
-    let py = Command::new("python3").args(["-c", TDMS_WRITER, path(&src), path(&tdms)]).output().expect("python3 runs");
-    assert!(
-        py.status.success(),
-        "python3 with npTDMS (scripts/setup.sh installs it): {}",
-        String::from_utf8_lossy(&py.stderr)
-    );
+    write_with(TDMS_WRITER, "npTDMS", &src, &tdms, &[]);
     let lsb = data.manifest.acc_mps2_per_lsb.expect("the emulator states its ADC scale");
     let map = format!(
         "sample_rate_hz = 8000\nacc_mps2_per_lsb = {lsb:?}\n[channels]\n\
@@ -342,16 +322,7 @@ fn an_ni_daq_log_in_tdms_comes_back_as_the_same_dataset() {
     let out =
         sts_twin(&["import", path(&tdms), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
     assert!(out.status.success(), "{}", stderr(&out));
-    let back = sts_dataset::read(&out_dir).unwrap();
-    assert_eq!(back.groups.len(), data.groups.len());
-    for (a, b) in data.manifest.groups.iter().zip(&back.manifest.groups) {
-        assert_eq!((a.freq_hz, a.amp_um), (b.freq_hz, b.amp_um));
-        assert!(
-            std::fs::read(src.join(&a.file)).unwrap() == std::fs::read(out_dir.join(&b.file)).unwrap(),
-            "{}",
-            b.file
-        );
-    }
+    assert_same_groups("the TDMS file", &data.manifest, &src, &out_dir);
     // A channel the task did not log, and a file cut in its last segment.
     std::fs::write(dir.0.join("bad.toml"), map.replace("Dev1/ai3", "Dev1/ai7")).unwrap();
     let out =
@@ -380,28 +351,11 @@ fn an_ni_daq_log_in_tdms_comes_back_as_the_same_dataset() {
 /// writes a MAT-file v7.3 (a 512-byte user block with MATLAB's header, each variable stored
 /// transposed with its `MATLAB_class`).
 const HDF5_WRITER: &str = r#"
-import csv, json, sys
-import numpy as np
 import h5py
-src, out, matlab = sys.argv[1], sys.argv[2], sys.argv[3] == "1"
-m = json.load(open(src + "/manifest.json"))
-fs = m["sample_rate_hz"]
-pause = int(0.5 * fs)
-cols = [[], [], [], []]
-def rest():
-    for c in cols:
-        c.extend([0.0] * pause)
-for g in m["groups"]:
-    rest()
-    with open(src + "/" + g["file"]) as gf:
-        for r in csv.DictReader(gf):
-            for c, key in zip(cols, ["z_cmd_um", "z_enc_um", "z_tcp_um", "acc_mps2"]):
-                c.append(float(r[key]))
-rest()
-n = len(cols[0])
+matlab = sys.argv[3] == "1"
 t = np.arange(n) / fs
-z = np.column_stack([np.array(c) / 1000.0 for c in cols[:3]])
-acc = np.array(cols[3])
+z = np.column_stack([c / 1000.0 for c in cols[:3]])
+acc = cols[3]
 if matlab:
     with h5py.File(out, "w", userblock_size=512) as f:
         for name, v in [("tout", t.reshape(n, 1)), ("Z", z), ("acc", acc.reshape(n, 1))]:
@@ -441,22 +395,13 @@ fn hdf5_and_mat_v7_3_recordings_come_back_as_the_same_dataset() {
         ),
     ] {
         let recording = dir.0.join(file);
-        let py = Command::new("python3")
-            .args(["-c", HDF5_WRITER, path(&src), path(&recording), if matlab { "1" } else { "0" }])
-            .output()
-            .expect("python3 runs");
-        assert!(py.status.success(), "python3 with h5py (scripts/setup.sh installs it): {}", String::from_utf8_lossy(&py.stderr));
+        write_with(HDF5_WRITER, "h5py", &src, &recording, &[if matlab { "1" } else { "0" }]);
         let map = format!("acc_mps2_per_lsb = {lsb:?}\n{map}");
         std::fs::write(dir.0.join("map.toml"), &map).unwrap();
         let out_dir = dir.0.join(format!("imported-{file}"));
         let out = sts_twin(&["import", path(&recording), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
         assert!(out.status.success(), "{file}: {}", stderr(&out));
-        let back = sts_dataset::read(&out_dir).unwrap();
-        assert_eq!(back.groups.len(), data.groups.len(), "{file}");
-        for (a, b) in data.manifest.groups.iter().zip(&back.manifest.groups) {
-            assert_eq!((a.freq_hz, a.amp_um), (b.freq_hz, b.amp_um), "{file}");
-            assert!(std::fs::read(src.join(&a.file)).unwrap() == std::fs::read(out_dir.join(&b.file)).unwrap(), "{file}: {}", b.file);
-        }
+        assert_same_groups(file, &data.manifest, &src, &out_dir);
         // A dataset the file lacks is named, with what it has.
         std::fs::write(dir.0.join("bad.toml"), map.replace("acc\"", "acc_x\"")).unwrap();
         let out = sts_twin(&["import", path(&recording), "--out", path(&out_dir), "--map", path(&dir.0.join("bad.toml")), "--quiet"]);

@@ -179,35 +179,33 @@ pub fn import(
         let (mut first_t, mut last_t) = (f64::NAN, f64::NAN);
         let mut last_end_s = 0.0;
         let mut found: Vec<Vec<Row>> = Vec::new();
+        let mut write = |rows: Vec<Row>, rate: f64| {
+            write_group(path, out, rows, rate, time_offset_s, &columns, &mut groups, &mut infos, &mut last_end_s)
+        };
         while let Some(values) = source.next(path, k, &resolved)? {
             let at = source.at(k);
             let time_channel = || columns.resolved[0].channel.name.clone();
             let t = if has_time { values[0] } else { k as f64 / sample_rate_hz };
             if has_time {
+                let step_error = |step_s: f64, expected_s: f64| ImportError::TimeStep {
+                    path: path.clone(),
+                    at,
+                    channel: time_channel(),
+                    step_s,
+                    expected_s,
+                };
                 if k == 0 {
                     first_t = t;
                 } else if k == 1 {
                     let step = t - first_t;
                     if step.is_nan() || step <= 0.0 {
-                        return Err(ImportError::TimeStep {
-                            path: path.clone(),
-                            at,
-                            channel: time_channel(),
-                            step_s: step,
-                            expected_s: f64::NAN,
-                        });
+                        return Err(step_error(step, f64::NAN));
                     }
                     sample_rate_hz = significant(1.0 / step, 9);
                 } else {
                     let expected = 1.0 / sample_rate_hz;
                     if ((t - last_t) - expected).abs() > 0.05 * expected {
-                        return Err(ImportError::TimeStep {
-                            path: path.clone(),
-                            at,
-                            channel: time_channel(),
-                            step_s: t - last_t,
-                            expected_s: expected,
-                        });
+                        return Err(step_error(t - last_t, expected));
                     }
                 }
                 last_t = t;
@@ -220,17 +218,7 @@ pub fn import(
                     found.extend(seg.push(row));
                 }
                 for rows in found.drain(..) {
-                    write_group(
-                        path,
-                        out,
-                        rows,
-                        sample_rate_hz,
-                        time_offset_s,
-                        &columns,
-                        &mut groups,
-                        &mut infos,
-                        &mut last_end_s,
-                    )?;
+                    write(rows, sample_rate_hz)?;
                 }
             }
             if k % 65_536 == 0 {
@@ -238,17 +226,7 @@ pub fn import(
             }
         }
         if let Some(rows) = segmenter.as_mut().and_then(Finder::finish) {
-            write_group(
-                path,
-                out,
-                rows,
-                sample_rate_hz,
-                time_offset_s,
-                &columns,
-                &mut groups,
-                &mut infos,
-                &mut last_end_s,
-            )?;
+            write(rows, sample_rate_hz)?;
         }
         rows_read += k;
         done_bytes += std::fs::metadata(path).map_or(0, |m| m.len());

@@ -88,7 +88,7 @@ pub struct Hdf5Channel {
 }
 
 /// Samples per channel read from a TDMS or HDF5 file at a time.
-const TDMS_CHUNK: usize = 1 << 16;
+const CHUNK: usize = 1 << 16;
 
 /// The extensions read.
 pub const READ: &str =
@@ -180,21 +180,7 @@ impl Source {
             // Column-major: column `col` is one contiguous run.
             columns.push(values[(col - 1) * rows..col * rows].iter().map(|v| r.convert(*v)).collect());
         }
-        let lengths: Vec<usize> = columns.iter().map(Vec::len).collect();
-        if lengths.windows(2).any(|w| w[0] != w[1]) {
-            return Err(ImportError::Unreadable {
-                path: path.to_path_buf(),
-                message: format!(
-                    "the mapped variables differ in length ({}): one sample per row is needed",
-                    resolved
-                        .iter()
-                        .zip(&lengths)
-                        .map(|(r, n)| format!("{} {n}", r.channel.name))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            });
-        }
+        same_lengths(path, resolved, &columns.iter().map(Vec::len).collect::<Vec<_>>())?;
         Ok(Source::Mat { columns })
     }
 
@@ -255,21 +241,10 @@ impl Source {
         }
         let lengths: Vec<usize> =
             if matlab { columns.iter().map(Vec::len).collect() } else { channels.iter().map(|(n, _)| *n).collect() };
-        if lengths.windows(2).any(|w| w[0] != w[1]) {
-            return Err(unreadable(format!(
-                "the mapped datasets differ in length ({}): one sample per row is needed",
-                resolved
-                    .iter()
-                    .zip(&lengths)
-                    .map(|(r, n)| format!("{} {n}", r.channel.name))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )));
-        }
+        let len = same_lengths(path, resolved, &lengths)?;
         if matlab {
             return Ok(Source::Mat { columns });
         }
-        let len = lengths.first().copied().unwrap_or(0);
         let channels = channels.into_iter().map(|(_, c)| c).collect();
         Ok(Source::Hdf5 { channels, len, chunk_start: 0, chunk: Vec::new(), bytes_len })
     }
@@ -305,18 +280,7 @@ impl Source {
             names.push((g, c));
             lengths.push(len);
         }
-        if lengths.windows(2).any(|w| w[0] != w[1]) {
-            return Err(unreadable(format!(
-                "the mapped channels differ in length ({}): one sample per row is needed",
-                resolved
-                    .iter()
-                    .zip(&lengths)
-                    .map(|(r, n)| format!("{} {n}", r.channel.name))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )));
-        }
-        let len = lengths.first().copied().unwrap_or(0);
+        let len = same_lengths(path, resolved, &lengths)?;
         Ok(Source::Tdms { file: Box::new(file), names, len, chunk_start: 0, chunk: Vec::new(), bytes_len })
     }
 
@@ -362,26 +326,15 @@ impl Source {
                 if columns.first().is_none_or(|c| k >= c.len()) {
                     return Ok(None);
                 }
-                let values: Vec<f64> = columns.iter().map(|c| c[k]).collect();
-                if let Some((r, _)) = resolved.iter().zip(&values).find(|(_, v)| !v.is_finite()) {
-                    return Err(ImportError::Value {
-                        path: path.to_path_buf(),
-                        at: At::Sample(k as u64 + 1),
-                        channel: r.channel.name.clone(),
-                        message: "not a finite number (NaN or infinite)".into(),
-                    });
-                }
-                Ok(Some(values))
+                chunk_row(path, k, 0, columns, resolved)
             }
             Source::Tdms { file, names, len, chunk_start, chunk, .. } => {
                 let k = k as usize;
                 if k >= *len {
                     return Ok(None);
                 }
-                if chunk.is_empty() || k >= *chunk_start + chunk[0].len() {
-                    let range = k..(k + TDMS_CHUNK).min(*len);
-                    *chunk_start = k;
-                    *chunk = names
+                refill(k, *len, chunk_start, chunk, |range| {
+                    names
                         .iter()
                         .zip(resolved)
                         .map(|((g, c), r)| {
@@ -393,15 +346,10 @@ impl Source {
                             })?;
                             read_tdms(&channel, range.clone())
                                 .map(|v| v.into_iter().map(|x| r.convert(x)).collect())
-                                .map_err(|message| ImportError::Value {
-                                    path: path.to_path_buf(),
-                                    at: At::Sample(range.start as u64 + 1),
-                                    channel: r.channel.name.clone(),
-                                    message,
-                                })
+                                .map_err(|message| chunk_error(path, range.start, r, message))
                         })
-                        .collect::<Result<_, _>>()?;
-                }
+                        .collect()
+                })?;
                 chunk_row(path, k, *chunk_start, chunk, resolved)
             }
             Source::Hdf5 { channels, len, chunk_start, chunk, .. } => {
@@ -409,24 +357,19 @@ impl Source {
                 if k >= *len {
                     return Ok(None);
                 }
-                if chunk.is_empty() || k >= *chunk_start + chunk[0].len() {
-                    let count = TDMS_CHUNK.min(*len - k);
-                    *chunk_start = k;
-                    *chunk = channels
+                refill(k, *len, chunk_start, chunk, |range| {
+                    channels
                         .iter()
                         .zip(resolved)
                         .map(|(c, r)| {
-                            let raw =
-                                c.dataset.read_f64_rows(k as u64, count as u64).map_err(|e| ImportError::Value {
-                                    path: path.to_path_buf(),
-                                    at: At::Sample(k as u64 + 1),
-                                    channel: r.channel.name.clone(),
-                                    message: format!("{e} (truncated?)"),
-                                })?;
+                            let raw = c
+                                .dataset
+                                .read_f64_rows(range.start as u64, range.len() as u64)
+                                .map_err(|e| chunk_error(path, range.start, r, format!("{e} (truncated?)")))?;
                             Ok(raw.iter().skip(c.col).step_by(c.width).map(|v| r.convert(*v)).collect())
                         })
-                        .collect::<Result<_, ImportError>>()?;
-                }
+                        .collect()
+                })?;
                 chunk_row(path, k, *chunk_start, chunk, resolved)
             }
         }
@@ -496,6 +439,51 @@ fn mat_elements_complete(bytes: &[u8]) -> Result<(), String> {
     Ok(())
 }
 
+/// Reads the chunk that holds row `k` (of `len`) when the current one does not: `read` gives
+/// each mapped channel's values over a range of rows.
+fn refill(
+    k: usize,
+    len: usize,
+    chunk_start: &mut usize,
+    chunk: &mut Vec<Vec<f64>>,
+    read: impl FnOnce(std::ops::Range<usize>) -> Result<Vec<Vec<f64>>, ImportError>,
+) -> Result<(), ImportError> {
+    if chunk.is_empty() || k < *chunk_start || k >= *chunk_start + chunk[0].len() {
+        *chunk = read(k..(k + CHUNK).min(len))?;
+        *chunk_start = k;
+    }
+    Ok(())
+}
+
+/// A chunk's read failing, at the chunk's first sample.
+fn chunk_error(path: &Path, start: usize, r: &Resolved, message: String) -> ImportError {
+    ImportError::Value {
+        path: path.to_path_buf(),
+        at: At::Sample(start as u64 + 1),
+        channel: r.channel.name.clone(),
+        message,
+    }
+}
+
+/// The mapped channels' common length, refused where they differ (one sample per row).
+fn same_lengths(path: &Path, resolved: &[Resolved], lengths: &[usize]) -> Result<usize, ImportError> {
+    if lengths.windows(2).any(|w| w[0] != w[1]) {
+        return Err(ImportError::Unreadable {
+            path: path.to_path_buf(),
+            message: format!(
+                "the mapped channels differ in length ({}): one sample per row is needed",
+                resolved
+                    .iter()
+                    .zip(lengths)
+                    .map(|(r, n)| format!("{} {n}", r.channel.name))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        });
+    }
+    Ok(lengths.first().copied().unwrap_or(0))
+}
+
 /// `name` or `name[col]`: a variable (or dataset) and a 1-based column of a matrix with a row
 /// per sample (`None` for a column that is not a positive number).
 fn channel_column(name: &str) -> (&str, Option<usize>) {
@@ -505,7 +493,8 @@ fn channel_column(name: &str) -> (&str, Option<usize>) {
     }
 }
 
-/// Row `k` of a chunk that starts at `chunk_start`, refused where a value is not finite.
+/// Row `k` of a chunk (or of the whole columns) that starts at `chunk_start`, refused where a
+/// value is not finite.
 fn chunk_row(
     path: &Path,
     k: usize,

@@ -553,7 +553,8 @@ impl Expr {
                 let mut inner = String::new();
                 a.write_infix(&mut inner, names, style, 0);
                 let _ = match style.lang {
-                    Lang::Python => match op {
+                    // MATLAB's names for these are Python's.
+                    Lang::Python | Lang::Matlab => match op {
                         UnaryOp::Abs => write!(s, "abs({inner})"),
                         UnaryOp::Sqrt => write!(s, "sqrt(abs({inner}))"),
                         UnaryOp::Exp => write!(s, "exp({inner})"),
@@ -572,14 +573,6 @@ impl Expr {
                             UnaryOp::Sin => write!(s, "{inner}.sin()"),
                         }
                     }
-                    Lang::Matlab => match op {
-                        UnaryOp::Abs => write!(s, "abs({inner})"),
-                        UnaryOp::Sqrt => write!(s, "sqrt(abs({inner}))"),
-                        UnaryOp::Exp => write!(s, "exp({inner})"),
-                        UnaryOp::Log => write!(s, "log(abs({inner}))"),
-                        UnaryOp::Tanh => write!(s, "tanh({inner})"),
-                        UnaryOp::Sin => write!(s, "sin({inner})"),
-                    },
                     Lang::C(float) => {
                         let f = if float == FloatType::F32 { "f" } else { "" };
                         match op {

@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 use sts_analysis::lsq::least_squares;
+use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::Request;
 
@@ -40,8 +41,12 @@ pub struct LabConfig {
     pub offset_voltages_v: Vec<f64>,
     /// Voltages about the null of the `K_dv` fit, V.
     pub kdv_voltages_v: Vec<f64>,
-    /// Wait after each new output before reading (the DAC slews; the controller filters).
+    /// Wait after each new output before reading (the DAC slews; the controller filters), in
+    /// the board's own time: its servo ticks, so that a board that runs slow (an emulated one
+    /// under load) settles as far as a real one.
     pub settle: Duration,
+    /// Longest wall-clock wait for the board's ticks to cover `settle`.
+    pub settle_timeout: Duration,
     /// Longest wait for compensation to ramp out at the start.
     pub ramp_out_timeout: Duration,
 }
@@ -52,6 +57,7 @@ impl Default for LabConfig {
             offset_voltages_v: vec![-0.5, -0.2, 0.0, 0.2, 0.5],
             kdv_voltages_v: vec![-1.0, -0.5, 0.5, 1.0],
             settle: Duration::from_millis(200),
+            settle_timeout: Duration::from_secs(30),
             ramp_out_timeout: Duration::from_secs(10),
         }
     }
@@ -137,8 +143,19 @@ pub fn calibrate_lab(
             return Err(RigError::OffsetVoltageRange { volts: dac_v, limit_v });
         }
         let params = FeedforwardParams { offset_v: -dac_v as f32, ..base };
+        let start = status(board)?.counters.ticks;
         expect_ack("holding a DAC voltage", board.request(Request::SetParams(params))?)?;
-        std::thread::sleep(config.settle);
+        let settle_ticks = (config.settle.as_secs_f64() * SERVO_RATE_HZ).ceil() as u64;
+        let deadline = Instant::now() + config.settle_timeout;
+        std::thread::sleep(config.settle.min(Duration::from_millis(20)));
+        while status(board)?.counters.ticks.wrapping_sub(start) < settle_ticks {
+            if Instant::now() >= deadline {
+                return Err(RigError::LabSettings {
+                    reason: "the board's servo ticks did not cover the settling time: is its tick running?",
+                });
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
         Ok(())
     };
 

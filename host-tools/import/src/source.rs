@@ -133,12 +133,10 @@ impl Source {
         let index = resolved
             .iter()
             .map(|r| {
-                header.iter().position(|h| h == r.channel.name).ok_or_else(|| ImportError::MissingChannel {
-                    path: path.to_path_buf(),
-                    role: r.role,
-                    name: r.channel.name.clone(),
-                    available: header.iter().collect::<Vec<_>>().join(", "),
-                })
+                header
+                    .iter()
+                    .position(|h| h == r.channel.name)
+                    .ok_or_else(|| missing_channel(path, r, header.iter().collect::<Vec<_>>().join(", ")))
             })
             .collect::<Result<_, _>>()?;
         Ok(Source::Csv { reader, record: csv::StringRecord::new(), header_len: header.len(), index })
@@ -163,12 +161,7 @@ impl Source {
         let mut columns = Vec::new();
         for r in resolved {
             let (var, col) = channel_column(&r.channel.name);
-            let missing = || ImportError::MissingChannel {
-                path: path.to_path_buf(),
-                role: r.role,
-                name: r.channel.name.clone(),
-                available: available(),
-            };
+            let missing = || missing_channel(path, r, available());
             let array = mat.find_by_name(var).ok_or_else(missing)?;
             let col = col.ok_or_else(missing)?;
             let values = real_values(array.data());
@@ -209,12 +202,7 @@ impl Source {
         let mut columns = Vec::new();
         for r in resolved {
             let (var, col) = channel_column(&r.channel.name);
-            let missing = || ImportError::MissingChannel {
-                path: path.to_path_buf(),
-                role: r.role,
-                name: r.channel.name.clone(),
-                available: available(),
-            };
+            let missing = || missing_channel(path, r, available());
             let dataset = file.dataset(var).map_err(|_| missing())?;
             let shape = dataset.shape().map_err(|e| unreadable(format!("dataset {var}: {e}")))?;
             let col = col.ok_or_else(missing)?;
@@ -271,12 +259,7 @@ impl Source {
             let found = r.channel.name.split_once('/').and_then(|(g, c)| {
                 file.group(g).and_then(|group| group.channel(c)).map(|ch| ((g.to_string(), c.to_string()), ch.len()))
             });
-            let ((g, c), len) = found.ok_or_else(|| ImportError::MissingChannel {
-                path: path.to_path_buf(),
-                role: r.role,
-                name: r.channel.name.clone(),
-                available: available(),
-            })?;
+            let ((g, c), len) = found.ok_or_else(|| missing_channel(path, r, available()))?;
             names.push((g, c));
             lengths.push(len);
         }
@@ -463,6 +446,11 @@ fn chunk_error(path: &Path, start: usize, r: &Resolved, message: String) -> Impo
         channel: r.channel.name.clone(),
         message,
     }
+}
+
+/// A mapped channel the recording lacks, with what the recording has.
+fn missing_channel(path: &Path, r: &Resolved, available: String) -> ImportError {
+    ImportError::MissingChannel { path: path.to_path_buf(), role: r.role, name: r.channel.name.clone(), available }
 }
 
 /// The mapped channels' common length, refused where they differ (one sample per row).

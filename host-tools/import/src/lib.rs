@@ -145,11 +145,6 @@ pub struct Imported {
 /// Progress: bytes read of all recordings, and their total.
 pub type Progress<'a> = &'a mut dyn FnMut(u64, u64);
 
-/// A recording's reader: the mapped columns' positions, the delimiter.
-struct Columns {
-    resolved: Vec<Resolved>,
-}
-
 /// Imports `recordings` (in order) into the dataset directory `out` with `mapping`.
 pub fn import(
     recordings: &[PathBuf],
@@ -170,8 +165,7 @@ pub fn import(
     let mut time_offset_s = 0.0;
     for path in recordings {
         let mut source = Source::open(path, &resolved)?;
-        let columns = Columns { resolved: resolved.clone() };
-        let has_time = columns.resolved[0].role == "time";
+        let has_time = resolved[0].role == "time";
         let mut segmenter: Option<Finder> = None;
         // Rows wait here until the sample rate is known (the time channel's first step).
         let mut pending: Vec<Row> = Vec::new();
@@ -180,11 +174,11 @@ pub fn import(
         let mut last_end_s = 0.0;
         let mut found: Vec<Vec<Row>> = Vec::new();
         let mut write = |rows: Vec<Row>, rate: f64| {
-            write_group(path, out, rows, rate, time_offset_s, &columns, &mut groups, &mut infos, &mut last_end_s)
+            write_group(path, out, rows, rate, time_offset_s, &resolved, &mut groups, &mut infos, &mut last_end_s)
         };
         while let Some(values) = source.next(path, k, &resolved)? {
             let at = source.at(k);
-            let time_channel = || columns.resolved[0].channel.name.clone();
+            let time_channel = || resolved[0].channel.name.clone();
             let t = if has_time { values[0] } else { k as f64 / sample_rate_hz };
             if has_time {
                 let step_error = |step_s: f64, expected_s: f64| ImportError::TimeStep {
@@ -210,7 +204,7 @@ pub fn import(
                 }
                 last_t = t;
             }
-            pending.push(row_of(t, &values[usize::from(has_time)..], &columns));
+            pending.push(row_of(t, &values[usize::from(has_time)..], &resolved));
             k += 1;
             if k >= 2 || !has_time {
                 let seg = segmenter.get_or_insert_with(|| finder(mapping, sample_rate_hz));
@@ -248,9 +242,9 @@ pub fn import(
 }
 
 /// A row from the mapped values after the time.
-fn row_of(t_s: f64, values: &[f64], columns: &Columns) -> Row {
+fn row_of(t_s: f64, values: &[f64], resolved: &[Resolved]) -> Row {
     let mut row = Row { t_s, ..Row::default() };
-    for (r, v) in columns.resolved.iter().filter(|r| r.role != "time").zip(values) {
+    for (r, v) in resolved.iter().filter(|r| r.role != "time").zip(values) {
         match r.role {
             "command" => row.cmd_um = *v,
             "encoder" => row.enc_um = *v,
@@ -273,7 +267,7 @@ fn write_group(
     rows: Vec<Row>,
     sample_rate_hz: f64,
     time_offset_s: f64,
-    columns: &Columns,
+    resolved: &[Resolved],
     groups: &mut Vec<FoundGroup>,
     infos: &mut Vec<GroupInfo>,
     last_end_s: &mut f64,
@@ -281,15 +275,11 @@ fn write_group(
     let (start_s, end_s) = (rows[0].t_s, rows[rows.len() - 1].t_s);
     let (freq_hz, amp_um) = sine_of(&rows, sample_rate_hz).ok_or_else(|| ImportError::NotASine {
         path: path.to_path_buf(),
-        channel: columns
-            .resolved
-            .iter()
-            .find(|r| r.role == "command")
-            .map_or_else(String::new, |r| r.channel.name.clone()),
+        channel: resolved.iter().find(|r| r.role == "command").map_or_else(String::new, |r| r.channel.name.clone()),
         start_s,
         end_s,
     })?;
-    let has = |role: &str| columns.resolved.iter().any(|r| r.role == role);
+    let has = |role: &str| resolved.iter().any(|r| r.role == role);
     let n = rows.len();
     let mut g = GroupData::with_len(n);
     g.x_mm = has("x_position").then(|| vec![0.0; n]);

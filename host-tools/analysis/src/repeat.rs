@@ -95,6 +95,15 @@ pub struct Repeatability {
 }
 
 impl Repeatability {
+    /// [`Repeatability::floor_um`], or 0 where no group was long enough to tell.
+    pub fn known_floor_um(&self) -> f64 {
+        if self.floor_um.is_finite() {
+            self.floor_um
+        } else {
+            0.0
+        }
+    }
+
     /// The non-repeating part of each sampled group's dynamic error (`z_tcp_um - z_cmd_um`)
     /// in steady motion, from its feature window's start to its end; positions follow
     /// `samples`.

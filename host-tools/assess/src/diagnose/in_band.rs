@@ -13,6 +13,7 @@
 //! is the one `fit --effect structural-mode` chooses from ([`sts_fit::effects::in_band_mode_evidence`]),
 //! so this stage names a mode exactly where that fit would carry one with a term.
 
+use crate::AssessError;
 use sts_dataset::Dataset;
 use sts_model::ModelFile;
 use sts_twin_core::program::TickTerm;
@@ -31,13 +32,14 @@ fn carries_resonance(model: &ModelFile) -> bool {
 
 /// The stage's ranked result, when it applies and the data holds an in-band mode; `None`
 /// otherwise. `dataset` as the model reads it (its probe gain divided out).
-pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Option<Ranked> {
-    let floor_um = if d.repeatability.floor_um.is_finite() { d.repeatability.floor_um } else { 0.0 };
-    let floor_um = floor_um.max(NOT_REPEATING_MIN_UM);
+pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Result<Option<Ranked>, AssessError> {
+    let floor_um = d.repeatability.known_floor_um().max(NOT_REPEATING_MIN_UM);
     if carries_resonance(model) || d.structure.fundamental.rms_um <= FUNDAMENTAL_OVER_FLOOR * floor_um {
-        return None;
+        return Ok(None);
     }
-    let evidence = sts_fit::effects::in_band_mode_evidence(dataset, FOLDS).ok()??;
+    let Some(evidence) = sts_fit::effects::in_band_mode_evidence(dataset, FOLDS)? else {
+        return Ok(None);
+    };
     let pairs: Vec<(f64, f64)> = evidence
         .bank_only_ss_um2
         .iter()
@@ -46,7 +48,7 @@ pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Optio
         .map(|(a, b)| (*a, *b))
         .collect();
     if pairs.is_empty() {
-        return None;
+        return Ok(None);
     }
     let reductions: Vec<f64> = pairs.iter().map(|(a, b)| a - b).collect();
     let relative: Vec<f64> = pairs.iter().map(|(a, b)| relative_improvement(a - b, *a)).collect();
@@ -58,7 +60,7 @@ pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Optio
     let explained_rms_um = (gained.max(0.0) / 2.0 / pairs.len() as f64).sqrt();
     let significant =
         explained_fraction >= MIN_EXPLAINED && p_value < significance_threshold() && explained_rms_um > floor_um;
-    Some(Ranked {
+    Ok(Some(Ranked {
         effect: "structural-mode".into(),
         explained_fraction,
         p_value,
@@ -77,5 +79,5 @@ pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Optio
         significant,
         explained_rms_um,
         without_fundamental: false,
-    })
+    }))
 }

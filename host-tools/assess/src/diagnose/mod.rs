@@ -324,7 +324,7 @@ pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> Result<Diagnosis, Asses
     if d.verdict != "none" {
         return Ok(d);
     }
-    if let Some(mode) = in_band::look(dataset, model, &d).filter(|m| m.significant) {
+    if let Some(mode) = in_band::look(dataset, model, &d)?.filter(|m| m.significant) {
         d.ranking.retain(|r| r.effect != mode.effect);
         d.verdict = mode.effect.clone();
         d.summary = format!("{}: {}", mode.effect, mode.evidence);
@@ -344,7 +344,7 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         ctx.par_iter().map(|c| group_non_repeating_um(c.data, c.sample, c.sample_rate_hz)).collect(),
     );
     // The data's floor; unknown (groups too short) counts as none, leaving the minimum.
-    let floor_um = if repeatability.floor_um.is_finite() { repeatability.floor_um } else { 0.0 };
+    let floor_um = repeatability.known_floor_um();
     // A twin fitted on this data has absorbed what an effect does to each group's
     // fundamental, as far as its formulas could, and left it distorted; the effect still shows
     // in what the formulas cannot touch (harmonics, steps, trends, lines). So the candidates

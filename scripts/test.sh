@@ -39,3 +39,5 @@ step "tests: core, host tools, HIL"
 STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
 STS_TWIN_BRINGUP_ELF="$PWD/firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
     cargo test --workspace --locked --release
+step "Python package: maturin build, pytest against the CLI, docs/python-loop.py"
+bash scripts/python-package.sh

@@ -10,7 +10,7 @@
 
 use serde::Serialize;
 use sts_dataset::Dataset;
-use sts_fit::effects::{prepare, EffectRecord};
+use sts_fit::effects::{fit_with, EffectRecord};
 use sts_fit::{fit, FitConfig, FitError};
 use sts_model::ModelFile;
 
@@ -230,10 +230,7 @@ pub fn explain(
             let mut with: Vec<String> = names.clone();
             with.push(named.effect.clone());
             progress(ExplainProgress::Refitting { effects: &with });
-            let refit = prepare(dataset, &with).and_then(|prepared| {
-                let m = fit(&prepared.dataset, description, &config.fit, &mut |_| {})?;
-                Ok((prepared.attach(m)?, prepared.records))
-            });
+            let refit = fit_with(dataset, &with, description, &config.fit, &mut |_| {});
             let failure = match refit {
                 Err(e) => Stop::CannotAdd { effect: named.effect.clone(), reason: e.to_string() },
                 Ok((m, _)) if m.validation.waveform_rms_um.is_nan() || m.validation.waveform_rms_um >= rms_um => {

@@ -5,5 +5,6 @@ pub mod compare;
 pub mod diagnose;
 mod error;
 pub mod explain;
+pub mod json;
 
 pub use error::AssessError;

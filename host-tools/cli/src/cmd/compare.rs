@@ -91,9 +91,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         std::fs::write(path, render(&input)).with_context(|| format!("cannot write {}", path.display()))?;
     }
     if args.json {
-        let mut value = serde_json::to_value(&c)?;
+        let mut value = sts_assess::json::comparison(&c)?;
         if let Some((b, _, label)) = &baseline {
-            value["baseline"] = serde_json::to_value(b)?;
+            value["baseline"] = sts_assess::json::comparison(b)?;
             value["baseline"]["file"] = serde_json::Value::String(label.clone());
         }
         println!("{}", serde_json::to_string_pretty(&value)?);

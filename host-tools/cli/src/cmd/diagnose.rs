@@ -24,40 +24,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let model = ModelFile::read(&args.model)?;
     let d = diagnose(&dataset, &model)?;
     if args.json {
-        let ranking: Vec<serde_json::Value> = d
-            .ranking
-            .iter()
-            .map(|r| {
-                let params = super::params_json(&r.params);
-                serde_json::json!({
-                    "effect": r.effect,
-                    "explained_fraction": r.explained_fraction,
-                    "p_value": r.p_value,
-                    "groups_improved": r.groups_improved,
-                    "significant": r.significant,
-                    "explained_rms_um": r.explained_rms_um,
-                    "without_fundamental": r.without_fundamental,
-                    "params": params,
-                    "evidence": r.evidence,
-                })
-            })
-            .collect();
-        let out = serde_json::json!({
-            "verdict": d.verdict,
-            "ranking": ranking,
-            "residual_rms_um": d.residual_rms_um,
-            "model_cv_rms_um": d.model_cv_rms_um,
-            "summary": d.summary,
-            "test": d.test,
-            "repeatability": {
-                "floor_um": d.repeatability.floor_um,
-                "not_repeating_groups": d.repeatability.not_repeating.iter().map(|&i| dataset.manifest.groups.get(i).map_or_else(String::new, |g| g.file.clone())).collect::<Vec<_>>(),
-                "note": d.not_repeating,
-            },
-            "structure": d.structure,
-            "unexplained": d.unexplained,
-        });
-        println!("{}", serde_json::to_string_pretty(&out)?);
+        println!("{}", serde_json::to_string_pretty(&sts_assess::json::diagnosis(&d, &dataset))?);
     } else {
         println!("verdict: {}", d.verdict);
         println!("{}", d.summary);

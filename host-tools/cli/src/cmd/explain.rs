@@ -68,42 +68,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&json(&e))?);
+        println!("{}", serde_json::to_string_pretty(&sts_assess::json::explanation(&e))?);
     } else {
         print_ladder(&e);
         println!("twin written to {} (program id {:08x})", args.out.display(), e.model.program.id);
     }
     Ok(())
-}
-
-fn json(e: &Explanation) -> serde_json::Value {
-    let steps: Vec<serde_json::Value> = e
-        .steps
-        .iter()
-        .map(|s| {
-            let params = super::params_json(&s.params);
-            serde_json::json!({
-                "effect": s.effect,
-                "params": params,
-                "explained_fraction": s.explained_fraction,
-                "p_value": s.p_value,
-                "evidence": s.evidence,
-                "waveform_rms_um_before": s.waveform_rms_um_before,
-                "waveform_rms_um_after": s.waveform_rms_um_after,
-            })
-        })
-        .collect();
-    serde_json::json!({
-        "steps": steps,
-        "verdict": e.stop.verdict(),
-        "stop": e.stop.describe(),
-        "start_waveform_rms_um": e.start_waveform_rms_um,
-        "waveform_rms_um": e.waveform_rms_um,
-        "floor_um": e.last.repeatability.floor_um,
-        "last_diagnosis": e.last.summary,
-        "unexplained": e.last.unexplained,
-        "test": e.last.test,
-    })
 }
 
 fn print_ladder(e: &Explanation) {

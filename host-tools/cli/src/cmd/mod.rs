@@ -16,8 +16,3 @@ pub mod paper_table;
 pub mod regress;
 mod status;
 pub mod trial_table;
-
-/// Named parameters (name with unit, value) as a JSON object, in their order.
-pub(crate) fn params_json(params: &[(String, f64)]) -> serde_json::Map<String, serde_json::Value> {
-    params.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect()
-}

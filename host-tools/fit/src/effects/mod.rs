@@ -620,12 +620,40 @@ impl Prepared {
     }
 }
 
+/// Fits a twin that carries `names`' per-tick terms: the effects identified and taken out of
+/// the data, the formulas fitted on what is left, the terms attached (what `fit --effect` and
+/// `explain` do).
+pub fn fit_with(
+    dataset: &Dataset,
+    names: &[String],
+    description: &str,
+    config: &crate::FitConfig,
+    progress: &mut dyn FnMut(&crate::FitProgress),
+) -> Result<(ModelFile, Vec<EffectRecord>), FitError> {
+    let prepared = prepare(dataset, names)?;
+    let model = crate::fit(&prepared.dataset, description, config, progress)?;
+    Ok((prepared.attach(model)?, prepared.records))
+}
+
 /// Sets the `effects` field of a written model file.
 pub fn write_records(path: &Path, records: &[EffectRecord]) -> Result<(), FitError> {
-    let mut value = read_json(path)?;
-    value["effects"] = serde_json::to_value(records)?;
-    std::fs::write(path, serde_json::to_string_pretty(&value)? + "\n")
-        .map_err(|source| FitError::Write { path: path.to_path_buf(), source })
+    let text = with_records(read_json(path)?, records)?;
+    std::fs::write(path, text).map_err(|source| FitError::Write { path: path.to_path_buf(), source })
+}
+
+/// The text of `model`'s file with `records` as its `effects` field: what
+/// [`ModelFile::write`] and then [`write_records`] leave on disk, byte for byte.
+pub fn model_text_with_records(model: &ModelFile, records: &[EffectRecord]) -> Result<String, FitError> {
+    // Through the written text, not `to_value`: the numbers stay as written (an f32 field as
+    // its own shortest digits), whether or not serde_json keeps arbitrary precision.
+    let text = serde_json::to_string_pretty(model)?;
+    with_records(serde_json::from_str(&text)?, records)
+}
+
+/// The text of a model file (`model`, its JSON) with `records` as its `effects` field.
+fn with_records(mut model: serde_json::Value, records: &[EffectRecord]) -> Result<String, FitError> {
+    model["effects"] = serde_json::to_value(records)?;
+    Ok(serde_json::to_string_pretty(&model)? + "\n")
 }
 
 /// The `effects` field of a model file, if any.

@@ -2,14 +2,32 @@
 # Builds the sts_twin Python package (host-tools/python) with maturin, installs it, and runs its
 # tests with pytest: every result against the CLI's (target/release/sts-twin, which
 # `cargo test --release` builds; built here when missing) and docs/python-loop.py end to end.
+#
+#   scripts/python-package.sh [build|test|all] [PYTEST ARGS...]   (default: all)
+#
+# `build` alone makes the wheel in target/wheels; `test` installs it and runs pytest (scripts/
+# test.sh builds while the firmware's single-threaded link steps leave a core free).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+mode=all
+case "${1:-}" in
+    build | test | all) mode=$1; shift ;;
+esac
 bash scripts/setup-python.sh
-cli=${STS_TWIN_CLI:-$PWD/target/release/sts-twin}
-if [ ! -x "$cli" ]; then
-    cargo build --locked --release -p sts-twin
+if [ "$mode" != test ]; then
+    rm -rf target/wheels
+    python3 -m maturin build --locked --release -m host-tools/python/Cargo.toml -o target/wheels
 fi
-rm -rf target/wheels
-python3 -m maturin build --locked --release -m host-tools/python/Cargo.toml -o target/wheels
-python3 -m pip install --quiet --root-user-action=ignore --force-reinstall --no-deps target/wheels/sts_twin-*.whl
-STS_TWIN_CLI=$cli python3 -m pytest -q -p no:cacheprovider host-tools/python/tests "$@"
+if [ "$mode" != build ]; then
+    wheels=(target/wheels/sts_twin-*.whl)
+    if [ ! -f "${wheels[0]}" ]; then
+        echo "error: no wheel in target/wheels: run scripts/python-package.sh build first" >&2
+        exit 1
+    fi
+    cli=${STS_TWIN_CLI:-$PWD/target/release/sts-twin}
+    if [ ! -x "$cli" ]; then
+        cargo build --locked --release -p sts-twin
+    fi
+    python3 -m pip install --quiet --root-user-action=ignore --force-reinstall --no-deps "${wheels[0]}"
+    STS_TWIN_CLI=$cli python3 -m pytest -q -p no:cacheprovider host-tools/python/tests "$@"
+fi

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every test of sts-twin: formatting and lints, the firmware for QEMU and the real board,
 # the core for RISC-V, then the host, core and HIL test suites (the HIL tests boot the
-# firmware in QEMU).
+# firmware in QEMU), and the Python package's (built with maturin, tested with pytest).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 STS_TWIN_PYTHON_LATER=1 bash scripts/setup.sh
@@ -24,20 +24,30 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 step "clippy (the firmware apps, each a workspace of its own; the QEMU app also as bring-up)"
 (cd firmware/qemu-app && cargo clippy --locked -- -D warnings && cargo clippy --locked --features bringup -- -D warnings)
 (cd firmware/stm32h7-app && cargo clippy --locked -- -D warnings)
-step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"
-cargo --locked xtask firmware --locked
-step "core library for RISC-V (riscv32imac-unknown-none-elf)"
-cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
 step "Python packages for the tests (installed in the background)"
 if ! wait "$python_setup"; then
     cat "$python_log" >&2
     exit 1
 fi
 cat "$python_log"
+# The Python package's wheel builds beside the firmware, whose fat-LTO links run on one core.
+wheel_log=$(mktemp)
+bash scripts/python-package.sh build >"$wheel_log" 2>&1 &
+wheel_build=$!
+step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"
+cargo --locked xtask firmware --locked
+step "core library for RISC-V (riscv32imac-unknown-none-elf)"
+cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
+step "the Python package's wheel (maturin, built in the background)"
+if ! wait "$wheel_build"; then
+    cat "$wheel_log" >&2
+    exit 1
+fi
+tail -n 3 "$wheel_log"
 step "tests: core, host tools, HIL"
 # The HIL harness finds the ELFs at these places by itself; named here to be explicit.
 STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
 STS_TWIN_BRINGUP_ELF="$PWD/firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
     cargo test --workspace --locked --release
-step "Python package: maturin build, pytest against the CLI, docs/python-loop.py"
-bash scripts/python-package.sh
+step "Python package: pytest against the CLI, docs/python-loop.py"
+bash scripts/python-package.sh test

@@ -175,42 +175,6 @@ impl PyModel {
     }
 }
 
-/// The fit's settings; `None` takes the CLI's default.
-#[allow(clippy::too_many_arguments)]
-fn fit_config(
-    seed: u64,
-    threads: Option<usize>,
-    epochs: Option<usize>,
-    folds: Option<usize>,
-    operators: Option<&str>,
-    max_complexity: Option<usize>,
-    acc_scale: Option<f64>,
-    skip_s: Option<f64>,
-) -> PyResult<FitConfig> {
-    let d = FitConfig::default();
-    let operators = match operators {
-        Some(text) => {
-            OperatorSet::parse(text).map_err(|e| StsTwinError::new_err(format!("operators {text:?}: {e}")))?
-        }
-        None => d.operators.clone(),
-    };
-    let skip_s = skip_s.unwrap_or(d.skip_s);
-    if !(skip_s.is_finite() && skip_s >= 0.0) {
-        return Err(StsTwinError::new_err(format!("skip_s must be zero or positive, not {skip_s}")));
-    }
-    Ok(FitConfig {
-        seed,
-        threads: threads.unwrap_or(d.threads).max(1),
-        max_epochs: epochs.unwrap_or(d.max_epochs),
-        folds: folds.unwrap_or(d.folds),
-        operators,
-        max_complexity: max_complexity.unwrap_or(d.max_complexity),
-        acc_scale_override: acc_scale,
-        skip_s,
-        ..d
-    })
-}
-
 /// Fits a twin on `dataset`, with `effects`' per-tick terms, as `sts-twin fit` does.
 #[pyfunction]
 #[pyo3(signature = (dataset, effects=Vec::new(), seed=0, threads=None, epochs=None, folds=None, operators=None, max_complexity=None, acc_scale=None, skip_s=None))]
@@ -228,7 +192,29 @@ fn fit(
     acc_scale: Option<f64>,
     skip_s: Option<f64>,
 ) -> PyResult<PyModel> {
-    let config = fit_config(seed, threads, epochs, folds, operators, max_complexity, acc_scale, skip_s)?;
+    // `None` takes the CLI's default.
+    let d = FitConfig::default();
+    let operators = match operators {
+        Some(text) => {
+            OperatorSet::parse(text).map_err(|e| StsTwinError::new_err(format!("operators {text:?}: {e}")))?
+        }
+        None => d.operators.clone(),
+    };
+    let skip_s = skip_s.unwrap_or(d.skip_s);
+    if !(skip_s.is_finite() && skip_s >= 0.0) {
+        return Err(StsTwinError::new_err(format!("skip_s must be zero or positive, not {skip_s}")));
+    }
+    let config = FitConfig {
+        seed,
+        threads: threads.unwrap_or(d.threads).max(1),
+        max_epochs: epochs.unwrap_or(d.max_epochs),
+        folds: folds.unwrap_or(d.folds),
+        operators,
+        max_complexity: max_complexity.unwrap_or(d.max_complexity),
+        acc_scale_override: acc_scale,
+        skip_s,
+        ..d
+    };
     let description = format!("fitted by sts-twin fit on {} (seed {seed})", dataset.name);
     let data = &dataset.dataset;
     py.detach(|| {

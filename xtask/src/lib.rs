@@ -28,11 +28,15 @@ pub struct Image {
     pub app_dir: &'static str,
     /// Its cargo features (`--features`), empty for none.
     pub features: &'static str,
-    /// The target directory it is built into.
+    /// The target directory it is built in (the QEMU twin and bring-up share one, and with it
+    /// every compiled dependency: the bring-up costs seconds, not a second build).
     pub target_dir: &'static str,
     /// The binary's name.
     pub bin: &'static str,
-    /// The ELF: `<target_dir>/thumbv7em-none-eabihf/firmware/<bin>`.
+    /// Where cargo leaves the ELF: `<target_dir>/thumbv7em-none-eabihf/firmware/<bin>`.
+    pub built: &'static str,
+    /// Where the ELF is kept: `built`, or a copy of it for an image whose `built` place
+    /// another image of the same target directory takes next.
     pub elf: &'static str,
     /// The environment variable that points the HIL harness at another ELF of this kind.
     pub env: Option<&'static str>,
@@ -46,19 +50,21 @@ pub const QEMU_TWIN: Image = Image {
     features: "",
     target_dir: "firmware/qemu-app/target",
     bin: "sts-twin-firmware",
+    built: "firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
     elf: "firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
     env: Some("STS_TWIN_FIRMWARE_ELF"),
 };
 
-/// The bring-up application on QEMU (feature `bringup`), for the platform tests. Its own
-/// target directory, so that it and the twin both exist.
+/// The bring-up application on QEMU (feature `bringup`), for the platform tests. Built in the
+/// twin's target directory and copied out of cargo's place before the twin takes it.
 pub const QEMU_BRINGUP: Image = Image {
     name: "bringup",
     what: "bring-up firmware, QEMU mps2-an386",
     app_dir: "firmware/qemu-app",
     features: "bringup",
-    target_dir: "firmware/qemu-app/target/bringup",
+    target_dir: "firmware/qemu-app/target",
     bin: "sts-twin-firmware",
+    built: "firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
     elf: "firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
     env: Some("STS_TWIN_BRINGUP_ELF"),
 };
@@ -71,12 +77,14 @@ pub const STM32H7: Image = Image {
     features: "",
     target_dir: "firmware/stm32h7-app/target",
     bin: "sts-twin-board-stm32h7",
+    built: "firmware/stm32h7-app/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7",
     elf: "firmware/stm32h7-app/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7",
     env: None,
 };
 
-/// Every image, in build order.
-pub const IMAGES: [Image; 3] = [QEMU_TWIN, QEMU_BRINGUP, STM32H7];
+/// Every image, in build order: the bring-up before the twin, so that cargo's place in their
+/// shared target directory holds the twin at the end.
+pub const IMAGES: [Image; 3] = [QEMU_BRINGUP, QEMU_TWIN, STM32H7];
 
 #[cfg(test)]
 mod tests {
@@ -86,8 +94,18 @@ mod tests {
     fn elf_paths_follow_cargo_layout() {
         for image in IMAGES {
             let expected = format!("{}/{FIRMWARE_TARGET}/{FIRMWARE_PROFILE}/{}", image.target_dir, image.bin);
-            assert_eq!(image.elf, expected, "{}", image.name);
+            assert_eq!(image.built, expected, "{}", image.name);
             assert!(image.target_dir.starts_with(image.app_dir), "{}", image.name);
         }
+        // Where two images share cargo's place, the one kept there is built last.
+        for (i, a) in IMAGES.iter().enumerate() {
+            for b in &IMAGES[i + 1..] {
+                if a.built == b.built {
+                    assert!(a.elf != a.built && b.elf == b.built, "{} and {}", a.name, b.name);
+                }
+            }
+        }
+        let elfs: std::collections::BTreeSet<&str> = IMAGES.iter().map(|i| i.elf).collect();
+        assert_eq!(elfs.len(), IMAGES.len(), "every image keeps its own ELF");
     }
 }

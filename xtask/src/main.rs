@@ -34,10 +34,13 @@ The firmware apps are workspaces of their own (each with its Cargo.lock and a
 .cargo/config.toml that sets the target and the runner), so a plain `cargo build` at the root
 does not build them. This task runs, in each app's directory:
 
-  qemu     firmware/qemu-app     cargo build --profile firmware
   bringup  firmware/qemu-app     cargo build --profile firmware --features bringup
-                                 --target-dir target/bringup
+                                 (then its ELF is copied to target/bringup/..., below)
+  qemu     firmware/qemu-app     cargo build --profile firmware
   stm32h7  firmware/stm32h7-app  cargo build --profile firmware
+
+The twin and the bring-up share the app's target directory and so every compiled dependency;
+the twin is built after the bring-up (also with --only bringup) so that cargo's place holds it.
 
 The ELFs land at fixed places (paths from the repository root):
 
@@ -108,7 +111,12 @@ fn firmware(args: &FirmwareArgs) -> Result<(), String> {
     let images: Vec<Image> = if args.only.is_empty() {
         IMAGES.to_vec()
     } else {
-        IMAGES.into_iter().filter(|i| args.only.iter().any(|n| n.image() == *i)).collect()
+        // An image built in another's place (the bring-up in the twin's) puts that one back.
+        let chosen: Vec<Image> = args.only.iter().map(|n| n.image()).collect();
+        IMAGES
+            .into_iter()
+            .filter(|i| chosen.contains(i) || chosen.iter().any(|c| c.elf != c.built && c.built == i.elf))
+            .collect()
     };
     if !args.paths {
         check_target_installed()?;
@@ -212,9 +220,14 @@ fn build(root: &Path, image: &Image, locked: bool) -> Result<(), String> {
     if !status.success() {
         return Err(format!("building {} failed ({status}) in {}: {shown}", image.name, app_dir.display()));
     }
-    let elf = root.join(image.elf);
-    if !elf.is_file() {
-        return Err(format!("{} built, but its ELF is not at {}", image.name, elf.display()));
+    let built = root.join(image.built);
+    if !built.is_file() {
+        return Err(format!("{} built, but its ELF is not at {}", image.name, built.display()));
+    }
+    if image.elf != image.built {
+        let elf = root.join(image.elf);
+        let copied = elf.parent().map_or(Ok(()), std::fs::create_dir_all).and_then(|()| std::fs::copy(&built, &elf));
+        copied.map_err(|e| format!("cannot copy {} to {}: {e}", built.display(), elf.display()))?;
     }
     Ok(())
 }

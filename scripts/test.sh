@@ -30,20 +30,12 @@ if ! wait "$python_setup"; then
     exit 1
 fi
 cat "$python_log"
-# The Python package's wheel builds beside the firmware, whose fat-LTO links run on one core.
-wheel_log=$(mktemp)
-bash scripts/python-package.sh build >"$wheel_log" 2>&1 &
-wheel_build=$!
 step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"
 cargo --locked xtask firmware --locked
 step "core library for RISC-V (riscv32imac-unknown-none-elf)"
 cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
-step "the Python package's wheel (maturin, built in the background)"
-if ! wait "$wheel_build"; then
-    cat "$wheel_log" >&2
-    exit 1
-fi
-tail -n 3 "$wheel_log"
+step "the Python package's wheel (maturin; the release test build below reuses its dependencies)"
+bash scripts/python-package.sh build
 step "tests: core, host tools, HIL"
 # The HIL harness finds the ELFs at these places by itself; named here to be explicit.
 STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \

@@ -38,7 +38,7 @@ use std::sync::mpsc;
 
 use rayon::prelude::*;
 use sts_dataset::Dataset;
-use sts_symreg::{FrontMember, Matrix, OperatorSet, SearchConfig, SearchResult, SelectionConfig};
+use sts_symreg::{Expr, FrontMember, Matrix, OperatorSet, SearchConfig, SearchResult, SelectionConfig};
 use sts_twin_core::features::{FeatureConfig, FEATURE_LABELS};
 use sts_twin_core::program::Program;
 
@@ -180,12 +180,8 @@ fn target_value(sample: &GroupSample, target: Target) -> f64 {
     }
 }
 
-fn run_search(
-    samples: &[&GroupSample],
-    target: Target,
-    search: &SearchConfig,
-    progress: &mut dyn FnMut(usize, &str),
-) -> Result<SearchResult, FitError> {
+/// The groups a search of `target` trains on.
+fn training_rows<'a>(samples: &[&'a GroupSample], target: Target) -> Vec<&'a GroupSample> {
     let mut rows: Vec<&GroupSample> = samples.iter().copied().filter(|s| trains(s, target)).collect();
     if rows.len() < 4 && target == Target::Phase {
         // Per-tick terms (a servo-axis twin) can leave the formulas almost nothing: the
@@ -195,6 +191,89 @@ fn run_search(
         rows.sort_by(|a, b| b.targets.de_amp_um.total_cmp(&a.targets.de_amp_um));
         rows.truncate(4);
     }
+    rows
+}
+
+/// The search's own loss (mean squared error of `target`) of `expr` on `rows`; infinite
+/// where it does not evaluate.
+fn training_loss(expr: &Expr, rows: &[&GroupSample], target: Target) -> f64 {
+    let sum: f64 = rows
+        .iter()
+        .map(|s| {
+            let p = expr.eval_row(&feature_row(s));
+            if p.is_finite() {
+                (target_value(s, target) - p).powi(2)
+            } else {
+                f64::INFINITY
+            }
+        })
+        .sum();
+    sum / rows.len().max(1) as f64
+}
+
+/// A final search that did clearly worse than a fold's search is replaced by that fold's
+/// formula when the latter's loss on all training groups is below this fraction of the
+/// final one's.
+pub const FOLD_FORMULA_LOSS_RATIO: f64 = 0.5;
+
+/// The formula the model carries for `target`: the final search's member at the selected
+/// complexity, unless a fold's search found one of at most that complexity whose loss on all
+/// training groups is clearly lower (searches are stochastic, and the final one can end in a
+/// worse basin than the folds': on one emulator measurement its waveform error on the data
+/// was twice the held-out figure of the fold formulas). Returns it, its training R^2 and why.
+fn carried_formula(
+    target: Target,
+    samples: &[GroupSample],
+    final_result: &SearchResult,
+    fold_results: &[SearchResult],
+    cv: &TargetCv,
+) -> (FrontMember, Option<String>) {
+    let chosen = &final_result.front[cv.selected];
+    let all: Vec<&GroupSample> = samples.iter().collect();
+    let rows = training_rows(&all, target);
+    let final_loss = training_loss(&chosen.expr, &rows, target);
+    let fold_members: Vec<&FrontMember> =
+        fold_results.iter().map(|r| member_up_to(&r.front, chosen.complexity)).collect();
+    let fold_losses: Vec<f64> = fold_members.iter().map(|m| training_loss(&m.expr, &rows, target)).collect();
+    match fold_to_carry(final_loss, &fold_losses) {
+        Some(k) => {
+            let (member, loss) = (fold_members[k], fold_losses[k]);
+            let measured: Vec<f64> = rows.iter().map(|s| target_value(s, target)).collect();
+            let predicted: Vec<f64> = rows.iter().map(|s| member.expr.eval_row(&feature_row(s))).collect();
+            let carried = FrontMember {
+                expr: member.expr.clone(),
+                loss,
+                complexity: member.complexity,
+                r2: r_squared(&measured, &predicted),
+                score: member.score,
+            };
+            let why = format!(
+                "The final search's formula of this complexity fits all groups with a loss of {final_loss:.3e}; fold {}'s search found {} (complexity {}) with {loss:.3e}, under {FOLD_FORMULA_LOSS_RATIO} of it, and the model carries that one.",
+                k + 1,
+                member.expr.to_infix_rounded(&FEATURE_LABELS, 5),
+                member.complexity
+            );
+            (carried, Some(why))
+        }
+        None => (chosen.clone(), None),
+    }
+}
+
+/// The fold whose formula the model carries instead of the final search's: the one of the
+/// lowest loss on all training groups (the first of equal ones), where that loss is under
+/// [`FOLD_FORMULA_LOSS_RATIO`] of the final formula's.
+fn fold_to_carry(final_loss: f64, fold_losses: &[f64]) -> Option<usize> {
+    let (k, loss) = fold_losses.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1).then(a.0.cmp(&b.0)))?;
+    (*loss < FOLD_FORMULA_LOSS_RATIO * final_loss).then_some(k)
+}
+
+fn run_search(
+    samples: &[&GroupSample],
+    target: Target,
+    search: &SearchConfig,
+    progress: &mut dyn FnMut(usize, &str),
+) -> Result<SearchResult, FitError> {
+    let rows = training_rows(samples, target);
     if rows.len() < 4 {
         return Err(FitError::TooFewGroups { groups: rows.len(), target });
     }
@@ -344,8 +423,13 @@ pub fn select_by_held_out(cv_nmse: &[f64], goal_nmse: f64, cv_ratio: f64) -> (us
     (selected, threshold)
 }
 
-fn formula(result: &SearchResult, cv: &TargetCv, r2_cv: f64) -> Formula {
-    let best = &result.front[cv.selected];
+fn formula(result: &SearchResult, cv: &TargetCv, r2_cv: f64, carried: &(FrontMember, Option<String>)) -> Formula {
+    let (best, why) = carried;
+    let mut selection = cv.explanation.clone();
+    if let Some(why) = why {
+        selection.push_str(why);
+        selection.push('\n');
+    }
     Formula {
         formula: best.expr.to_infix(&FEATURE_LABELS),
         expr: best.expr.clone(),
@@ -364,7 +448,7 @@ fn formula(result: &SearchResult, cv: &TargetCv, r2_cv: f64) -> Formula {
                 r2_cv: Some(e.r2_cv),
             })
             .collect(),
-        selection: cv.explanation.clone(),
+        selection,
     }
 }
 
@@ -491,9 +575,10 @@ pub fn fit_samples(
         fold_programs.push(compile_program(amp, phase).map_err(|error| FitError::FoldProgram { fold, error })?);
     }
     let held_out: Vec<(f64, f64)> = samples.iter().map(|s| predict(&fold_programs[s.index % folds], s)).collect();
-    let amp_expr = &amp_final.front[amp_cv.selected].expr;
-    let phase_expr = &phase_final.front[phase_cv.selected].expr;
-    let program = compile_program(amp_expr, phase_expr).map_err(|error| FitError::FinalProgram { error })?;
+    let amp_carried = carried_formula(Target::Amplitude, samples, amp_final, &amp_folds, &amp_cv);
+    let phase_carried = carried_formula(Target::Phase, samples, phase_final, &phase_folds, &phase_cv);
+    let program = compile_program(&amp_carried.0.expr, &phase_carried.0.expr)
+        .map_err(|error| FitError::FinalProgram { error })?;
 
     let validation = validate(dataset, samples, &held_out, folds);
     let mut postcard_buf = [0u8; 1024];
@@ -517,8 +602,8 @@ pub fn fit_samples(
             cv_ratio: config.cv_ratio,
             epochs: [amp_final.epochs, phase_final.epochs],
         }),
-        amplitude: formula(amp_final, &amp_cv, validation.amplitude_r2),
-        phase: formula(phase_final, &phase_cv, validation.phase_r2),
+        amplitude: formula(amp_final, &amp_cv, validation.amplitude_r2, &amp_carried),
+        phase: formula(phase_final, &phase_cv, validation.phase_r2, &phase_carried),
         program: ProgramListing {
             id: program.id,
             code_hex: hex_encode(&program.code),
@@ -599,6 +684,19 @@ mod tests {
         assert_eq!(member_up_to(&front, 5).complexity, 3);
         assert_eq!(member_up_to(&front, 7).complexity, 7);
         assert_eq!(member_up_to(&front[1..], 2).complexity, 3);
+    }
+
+    #[test]
+    fn a_fold_formula_is_carried_only_where_clearly_better_on_all_groups() {
+        // The final search ended in a worse basin: the best fold, under half its loss.
+        assert_eq!(fold_to_carry(2.0, &[1.5, 0.9, 0.7, 0.7, 1.2]), Some(2));
+        // Better, but not by half: the final formula stays.
+        assert_eq!(fold_to_carry(2.0, &[1.1, 1.0, 1.3]), None);
+        assert_eq!(fold_to_carry(2.0, &[1.0]), None);
+        // A final formula that does not evaluate on some group gives way to one that does.
+        assert_eq!(fold_to_carry(f64::INFINITY, &[f64::INFINITY, 3.0]), Some(1));
+        assert_eq!(fold_to_carry(f64::INFINITY, &[f64::INFINITY]), None);
+        assert_eq!(fold_to_carry(1.0, &[]), None);
     }
 
     #[test]

@@ -194,19 +194,18 @@ fn training_rows<'a>(samples: &[&'a GroupSample], target: Target) -> Vec<&'a Gro
     rows
 }
 
-/// The search's own loss (mean squared error of `target`) of `expr` on `rows`; infinite
-/// where it does not evaluate.
-fn training_loss(expr: &Expr, rows: &[&GroupSample], target: Target) -> f64 {
+/// The predictions of `expr` on `rows`.
+fn predictions(expr: &Expr, rows: &[&GroupSample]) -> Vec<f64> {
+    rows.iter().map(|s| expr.eval_row(&feature_row(s))).collect()
+}
+
+/// The search's own loss (mean squared error of `target`) of `predicted` on `rows`; infinite
+/// where a prediction is not finite.
+fn training_loss(predicted: &[f64], rows: &[&GroupSample], target: Target) -> f64 {
     let sum: f64 = rows
         .iter()
-        .map(|s| {
-            let p = expr.eval_row(&feature_row(s));
-            if p.is_finite() {
-                (target_value(s, target) - p).powi(2)
-            } else {
-                f64::INFINITY
-            }
-        })
+        .zip(predicted)
+        .map(|(s, &p)| if p.is_finite() { (target_value(s, target) - p).powi(2) } else { f64::INFINITY })
         .sum();
     sum / rows.len().max(1) as f64
 }
@@ -231,20 +230,20 @@ fn carried_formula(
     let chosen = &final_result.front[cv.selected];
     let all: Vec<&GroupSample> = samples.iter().collect();
     let rows = training_rows(&all, target);
-    let final_loss = training_loss(&chosen.expr, &rows, target);
+    let final_loss = training_loss(&predictions(&chosen.expr, &rows), &rows, target);
     let fold_members: Vec<&FrontMember> =
         fold_results.iter().map(|r| member_up_to(&r.front, chosen.complexity)).collect();
-    let fold_losses: Vec<f64> = fold_members.iter().map(|m| training_loss(&m.expr, &rows, target)).collect();
+    let fold_predictions: Vec<Vec<f64>> = fold_members.iter().map(|m| predictions(&m.expr, &rows)).collect();
+    let fold_losses: Vec<f64> = fold_predictions.iter().map(|p| training_loss(p, &rows, target)).collect();
     match fold_to_carry(final_loss, &fold_losses) {
         Some(k) => {
             let (member, loss) = (fold_members[k], fold_losses[k]);
             let measured: Vec<f64> = rows.iter().map(|s| target_value(s, target)).collect();
-            let predicted: Vec<f64> = rows.iter().map(|s| member.expr.eval_row(&feature_row(s))).collect();
             let carried = FrontMember {
                 expr: member.expr.clone(),
                 loss,
                 complexity: member.complexity,
-                r2: r_squared(&measured, &predicted),
+                r2: r_squared(&measured, &fold_predictions[k]),
                 score: member.score,
             };
             let why = format!(

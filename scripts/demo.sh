@@ -7,5 +7,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 cargo --locked xtask firmware --locked --only qemu
-export STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
+export STS_TWIN_FIRMWARE_ELF="$PWD/firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
 exec cargo run --locked --release -p sts-twin -- demo "$@"

@@ -38,8 +38,8 @@ step "the Python package's wheel (maturin; the release test build below reuses i
 bash scripts/python-package.sh build
 step "tests: core, host tools, HIL"
 # The HIL harness finds the ELFs at these places by itself; named here to be explicit.
-STS_TWIN_FIRMWARE_ELF="$PWD/firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
-STS_TWIN_BRINGUP_ELF="$PWD/firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
+STS_TWIN_FIRMWARE_ELF="$PWD/firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
+STS_TWIN_BRINGUP_ELF="$PWD/firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
     cargo test --workspace --locked --release
 step "Python package: pytest against the CLI, docs/python-loop.py"
 bash scripts/python-package.sh test

@@ -28,8 +28,9 @@ pub struct Image {
     pub app_dir: &'static str,
     /// Its cargo features (`--features`), empty for none.
     pub features: &'static str,
-    /// The target directory it is built in (the QEMU twin and bring-up share one, and with it
-    /// every compiled dependency: the bring-up costs seconds, not a second build).
+    /// The target directory it is built in: one for every image (`firmware/target`, also the
+    /// apps' own `.cargo/config.toml` `target-dir`), so that the images share every compiled
+    /// dependency they have in common: the bring-up costs seconds, the second app a fraction.
     pub target_dir: &'static str,
     /// The binary's name.
     pub bin: &'static str,
@@ -48,10 +49,10 @@ pub const QEMU_TWIN: Image = Image {
     what: "twin firmware, QEMU mps2-an386",
     app_dir: "firmware/qemu-app",
     features: "",
-    target_dir: "firmware/qemu-app/target",
+    target_dir: "firmware/target",
     bin: "sts-twin-firmware",
-    built: "firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
-    elf: "firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
+    built: "firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
+    elf: "firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
     env: Some("STS_TWIN_FIRMWARE_ELF"),
 };
 
@@ -62,10 +63,10 @@ pub const QEMU_BRINGUP: Image = Image {
     what: "bring-up firmware, QEMU mps2-an386",
     app_dir: "firmware/qemu-app",
     features: "bringup",
-    target_dir: "firmware/qemu-app/target",
+    target_dir: "firmware/target",
     bin: "sts-twin-firmware",
-    built: "firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
-    elf: "firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
+    built: "firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
+    elf: "firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
     env: Some("STS_TWIN_BRINGUP_ELF"),
 };
 
@@ -75,10 +76,10 @@ pub const STM32H7: Image = Image {
     what: "firmware for the STM32H743ZI board",
     app_dir: "firmware/stm32h7-app",
     features: "",
-    target_dir: "firmware/stm32h7-app/target",
+    target_dir: "firmware/target",
     bin: "sts-twin-board-stm32h7",
-    built: "firmware/stm32h7-app/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7",
-    elf: "firmware/stm32h7-app/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7",
+    built: "firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7",
+    elf: "firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7",
     env: None,
 };
 
@@ -95,7 +96,16 @@ mod tests {
         for image in IMAGES {
             let expected = format!("{}/{FIRMWARE_TARGET}/{FIRMWARE_PROFILE}/{}", image.target_dir, image.bin);
             assert_eq!(image.built, expected, "{}", image.name);
-            assert!(image.target_dir.starts_with(image.app_dir), "{}", image.name);
+            // `cargo build` in the app's directory builds into the same place.
+            let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+            let config = std::fs::read_to_string(root.join(image.app_dir).join(".cargo/config.toml")).unwrap();
+            let relative = config
+                .lines()
+                .find_map(|l| l.trim().strip_prefix("target-dir = \"")?.strip_suffix('"'))
+                .expect("the app's .cargo/config.toml sets target-dir");
+            let app_parent = std::path::Path::new(image.app_dir).parent().unwrap();
+            let resolved = relative.strip_prefix("../").map(|r| app_parent.join(r)).expect("a sibling directory");
+            assert_eq!(resolved, std::path::Path::new(image.target_dir), "{}", image.name);
         }
         // Where two images share cargo's place, the one kept there is built last.
         for (i, a) in IMAGES.iter().enumerate() {

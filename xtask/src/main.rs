@@ -39,14 +39,15 @@ does not build them. This task runs, in each app's directory:
   qemu     firmware/qemu-app     cargo build --profile firmware
   stm32h7  firmware/stm32h7-app  cargo build --profile firmware
 
-The twin and the bring-up share the app's target directory and so every compiled dependency;
-the twin is built after the bring-up (also with --only bringup) so that cargo's place holds it.
+All three share one target directory (firmware/target), and with it every dependency they
+have in common; the twin is built after the bring-up (also with --only bringup) so that
+cargo's place holds it.
 
 The ELFs land at fixed places (paths from the repository root):
 
-  firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware
-  firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware
-  firmware/stm32h7-app/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7
+  firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware
+  firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware
+  firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7
 
 The HIL harness (sts-twin hil, the hil-tests, the demo) takes the QEMU ELFs from there unless
 STS_TWIN_FIRMWARE_ELF / STS_TWIN_BRINGUP_ELF point elsewhere. It never builds them: run this

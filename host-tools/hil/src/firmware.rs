@@ -43,8 +43,8 @@ impl FirmwareVariant {
     /// (the same paths as the xtask crate's `QEMU_TWIN.elf` / `QEMU_BRINGUP.elf`).
     pub fn default_elf_relative(self) -> &'static str {
         match self {
-            Self::Twin => "firmware/qemu-app/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
-            Self::BringUp => "firmware/qemu-app/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
+            Self::Twin => "firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
+            Self::BringUp => "firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
         }
     }
 

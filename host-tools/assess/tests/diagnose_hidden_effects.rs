@@ -11,8 +11,9 @@
 //! and the held-out RMS of the model fitted with the verdict's terms, against the reference
 //! model's own held-out RMS on clean data.
 //!
-//! CI runs a reduced suite (`ci_suite`: one seed per effect on 5.5 s groups, a few minutes;
-//! `ci_suite_lab`: the same cases in the lab's workflow, without refits).
+//! CI runs a reduced suite (`ci_suite`: one seed per effect on 5.5 s groups, refitted but for
+//! the effects that `explain_several_effects`' CI sets refit; `ci_suite_lab`: the same cases
+//! in the lab's workflow, without refits).
 //! The full run is
 //!
 //! ```text
@@ -55,6 +56,8 @@ struct Suite {
     first_seed: u64,
     seeds: u64,
     fit_seeds: u64,
+    /// Hidden effects never refitted (CI: those `explain_several_effects`' CI sets refit).
+    no_refit: &'static [&'static str],
     paper_grid: bool,
     epochs: usize,
 }
@@ -126,7 +129,15 @@ fn expected_verdict(case: &str) -> &str {
     }
 }
 
-fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u64, refit: bool) -> Outcome {
+/// `refit`: fit with the verdict's terms; `hunting`: measure whether the machine hunts.
+fn run_case(
+    suite: &Suite,
+    reference: &ModelFile,
+    effect: Option<&str>,
+    seed: u64,
+    refit: bool,
+    hunting: bool,
+) -> Outcome {
     let effects = match effect {
         Some(IN_BAND_MODE) => {
             // Between the test's second and last frequencies, so that the test sees both sides.
@@ -179,7 +190,7 @@ fn run_case(suite: &Suite, reference: &ModelFile, effect: Option<&str>, seed: u6
     if let Some(text) = &d.unexplained {
         println!("    unexplained: {text}");
     }
-    let step_dependence_nm = if refit { step_dependence_nm(&effects, 100 + seed) } else { 0.0 };
+    let step_dependence_nm = if hunting { step_dependence_nm(&effects, 100 + seed) } else { 0.0 };
     Outcome {
         verdict: d.verdict,
         reference_rms_um: before_rms_um,
@@ -214,7 +225,10 @@ fn run_suite(suite: &Suite) {
     // Lab workflow: `none` where the twin fitted on the data already predicts it within 1.5x
     // of the clean twin's error (the formulas absorbed the effect), per hidden effect.
     let mut absorbed = vec![0usize; rows.len()];
-    let mut falls: Vec<(String, u64, f64, f64, f64, f64, usize)> = Vec::new();
+    // Per case due a refit: the effect, the seed, the twin's RMS before, the refit's (`None`:
+    // not refitted here), the clean twin's RMS, the step dependence and the groups not
+    // repeating.
+    let mut falls: Vec<(String, u64, f64, Option<f64>, f64, f64, usize)> = Vec::new();
     // Seeds outermost, so that a partial run still covers every effect.
     for seed in suite.first_seed..suite.first_seed + suite.seeds {
         for (row, truth) in rows.iter().enumerate() {
@@ -222,8 +236,9 @@ fn run_suite(suite: &Suite) {
                 continue;
             }
             let effect = if *truth == "none" { None } else { Some(*truth) };
-            let refit = effect.is_some() && seed - suite.first_seed < suite.fit_seeds;
-            let o = run_case(suite, &reference, effect, seed, refit);
+            let refit_due = effect.is_some() && seed - suite.first_seed < suite.fit_seeds;
+            let refit = refit_due && effect.is_some_and(|e| !suite.no_refit.contains(&e));
+            let o = run_case(suite, &reference, effect, seed, refit, refit_due);
             let col = labels.iter().position(|l| *l == o.verdict).unwrap_or(labels.len() - 1);
             confusion[row][col] += 1;
             let absorbed_here = suite.workflow == Workflow::Lab
@@ -231,12 +246,12 @@ fn run_suite(suite: &Suite) {
                 && o.verdict == "none"
                 && o.reference_rms_um <= 1.5 * clean_rms;
             absorbed[row] += usize::from(absorbed_here);
-            if let Some(after) = o.refit_rms_um {
+            if refit_due {
                 falls.push((
                     truth.to_string(),
                     seed,
                     o.reference_rms_um,
-                    after,
+                    o.refit_rms_um,
                     clean_rms,
                     o.step_dependence_nm,
                     o.not_repeating,
@@ -291,12 +306,26 @@ fn run_suite(suite: &Suite) {
     let mut fall_ok = true;
     let mut unpredictable = 0;
     for (effect, seed, before, after, clean, step_nm, not_repeating) in &falls {
-        let fall = 1.0 - after / before;
-        let within = after / clean <= 1.5;
         let determined = *step_nm <= 5.0;
         unpredictable += usize::from(!determined);
         // The user is told: `diagnose` finds the groups whose error does not repeat.
         let told = determined || *not_repeating > 0;
+        let Some(after) = after else {
+            // Not refitted here (CI: the several-effects sets refit it); a hunting machine
+            // must still have been told.
+            println!(
+                "  {effect:<22} seed {seed}: not refitted here{}",
+                if told {
+                    String::new()
+                } else {
+                    "  FAILS (diagnose did not find the groups that do not repeat)".into()
+                }
+            );
+            fall_ok &= told;
+            continue;
+        };
+        let fall = 1.0 - after / before;
+        let within = after / clean <= 1.5;
         let met = fall >= 0.5 && (within || !determined) && told;
         println!(
             "  {effect:<22} seed {seed}: {:.1} -> {:.1} nm, fall {:.0}%, {:.2}x clean{}",
@@ -333,7 +362,13 @@ fn run_suite(suite: &Suite) {
     assert!(fall_ok, "a refit did not halve the error, or ended above 1.5x clean on a determined measurement");
 }
 
-/// CI's share: the 99 groups shortened to 5.5 s, one seed per effect (and clean), each refitted.
+/// The axis twin's effects (and the drift), which CI refits in `explain_several_effects`'
+/// two sets (friction with hysteresis, drift with ripple) on the same grid: CI's share here
+/// diagnoses them but does not refit them again (the refits were 40 of its 95 s).
+const REFIT_BY_CI_SETS: &[&str] = &["coulomb-friction", "presliding-hysteresis", "thermal-drift", "force-ripple"];
+
+/// CI's share: the 99 groups shortened to 5.5 s, one seed per effect (and clean), each refitted
+/// but those in [`REFIT_BY_CI_SETS`].
 #[test]
 fn ci_suite() {
     run_suite(&Suite {
@@ -342,6 +377,7 @@ fn ci_suite() {
         first_seed: 0,
         seeds: env_u64("STS_SUITE_CI_SEEDS", 1),
         fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1),
+        no_refit: REFIT_BY_CI_SETS,
         paper_grid: false,
         epochs: 10,
     });
@@ -367,6 +403,7 @@ fn ci_suite_lab() {
         first_seed: 0,
         seeds: env_u64("STS_SUITE_CI_SEEDS", 1),
         fit_seeds: 0,
+        no_refit: &[],
         paper_grid: false,
         epochs: 10,
     });
@@ -384,6 +421,7 @@ fn ci_probe_gain_lab() {
         first_seed: 6,
         seeds: 1,
         fit_seeds: 1,
+        no_refit: &[],
         paper_grid: false,
         epochs: 10,
     });
@@ -403,6 +441,7 @@ fn full_suite() {
         first_seed: env_u64("STS_SUITE_FIRST_SEED", 0),
         seeds: env_u64("STS_SUITE_SEEDS", 20),
         fit_seeds: env_u64("STS_SUITE_FIT_SEEDS", 3),
+        no_refit: &[],
         paper_grid: std::env::var("STS_SUITE_GRID").map_or(true, |g| g == "paper"),
         epochs: env_u64("STS_SUITE_EPOCHS", 40) as usize,
     });

@@ -224,6 +224,9 @@ fn discretise(c: &Candidate) -> Discrete {
 /// simulation in the same order: the same bits as one at a time.
 const LANES: usize = 4;
 
+/// Candidates simulated together, with their linear parts.
+type Chunk<'a> = (&'a [Candidate], &'a [Discrete]);
+
 /// One `f64` per lane.
 type Lanes<const N: usize> = [f64; N];
 
@@ -432,7 +435,7 @@ impl<'a> Sample<'a> {
             .par_iter()
             .map(|&(c0, g)| {
                 let c1 = (c0 + LANES).min(cs.len());
-                self.group_residuals(&cs[c0..c1], &discrete[c0..c1], g, what)
+                self.group_residuals((&cs[c0..c1], &discrete[c0..c1]), g, what)
             })
             .collect();
         let mut out: Vec<Vec<f64>> = vec![Vec::new(); cs.len()];
@@ -444,49 +447,32 @@ impl<'a> Sample<'a> {
         out
     }
 
-    /// The residuals of up to [`LANES`] candidates on the sample's `index`-th group.
-    fn group_residuals(&self, cs: &[Candidate], discrete: &[Discrete], index: usize, what: Fit) -> Vec<Vec<f64>> {
+    /// The residuals of up to [`LANES`] candidates (with their linear parts) on the sample's
+    /// `index`-th group.
+    fn group_residuals(&self, chunk: Chunk, index: usize, what: Fit) -> Vec<Vec<f64>> {
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: the CPU supports AVX2 (checked just above).
-                return unsafe { self.group_residuals_avx2(cs, discrete, index, what) };
+                return unsafe { self.group_residuals_avx2(chunk, index, what) };
             }
         }
-        self.group_residuals_generic(cs, discrete, index, what)
+        self.group_residuals_generic(chunk, index, what)
     }
 
     /// [`Self::group_residuals`] compiled for AVX2 (4 lanes a vector instead of SSE2's 2; no
     /// FMA, and Rust never contracts `a * b + c`: the same bits).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn group_residuals_avx2(
-        &self,
-        cs: &[Candidate],
-        discrete: &[Discrete],
-        index: usize,
-        what: Fit,
-    ) -> Vec<Vec<f64>> {
-        self.group_residuals_generic(cs, discrete, index, what)
+    unsafe fn group_residuals_avx2(&self, chunk: Chunk, index: usize, what: Fit) -> Vec<Vec<f64>> {
+        self.group_residuals_generic(chunk, index, what)
     }
 
     /// The body of [`Self::group_residuals`], for every instruction set.
     #[inline(always)]
-    fn group_residuals_generic(
-        &self,
-        cs: &[Candidate],
-        discrete: &[Discrete],
-        index: usize,
-        what: Fit,
-    ) -> Vec<Vec<f64>> {
+    fn group_residuals_generic(&self, chunk: Chunk, index: usize, what: Fit) -> Vec<Vec<f64>> {
         #[inline(always)]
-        fn lanes<const N: usize>(
-            sample: &Sample,
-            cs: &[Candidate],
-            discrete: &[Discrete],
-            index: usize,
-            what: Fit,
-        ) -> Vec<Vec<f64>> {
+        fn lanes<const N: usize>(sample: &Sample, (cs, discrete): Chunk, index: usize, what: Fit) -> Vec<Vec<f64>> {
             let g = &sample.dataset.groups[sample.groups[index]];
             let (first, end) = sample.windows[index];
             let mut out = vec![Vec::new(); N];
@@ -513,11 +499,11 @@ impl<'a> Sample<'a> {
             );
             out
         }
-        match cs.len() {
-            1 => lanes::<1>(self, cs, discrete, index, what),
-            2 => lanes::<2>(self, cs, discrete, index, what),
-            3 => lanes::<3>(self, cs, discrete, index, what),
-            _ => lanes::<LANES>(self, cs, discrete, index, what),
+        match chunk.0.len() {
+            1 => lanes::<1>(self, chunk, index, what),
+            2 => lanes::<2>(self, chunk, index, what),
+            3 => lanes::<3>(self, chunk, index, what),
+            _ => lanes::<LANES>(self, chunk, index, what),
         }
     }
 }
@@ -844,12 +830,8 @@ mod tests {
             // One at a time, without vector instructions beyond the baseline.
             let alone: Vec<f64> = (0..sample.groups.len())
                 .flat_map(|g| {
-                    sample.group_residuals_generic(
-                        std::slice::from_ref(c),
-                        std::slice::from_ref(&discrete),
-                        g,
-                        Fit::Both,
-                    )
+                    let lone = (std::slice::from_ref(c), std::slice::from_ref(&discrete));
+                    sample.group_residuals_generic(lone, g, Fit::Both)
                 })
                 .flatten()
                 .collect();

@@ -225,10 +225,9 @@ fn run_suite(suite: &Suite) {
     // Lab workflow: `none` where the twin fitted on the data already predicts it within 1.5x
     // of the clean twin's error (the formulas absorbed the effect), per hidden effect.
     let mut absorbed = vec![0usize; rows.len()];
-    // Per case due a refit: the effect, the seed, the twin's RMS before, the refit's (`None`:
-    // not refitted here), the clean twin's RMS, the step dependence and the groups not
-    // repeating.
-    let mut falls: Vec<(String, u64, f64, Option<f64>, f64, f64, usize)> = Vec::new();
+    // Per case due a refit: the effect, the seed and the outcome (its refit's RMS `None`
+    // where not refitted here).
+    let mut falls: Vec<(String, u64, Outcome)> = Vec::new();
     // Seeds outermost, so that a partial run still covers every effect.
     for seed in suite.first_seed..suite.first_seed + suite.seeds {
         for (row, truth) in rows.iter().enumerate() {
@@ -246,17 +245,6 @@ fn run_suite(suite: &Suite) {
                 && o.verdict == "none"
                 && o.reference_rms_um <= 1.5 * clean_rms;
             absorbed[row] += usize::from(absorbed_here);
-            if refit_due {
-                falls.push((
-                    truth.to_string(),
-                    seed,
-                    o.reference_rms_um,
-                    o.refit_rms_um,
-                    clean_rms,
-                    o.step_dependence_nm,
-                    o.not_repeating,
-                ));
-            }
             println!(
                 "{truth:<24} seed {seed:>2}: verdict {:<22} twin's RMS {:.1} nm{}{}",
                 o.verdict,
@@ -264,6 +252,9 @@ fn run_suite(suite: &Suite) {
                 o.refit_rms_um.map_or(String::new(), |r| format!(", refit held-out RMS {:.1} nm", r * 1e3)),
                 if absorbed_here { " (absorbed by the formulas)" } else { "" }
             );
+            if refit_due {
+                falls.push((truth.to_string(), seed, o));
+            }
         }
     }
 
@@ -305,7 +296,9 @@ fn run_suite(suite: &Suite) {
     // user which groups do not repeat.
     let mut fall_ok = true;
     let mut unpredictable = 0;
-    for (effect, seed, before, after, clean, step_nm, not_repeating) in &falls {
+    for (effect, seed, o) in &falls {
+        let (before, after, clean) = (&o.reference_rms_um, &o.refit_rms_um, &clean_rms);
+        let (step_nm, not_repeating) = (&o.step_dependence_nm, &o.not_repeating);
         let determined = *step_nm <= 5.0;
         unpredictable += usize::from(!determined);
         // The user is told: `diagnose` finds the groups whose error does not repeat.

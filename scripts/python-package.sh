@@ -6,7 +6,7 @@
 #   scripts/python-package.sh [build|test|all] [PYTEST ARGS...]   (default: all)
 #
 # `build` alone makes the wheel in target/wheels; `test` installs it and runs pytest (scripts/
-# test.sh builds it before the release test build, which reuses the dependencies they share).
+# test.sh builds it before the release test build, which reuses most of its third-party crates).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mode=all

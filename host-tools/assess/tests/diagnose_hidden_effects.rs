@@ -297,13 +297,13 @@ fn run_suite(suite: &Suite) {
     let mut fall_ok = true;
     let mut unpredictable = 0;
     for (effect, seed, o) in &falls {
-        let (before, after, clean) = (&o.reference_rms_um, &o.refit_rms_um, &clean_rms);
-        let (step_nm, not_repeating) = (&o.step_dependence_nm, &o.not_repeating);
-        let determined = *step_nm <= 5.0;
+        let (before, clean, step_nm, not_repeating) =
+            (o.reference_rms_um, clean_rms, o.step_dependence_nm, o.not_repeating);
+        let determined = step_nm <= 5.0;
         unpredictable += usize::from(!determined);
         // The user is told: `diagnose` finds the groups whose error does not repeat.
-        let told = determined || *not_repeating > 0;
-        let Some(after) = after else {
+        let told = determined || not_repeating > 0;
+        let Some(after) = o.refit_rms_um else {
             // Not refitted here (CI: the several-effects sets refit it); a hunting machine
             // must still have been told.
             println!(

@@ -362,22 +362,8 @@ fn simulate<const N: usize>(
         if effects.hysteresis {
             for l in 0..N {
                 let moved = s[0][l] - x_before[l];
-                let sign = if moved.is_nan() {
-                    moved
-                } else if moved.is_sign_negative() {
-                    -1.0
-                } else {
-                    1.0
-                };
-                let d = dahl[l] + hs[l] * moved * (1.0 - dahl[l] / hf[l] * sign);
-                // Clamped into [-hf, hf] (the firmware's range; hf > 0 by the slot's bounds).
-                dahl[l] = if d < -hf[l] {
-                    -hf[l]
-                } else if d > hf[l] {
-                    hf[l]
-                } else {
-                    d
-                };
+                dahl[l] += hs[l] * moved * (1.0 - dahl[l] / hf[l] * moved.signum());
+                dahl[l] = dahl[l].clamp(-hf[l], hf[l]);
             }
         }
     }

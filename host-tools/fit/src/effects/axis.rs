@@ -294,7 +294,9 @@ fn simulate<const N: usize>(
         if ripple {
             for l in 0..N {
                 let theta = 2.0 * PI * (s[0][l] + r0) / pitch_m[l] + rph[l];
-                reading[l] += ra[l] * theta.sin() + r2[l] * (2.0 * theta).sin();
+                // The vectorised sine (libm's scalar one was 40% of a three-effect fit).
+                let (sin, cos) = sts_symreg::fastmath::sin_cos(theta);
+                reading[l] += ra[l] * sin + r2[l] * (2.0 * sin * cos);
             }
         }
         if k >= ticks.start {

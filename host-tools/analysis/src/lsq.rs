@@ -7,7 +7,9 @@
 //! - [`solve_damped`]: the same with Marquardt's damping (the axis identification's
 //!   Levenberg-Marquardt steps, the Jacobian reduced once for every damping tried);
 //! - [`least_squares`]: a small fit with its residuals, refusing dependent columns
-//!   (calibration, sine fits).
+//!   (calibration, sine fits);
+//! - [`Projection`]: what many series leave after least squares on the same fixed columns
+//!   (the ripple's pitch search, whose candidate columns all lose the same nuisance).
 //!
 //! Collinear regressors are common (a candidate's columns can nearly coincide on a short
 //! window), so [`solve`] adds a ridge of [`RIDGE`] relative to each column's norm: a finite,
@@ -163,6 +165,58 @@ fn ridge_solve_matrix(x: DMatrix<f64>, y: DVector<f64>, damping: f64) -> Vec<f64
     (0..p).map(|j| w[(j, 0)] / scale[j]).collect()
 }
 
+/// The residual of least squares on fixed columns `X`, for any number of series: `y - Q Q^T y`
+/// with `Q` the thin orthonormal factor of `X`'s QR, computed once.
+///
+/// ```
+/// use sts_analysis::lsq::Projection;
+/// let ones = vec![1.0; 4];
+/// let ramp = vec![0.0, 1.0, 2.0, 3.0];
+/// let left = Projection::new(&[ones, ramp]).residual(&[1.0, 3.0, 5.0, 8.0]);
+/// assert!((left.iter().sum::<f64>()).abs() < 1e-12);
+/// ```
+#[derive(Clone, Debug)]
+pub struct Projection {
+    q: DMatrix<f64>,
+}
+
+impl Projection {
+    /// The projection off columns `x`, each as long as the series it will take.
+    pub fn new(x: &[Vec<f64>]) -> Self {
+        let n = x.first().map_or(0, Vec::len);
+        let m = x.len().min(n);
+        let q = if m == 0 { DMatrix::zeros(n, 0) } else { DMatrix::from_fn(n, m, |i, j| x[j][i]).qr().q() };
+        Self { q }
+    }
+
+    /// `y` minus its least-squares fit on the columns.
+    pub fn residual(&self, y: &[f64]) -> Vec<f64> {
+        let mut out = y.to_vec();
+        for q in self.q.column_iter() {
+            let c = dot(q.as_slice(), y);
+            for (o, a) in out.iter_mut().zip(q.iter()) {
+                *o -= c * a;
+            }
+        }
+        out
+    }
+}
+
+/// `a . b` in four interleaved sums, which the compiler vectorises (one running sum cannot
+/// be reordered, and its additions wait on each other): the pitch search takes hundreds of
+/// thousands of them.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut sums = [0.0f64; 4];
+    let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
+    let tail: f64 = a4.remainder().iter().zip(b4.remainder()).map(|(x, y)| x * y).sum();
+    for (x, y) in a4.zip(b4) {
+        for l in 0..4 {
+            sums[l] += x[l] * y[l];
+        }
+    }
+    (sums[0] + sums[1]) + (sums[2] + sums[3]) + tail
+}
+
 /// A least-squares fit: the coefficients and the RMS of the residuals.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LinearFit {
@@ -222,6 +276,26 @@ mod tests {
         assert!((b[0] - 0.5).abs() < 1e-6 && (b[1] + 2.0).abs() < 1e-6, "{b:?}");
         let damped = solve_damped(&[&stats], 1.0);
         assert!(damped[0].abs() < 0.5 && damped[1].abs() < 2.0, "{damped:?}");
+    }
+
+    #[test]
+    fn a_projection_leaves_what_least_squares_leaves() {
+        let n = 500;
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.013).collect();
+        let columns: Vec<Vec<f64>> =
+            vec![vec![1.0; n], t.iter().map(|t| t.sin()).collect(), t.iter().map(|t| (3.0 * t).cos()).collect()];
+        let y: Vec<f64> = t.iter().map(|t| 0.3 + 2.0 * t.sin() - (3.0 * t).cos() + (7.7 * t).sin() * t).collect();
+        let left = Projection::new(&columns).residual(&y);
+        let rows: Vec<[f64; 3]> = (0..n).map(|i| [columns[0][i], columns[1][i], columns[2][i]]).collect();
+        let fit = least_squares(&rows, &y).expect("independent columns");
+        for (i, l) in left.iter().enumerate() {
+            let want = y[i] - (0..3).map(|j| fit.coefficients[j] * columns[j][i]).sum::<f64>();
+            assert!((l - want).abs() < 1e-12, "{i}: {l} vs {want}");
+        }
+        // Orthogonal to every column.
+        for c in &columns {
+            assert!(c.iter().zip(&left).map(|(a, b)| a * b).sum::<f64>().abs() < 1e-9);
+        }
     }
 
     #[test]

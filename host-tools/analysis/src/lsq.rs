@@ -203,7 +203,7 @@ impl Projection {
 }
 
 /// `a . b` in four interleaved sums, which the compiler vectorises (one running sum cannot
-/// be reordered, and its additions wait on each other): the pitch search takes hundreds of
+/// be reordered, and its additions wait on each other): the pitch search takes tens of
 /// thousands of them.
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut sums = [0.0f64; 4];

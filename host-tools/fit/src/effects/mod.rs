@@ -139,14 +139,34 @@ fn skip_start(len: usize, fs: f64) -> usize {
     ((0.5 * fs) as usize).min(len.saturating_sub(1))
 }
 
+/// The sine and cosine at a group's command phases and a constant: what
+/// [`Fundamental::take_out`] removes, computed once for every series of the group.
+struct Fundamental {
+    columns: [Vec<f64>; 3],
+}
+
+impl Fundamental {
+    fn new(theta: &[f64]) -> Self {
+        Fundamental {
+            columns: [
+                theta.iter().map(|t| t.sin()).collect(),
+                theta.iter().map(|t| t.cos()).collect(),
+                vec![1.0; theta.len()],
+            ],
+        }
+    }
+
+    /// `y` minus its least-squares sine and cosine at the phases and its mean.
+    fn take_out(&self, y: &[f64]) -> Vec<f64> {
+        let th = solve(&[&Stats::from_columns(&self.columns, y)]);
+        let [s, c, _] = &self.columns;
+        y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k] - th[2]).collect()
+    }
+}
+
 /// `y` minus its least-squares sine and cosine at phase `theta` and its mean.
 fn project_out_fundamental(y: &[f64], theta: &[f64]) -> Vec<f64> {
-    let s: Vec<f64> = theta.iter().map(|t| t.sin()).collect();
-    let c: Vec<f64> = theta.iter().map(|t| t.cos()).collect();
-    let one = vec![1.0; y.len()];
-    let st = Stats::from_columns(&[s.clone(), c.clone(), one], y);
-    let th = solve(&[&st]);
-    y.iter().enumerate().map(|(k, v)| v - th[0] * s[k] - th[1] * c[k] - th[2]).collect()
+    Fundamental::new(theta).take_out(y)
 }
 
 /// The inputs of a term kind, as the firmware computes them from the command position.
@@ -181,8 +201,8 @@ fn term_input(kind: &TermInput, pos: &[i32]) -> Vec<f64> {
 
 /// What the ripple's pitch search takes out of a slow group's error and columns.
 enum Nuisance {
-    /// The mean and the command's sine at these phases.
-    Fundamental(Vec<f64>),
+    /// The mean and the command's sine.
+    Fundamental(Fundamental),
     /// The mean and the command's 1st to 5th harmonics.
     Harmonics(Projection),
 }
@@ -199,7 +219,7 @@ impl Nuisance {
 
     fn take_out(&self, y: &[f64]) -> Vec<f64> {
         match self {
-            Nuisance::Fundamental(theta) => project_out_fundamental(y, theta),
+            Nuisance::Fundamental(fundamental) => fundamental.take_out(y),
             Nuisance::Harmonics(projection) => projection.residual(y),
         }
     }
@@ -231,7 +251,11 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs], beside_axis_effect
             let pos_nm: Vec<i32> = g.pos_nm[g.start..].iter().step_by(STRIDE).copied().collect();
             let theta: Vec<f64> = g.theta[g.start..].iter().step_by(STRIDE).copied().collect();
             let target: Vec<f64> = g.target.iter().step_by(STRIDE).copied().collect();
-            let nuisance = if beside_axis_effects { Nuisance::harmonics(&theta) } else { Nuisance::Fundamental(theta) };
+            let nuisance = if beside_axis_effects {
+                Nuisance::harmonics(&theta)
+            } else {
+                Nuisance::Fundamental(Fundamental::new(&theta))
+            };
             let target = nuisance.take_out(&target);
             (pos_nm, nuisance, target)
         })
@@ -602,7 +626,8 @@ fn fit_coupling(dataset: &Dataset, inputs: &[GroupInputs]) -> Result<(TickTerm, 
                 sp.iter().map(|d| d.to_radians().sin()).collect(),
                 sp.iter().map(|d| d.to_radians().cos()).collect(),
             ];
-            let cols: Vec<Vec<f64>> = cols.iter().map(|c| project_out_fundamental(c, &gi.theta[gi.start..])).collect();
+            let fundamental = Fundamental::new(&gi.theta[gi.start..]);
+            let cols: Vec<Vec<f64>> = cols.iter().map(|c| fundamental.take_out(c)).collect();
             Stats::from_columns(&cols, &gi.target)
         })
         .collect();

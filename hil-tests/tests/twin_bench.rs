@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 
 use sts_hil::{bench_inputs, Hil, HilError, INSTRUCTION_BENCH_SHIFT};
 use sts_rig::request_on;
-use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
+use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple, StructuralMode};
 use sts_twin_core::features::{FeatureConfig, BLOCK_SAMPLES};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::{
@@ -71,7 +71,13 @@ fn axis_coupling() -> TickTerm {
 /// effects, each on its most expensive path for the bench's ramp command: Stribeck and
 /// smoothing velocities above the ramp's, so both exponentials run their full series.
 fn axis(friction: bool, hysteresis: bool, ripple: bool) -> TickTerm {
+    axis_with_modes(friction, hysteresis, ripple, false)
+}
+
+/// [`axis`], with a second structural mode or not.
+fn axis_with_modes(friction: bool, hysteresis: bool, ripple: bool, second_mode: bool) -> TickTerm {
     TickTerm::Axis(AxisParams {
+        second_mode: second_mode.then_some(StructuralMode { freq_hz: 210.0, damping: 0.03, tcp_gain: 0.9 }),
         friction: friction.then_some(Friction {
             coulomb_mps2: 0.067,
             static_mps2: 0.1,
@@ -309,6 +315,7 @@ fn bench_twin_tick_axis() {
     // The servo synthesises the axis twin's correction as a harmonic (its simulation runs at
     // low priority): all three effects cost the tick what one does.
     bench("+ axis twin with all three", &[axis(true, true, true)]);
+    bench("+ axis twin with all three and a second mode", &[axis_with_modes(true, true, true, true)]);
 }
 
 #[test]

@@ -112,16 +112,18 @@ fn most_added_pm(outputs: &[OutputSlot], without: Program, inputs: &[InputSlot])
 
 /// The servo-axis twin (single-precision simulation of the axis in the tick) gives the same
 /// DAC codes in the firmware as in the host core, bit for bit, with each of its effects, each
-/// pair and all three (each a separately compiled instance of its step), the compensator
-/// learning at low priority without a late model result.
+/// pair and all three (each a separately compiled instance of its step), and all three with a
+/// second structural mode, the compensator learning at low priority without a late model
+/// result.
 #[test]
 fn the_axis_twin_is_bit_identical_to_the_host_core() {
-    use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
+    use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple, StructuralMode};
     let _serial = sts_hil_tests::serial();
     let axis = sts_twin_core::axis::default_machine();
     let friction = Some(Friction { coulomb_mps2: 0.067, static_mps2: 0.1, stribeck_mps: 2e-4, smooth_mps: 1e-5 });
     let hysteresis = Some(Hysteresis { force_mps2: 0.056, stiffness_per_s2: 66_667.0 });
     let ripple = Some(Ripple { amp_nm: 50.0, harmonic2_nm: 8.0, turns_per_nm: 810_383, phase_turns: 1 << 29 });
+    let second_mode = Some(StructuralMode { freq_hz: 210.0, damping: 0.03, tcp_gain: 0.9 });
     // Each effect alone, each pair and all three (a machine has several at once).
     let variants = [
         AxisParams { friction, ..axis },
@@ -131,6 +133,7 @@ fn the_axis_twin_is_bit_identical_to_the_host_core() {
         AxisParams { friction, ripple, ..axis },
         AxisParams { hysteresis, ripple, ..axis },
         AxisParams { friction, hysteresis, ripple, ..axis },
+        AxisParams { friction, hysteresis, ripple, second_mode, ..axis },
     ];
     let inputs: Vec<InputSlot> = (0..8000).map(input).collect();
     for (i, params) in variants.into_iter().enumerate() {

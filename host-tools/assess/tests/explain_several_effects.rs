@@ -18,7 +18,7 @@
 //! ```
 //!
 //! `STS_SETS_FIRST_SEED` starts at another seed (to split a run); `STS_SETS_ONLY=a+b,c+d+e`
-//! runs only those sets.
+//! runs only those sets, `STS_SETS_WITH=a,b` only the sets holding `a` or `b`.
 
 use rand::seq::IndexedRandom;
 use rand::SeedableRng;
@@ -191,6 +191,14 @@ fn full_sets() {
             all.into_iter().filter(|(_, s)| wanted.contains(&s.join("+"))).collect()
         }
         Err(_) => all,
+    };
+    // Only the sets that hold one of these effects (the rest unchanged by a change to them).
+    let sets = match std::env::var("STS_SETS_WITH") {
+        Ok(with) => {
+            let wanted: Vec<String> = with.split(',').map(str::to_string).collect();
+            sets.into_iter().filter(|(_, s)| s.iter().any(|e| wanted.iter().any(|w| w == e))).collect()
+        }
+        Err(_) => sets,
     };
     run_sets(&Sets {
         sets,

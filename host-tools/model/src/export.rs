@@ -61,7 +61,7 @@ fn term_in_words(term: &TickTerm) -> String {
         TickTerm::Drift { .. } => "a thermal drift over machine time (thermal-drift)".into(),
         TickTerm::AxisCoupling { .. } => "the X axis's acceleration and the spindle's once-per-revolution error (axis-coupling)".into(),
         TickTerm::Laguerre { .. } => "a Laguerre filter bank on the command (friction, hysteresis, ripple, or the axis's linear response of setpoint-delay and an in-band structural-mode)".into(),
-        TickTerm::Axis(_) => "the servo-axis twin (friction, presliding hysteresis or ripple, simulated tick by tick with the identified controller)".into(),
+        TickTerm::Axis(_) => "the servo-axis twin (friction, presliding hysteresis, ripple or a second structural mode, simulated tick by tick with the identified controller)".into(),
         TickTerm::Resonance { freq_hz, damping, .. } => {
             format!("a resonance at {freq_hz:.2} Hz, damping {damping:.3} (an in-band structural-mode)")
         }

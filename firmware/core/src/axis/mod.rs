@@ -15,7 +15,8 @@
 //! a PID position controller with velocity and acceleration feedforward on the encoder
 //! reading, a one-tick computation delay, a first-order current loop, the slide with
 //! viscous drag, and one structural mode between slide and TCP driven by the slide's
-//! acceleration. Its linear part is discretised exactly (zero-order hold, [`discretise`]);
+//! acceleration, or two (a machine whose structure has a second resonance the first cannot
+//! stand for: `fit --effect structural-mode` beside an axis effect). Its linear part is discretised exactly (zero-order hold, [`discretise`]);
 //! the friction force is applied linearly implicitly, so the stiff law of a sticking slide
 //! stays stable at the 8 kHz tick.
 //!
@@ -71,6 +72,22 @@ pub struct AxisParams {
     pub hysteresis: Option<Hysteresis>,
     /// Encoder interpolation error, if any.
     pub ripple: Option<Ripple>,
+    /// A second structural mode between slide and TCP, driven like the first by the slide's
+    /// acceleration, if any.
+    pub second_mode: Option<StructuralMode>,
+}
+
+/// A structural mode between slide and TCP: `q'' + 2 zeta w q' + w^2 q = -g a_slide`, the
+/// TCP displaced by `q`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StructuralMode {
+    /// Natural frequency `w / 2 pi`, Hz.
+    pub freq_hz: f32,
+    /// Damping ratio `zeta`.
+    pub damping: f32,
+    /// Displacement at the TCP per unit of slide motion `g`.
+    pub tcp_gain: f32,
 }
 
 /// Coulomb friction with a Stribeck peak: `F(v) = -(Fc + (Fs - Fc) exp(-(v/vs)^2)) s(v/v_smooth)`,
@@ -191,6 +208,18 @@ impl AxisParams {
                 return Err(AxisError::OutOfRange("ripple.turns_per_nm"));
             }
         }
+        if let Some(m) = &self.second_mode {
+            let checks: [(&'static str, bool); 3] = [
+                ("second_mode.freq_hz", within(m.freq_hz, 1.0, 3000.0)),
+                ("second_mode.damping", within(m.damping, 0.001, 10.0)),
+                ("second_mode.tcp_gain", within(m.tcp_gain, -100.0, 100.0)),
+            ];
+            for (name, ok) in checks {
+                if !ok {
+                    return Err(AxisError::OutOfRange(name));
+                }
+            }
+        }
         Ok(())
     }
 }
@@ -215,5 +244,6 @@ pub fn default_machine() -> AxisParams {
         friction: None,
         hysteresis: None,
         ripple: None,
+        second_mode: None,
     }
 }

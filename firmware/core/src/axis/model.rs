@@ -38,6 +38,13 @@ pub struct AxisModel {
     // Mode rows over [v, f, q, q'].
     p3: [f32; 4],
     p4: [f32; 4],
+    // The second mode's rows over [v, f, q2, q2'] and its input columns [u, F] (zero and
+    // skipped when the axis has one mode).
+    second_mode: bool,
+    p5: [f32; 4],
+    p6: [f32; 4],
+    gu2: [f32; 2],
+    gf2: [f32; 2],
     // The effects' coefficients (zero when absent) and which are present: `step` runs one
     // of eight instances without the absent ones' branches.
     effects: u8,
@@ -79,6 +86,9 @@ pub struct AxisState {
     f: f32,
     q: f32,
     qd: f32,
+    /// The second mode's displacement, m, and rate (zero with one mode).
+    q2: f32,
+    qd2: f32,
     integral: f32,
     e_prev: f32,
     u_prev: f32,
@@ -101,6 +111,8 @@ impl AxisState {
         f: 0.0,
         q: 0.0,
         qd: 0.0,
+        q2: 0.0,
+        qd2: 0.0,
         integral: 0.0,
         e_prev: 0.0,
         u_prev: 0.0,
@@ -123,6 +135,19 @@ impl AxisModel {
             mode_tcp_gain: p.mode_tcp_gain as f64,
         };
         let (phi, gamma) = zoh(&continuous, TICK_S);
+        // The modes do not act back on the slide: the second mode's rows are the mode rows of
+        // the same axis discretised with the second mode in the first's place.
+        let (phi2, gamma2) = p.second_mode.map_or(([[0.0; 5]; 5], [[0.0; 2]; 5]), |m| {
+            zoh(
+                &Continuous {
+                    mode_rad_per_s: 2.0 * core::f64::consts::PI * m.freq_hz as f64,
+                    mode_damping: m.damping as f64,
+                    mode_tcp_gain: m.tcp_gain as f64,
+                    ..continuous
+                },
+                TICK_S,
+            )
+        });
         let c = |x: f64| x as f32;
         let friction = p.friction.map_or(FrictionCoef::default(), |f| FrictionCoef {
             coulomb: f.coulomb_mps2,
@@ -151,6 +176,11 @@ impl AxisModel {
             gf: [c(gamma[0][1]), c(gamma[1][1]), c(gamma[2][1]), c(gamma[3][1]), c(gamma[4][1])],
             p3: [c(phi[3][1]), c(phi[3][2]), c(phi[3][3]), c(phi[3][4])],
             p4: [c(phi[4][1]), c(phi[4][2]), c(phi[4][3]), c(phi[4][4])],
+            second_mode: p.second_mode.is_some(),
+            p5: [c(phi2[3][1]), c(phi2[3][2]), c(phi2[3][3]), c(phi2[3][4])],
+            p6: [c(phi2[4][1]), c(phi2[4][2]), c(phi2[4][3]), c(phi2[4][4])],
+            gu2: [c(gamma2[3][0]), c(gamma2[4][0])],
+            gf2: [c(gamma2[3][1]), c(gamma2[4][1])],
             effects,
             friction,
             hysteresis: p
@@ -229,7 +259,8 @@ impl AxisModel {
         // TCP - command = (r - command) - (r - x) + q; the first part exact in nanometres.
         let lag_nm = r_nm.wrapping_sub(cmd_pos_nm);
         // The lag is a few ticks of command motion (far below 2 mm); |q - w| < 2 mm (the reset).
-        let out_pm = lag_nm.wrapping_mul(1000).wrapping_add(((st.q - st.w) * 1e12) as i32);
+        let modal = if self.second_mode { st.q + st.q2 } else { st.q };
+        let out_pm = lag_nm.wrapping_mul(1000).wrapping_add(((modal - st.w) * 1e12) as i32);
 
         // Over the tick with last tick's force command; friction linearly implicit in the
         // next velocity, hysteresis from last tick's motion.
@@ -263,6 +294,21 @@ impl AxisModel {
             + self.p4[3] * qd
             + self.gu[4] * u_prev
             + self.gf[4] * force;
+        if self.second_mode {
+            let (q2, qd2) = (st.q2, st.qd2);
+            st.q2 = self.p5[0] * v
+                + self.p5[1] * f
+                + self.p5[2] * q2
+                + self.p5[3] * qd2
+                + self.gu2[0] * u_prev
+                + self.gf2[0] * force;
+            st.qd2 = self.p6[0] * v
+                + self.p6[1] * f
+                + self.p6[2] * q2
+                + self.p6[3] * qd2
+                + self.gu2[1] * u_prev
+                + self.gf2[1] * force;
+        }
         st.v = v_free + self.gf[1] * force;
         st.f = self.p22 * f + self.gu[2] * u_prev;
         st.w -= step_x;
@@ -288,7 +334,7 @@ impl AxisModel {
         // NaN compares false, and a non-finite velocity, force or rate reaches the
         // following error or the mode within a tick.
         #[allow(clippy::neg_cmp_op_on_partial_ord)] // NaN must fail it too, in one comparison
-        if !(st.w.abs() + st.q.abs() < DIVERGED_M) {
+        if !(st.w.abs() + st.q.abs() + st.q2.abs() < DIVERGED_M) {
             self.reset(st);
         }
         out_pm
@@ -395,6 +441,34 @@ mod tests {
             let peak = out.iter().map(|x| x.abs()).max().unwrap();
             assert!((10_000..2_000_000).contains(&peak), "peak {peak} pm");
         }
+    }
+
+    #[test]
+    fn a_second_mode_adds_what_it_would_add_in_the_first_modes_place() {
+        use crate::axis::StructuralMode;
+        let mode2 = StructuralMode { freq_hz: 210.0, damping: 0.03, tcp_gain: 0.9 };
+        let friction =
+            Some(Friction { coulomb_mps2: 3.0 / 45.0, static_mps2: 4.5 / 45.0, stribeck_mps: 2e-4, smooth_mps: 1e-5 });
+        let base = AxisParams { friction, ..machine() };
+        let (one, _) = run(&base, 8000);
+        let (two, st) = run(&AxisParams { second_mode: Some(mode2), ..base }, 8000);
+        assert_eq!(st.resets, 0);
+        // The modes do not act back on the slide: the second one's share is what the same mode
+        // adds in the first's place to an axis without a mode.
+        let (alone, _) = run(&AxisParams { mode_tcp_gain: 0.0, ..base }, 8000);
+        let (instead, _) =
+            run(&AxisParams { mode_freq_hz: 210.0, mode_damping: 0.03, mode_tcp_gain: 0.9, ..base }, 8000);
+        let share_peak = (4000..8000).map(|k| (two[k] - one[k]).abs()).max().unwrap();
+        assert!(share_peak > 50_000, "the second mode shows: {share_peak} pm");
+        for k in 4000..8000 {
+            let expected = instead[k] - alone[k];
+            assert!((two[k] - one[k] - expected).abs() < 200 + share_peak / 1000, "tick {k}");
+        }
+        // Without a second mode, not a bit changes.
+        let (again, _) = run(&AxisParams { second_mode: None, ..base }, 8000);
+        assert_eq!(one, again);
+        let bad = AxisParams { second_mode: Some(StructuralMode { damping: 0.0, ..mode2 }), ..base };
+        assert_eq!(AxisModel::new(&bad), Err(AxisError::OutOfRange("second_mode.damping")));
     }
 
     #[test]

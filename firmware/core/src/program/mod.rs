@@ -54,7 +54,7 @@ use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
 /// The program format version this library reads and writes.
-pub const PROGRAM_VERSION: u16 = 1;
+pub const PROGRAM_VERSION: u16 = 2;
 /// Most bytes of bytecode in a program.
 pub const MAX_CODE_BYTES: usize = 256;
 /// Most constants in a program.

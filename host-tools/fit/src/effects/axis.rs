@@ -28,7 +28,7 @@ use std::f64::consts::PI;
 use rayon::prelude::*;
 use sts_dataset::Dataset;
 use sts_twin_core::axis::discretise::{zoh, Continuous, STATES};
-use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple};
+use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple, StructuralMode};
 
 use sts_analysis::lsq::{solve, solve_damped, Stats};
 
@@ -49,6 +49,8 @@ pub struct AxisEffects {
     pub hysteresis: bool,
     /// Encoder interpolation error, with a first estimate of its pitch, um.
     pub ripple_pitch_um: Option<f64>,
+    /// A second structural mode between slide and TCP.
+    pub second_mode: bool,
 }
 
 /// Parameter slots of the fit. Positive quantities are fitted on a log scale, signed ones
@@ -75,8 +77,11 @@ enum Slot {
     RipplePhase,
     Ripple2,
     RipplePitch,
+    Mode2Hz,
+    Zeta2,
+    Gain2,
 }
-const SLOTS: usize = 20;
+const SLOTS: usize = 23;
 
 impl Slot {
     /// The range the firmware accepts (`AxisParams::check`), kept inside by the fit.
@@ -89,9 +94,9 @@ impl Slot {
             Slot::Aff => (-10.0, 10.0),
             Slot::Viscous => (1e-6, 1e6),
             Slot::Tau => (1e-6, 0.1),
-            Slot::ModeHz => (1.0, 3000.0),
-            Slot::Zeta => (0.001, 10.0),
-            Slot::Gain => (-100.0, 100.0),
+            Slot::ModeHz | Slot::Mode2Hz => (1.0, 3000.0),
+            Slot::Zeta | Slot::Zeta2 => (0.001, 10.0),
+            Slot::Gain | Slot::Gain2 => (-100.0, 100.0),
             Slot::Coulomb | Slot::Static | Slot::DahlForce => (1e-6, 1e3),
             Slot::Stribeck => (1e-7, 1.0),
             Slot::Smooth => (1e-8, 1.0),
@@ -107,7 +112,7 @@ impl Slot {
         match self {
             Slot::Vff => Some(10.0),
             Slot::Aff => Some(0.3),
-            Slot::Gain => Some(1.0),
+            Slot::Gain | Slot::Gain2 => Some(1.0),
             Slot::RippleAmp | Slot::Ripple2 => Some(20.0),
             Slot::RipplePhase => Some(1.0),
             _ => None,
@@ -146,7 +151,12 @@ impl Candidate {
             friction: None,
             hysteresis: None,
             ripple: None,
+            second_mode: None,
         };
+        if self.effects.second_mode {
+            p.second_mode =
+                Some(StructuralMode { freq_hz: g(Slot::Mode2Hz), damping: g(Slot::Zeta2), tcp_gain: g(Slot::Gain2) });
+        }
         if self.effects.friction {
             p.friction = Some(Friction {
                 coulomb_mps2: g(Slot::Coulomb),
@@ -199,11 +209,16 @@ impl Candidate {
 
 const SERVO: [Slot; 7] = [Slot::Kp, Slot::Ki, Slot::Kd, Slot::Vff, Slot::Aff, Slot::Viscous, Slot::Tau];
 const MODE: [Slot; 3] = [Slot::ModeHz, Slot::Zeta, Slot::Gain];
+const MODE2: [Slot; 3] = [Slot::Mode2Hz, Slot::Zeta2, Slot::Gain2];
 /// The ripple's amplitudes and phase (its pitch comes from a search, refined last).
 const RIPPLE_SHAPE: [Slot; 3] = [Slot::RippleAmp, Slot::RipplePhase, Slot::Ripple2];
 
-/// The transition and input matrices of the tick (`phi`, `gamma` of [`zoh`]).
-type Discrete = ([[f64; STATES]; STATES], [[f64; 2]; STATES]);
+/// The transition and input matrices of the tick (`phi`, `gamma` of [`zoh`]), and the second
+/// mode's rows of both (zero without one).
+type Discrete = ([[f64; STATES]; STATES], [[f64; 2]; STATES], SecondMode);
+
+/// The second mode's rows of `phi` over `[x, v, f, q2, q2']` and of `gamma`.
+type SecondMode = ([[f64; STATES]; 2], [[f64; 2]; 2]);
 
 /// A candidate's linear part over one tick.
 fn discretise(c: &Candidate) -> Discrete {
@@ -214,7 +229,23 @@ fn discretise(c: &Candidate) -> Discrete {
         mode_damping: c.get(Slot::Zeta),
         mode_tcp_gain: c.get(Slot::Gain),
     };
-    zoh(&continuous, TICK_S)
+    let (phi, gamma) = zoh(&continuous, TICK_S);
+    let mut second: SecondMode = ([[0.0; STATES]; 2], [[0.0; 2]; 2]);
+    if c.effects.second_mode {
+        // The modes do not act back on the slide: the second's rows are the first's with
+        // the second in its place (as the firmware derives them).
+        let (phi2, gamma2) = zoh(
+            &Continuous {
+                mode_rad_per_s: 2.0 * PI * c.get(Slot::Mode2Hz),
+                mode_damping: c.get(Slot::Zeta2),
+                mode_tcp_gain: c.get(Slot::Gain2),
+                ..continuous
+            },
+            TICK_S,
+        );
+        second = ([phi2[3], phi2[4]], [gamma2[3], gamma2[4]]);
+    }
+    (phi, gamma, second)
 }
 
 /// Candidates simulated side by side over one command. The axis's recursion is one chain
@@ -283,6 +314,13 @@ fn simulate<const N: usize>(
         std::array::from_fn(|i| std::array::from_fn(|j| std::array::from_fn(|l| discrete[l].0[i][j])));
     let gamma: [[Lanes<N>; 2]; STATES] =
         std::array::from_fn(|i| std::array::from_fn(|j| std::array::from_fn(|l| discrete[l].1[i][j])));
+    let phi2: [[Lanes<N>; STATES]; 2] =
+        std::array::from_fn(|i| std::array::from_fn(|j| std::array::from_fn(|l| discrete[l].2 .0[i][j])));
+    let gamma2: [[Lanes<N>; 2]; 2] =
+        std::array::from_fn(|i| std::array::from_fn(|j| std::array::from_fn(|l| discrete[l].2 .1[i][j])));
+    let second_mode = effects.second_mode;
+    // The second mode's displacement and rate.
+    let mut q2 = [[0.0f64; N]; 2];
     let ripple = effects.ripple_pitch_um.is_some();
     let mut s = [[0.0f64; N]; STATES];
     let (mut integral, mut e_prev, mut u_prev, mut dahl) = ([0.0; N], [0.0; N], [0.0; N], [0.0; N]);
@@ -301,7 +339,12 @@ fn simulate<const N: usize>(
         }
         if k >= ticks.start {
             let enc = map(&reading, |x| (x + r0) * 1e6);
-            let tcp = zip(&s[0], &s[3], |x, m| (x + m + r0) * 1e6);
+            let tcp = if second_mode {
+                let modal = zip(&s[3], &q2[0], |m, m2| m + m2);
+                zip(&s[0], &modal, |x, m| (x + m + r0) * 1e6)
+            } else {
+                zip(&s[0], &s[3], |x, m| (x + m + r0) * 1e6)
+            };
             emit(k, &enc, &tcp);
         }
         let r = if k >= delay { cmd_um[k - delay] * 1e-6 - r0 } else { 0.0 };
@@ -323,6 +366,21 @@ fn simulate<const N: usize>(
                     acc += phi[i][j][l] * s[j][l];
                 }
                 free[i][l] = acc;
+            }
+        }
+        // The second mode over the tick, before its inputs are overwritten (its force term is
+        // added below, with the first mode's).
+        let mut free2 = [[0.0; N]; 2];
+        if second_mode {
+            for i in 0..2 {
+                for l in 0..N {
+                    let own = [s[0][l], s[1][l], s[2][l], q2[0][l], q2[1][l]];
+                    let mut acc = gamma2[i][0][l] * u_prev[l];
+                    for j in 0..STATES {
+                        acc += phi2[i][j][l] * own[j];
+                    }
+                    free2[i][l] = acc;
+                }
             }
         }
         u_prev = u;
@@ -359,6 +417,13 @@ fn simulate<const N: usize>(
         for i in 0..STATES {
             for l in 0..N {
                 s[i][l] = free[i][l] + gamma[i][1][l] * force[l];
+            }
+        }
+        if second_mode {
+            for i in 0..2 {
+                for l in 0..N {
+                    q2[i][l] = free2[i][l] + gamma2[i][1][l] * force[l];
+                }
             }
         }
         if effects.hysteresis {
@@ -644,6 +709,9 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
     set(&mut base, Slot::RippleAmp, 10.0);
     set(&mut base, Slot::ModeHz, 100.0);
     set(&mut base, Slot::Zeta, 0.2);
+    set(&mut base, Slot::Zeta2, 0.05);
+    set(&mut base, Slot::Gain2, 0.1);
+    set(&mut base, Slot::Mode2Hz, 200.0);
     set(&mut base, Slot::Coulomb, 0.05);
     set(&mut base, Slot::Static, 0.08);
     set(&mut base, Slot::Stribeck, 1e-3);
@@ -734,10 +802,30 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
             }
         }
     }
-    let (c, _) = mode_best.ok_or(FitError::NoModeStart)?;
+    let (mut c, mut tcp_rms) = mode_best.ok_or(FitError::NoModeStart)?;
+
+    if effects.second_mode {
+        // The second mode from a grid of frequencies too, on what the first leaves on the
+        // probe, then both modes together: the first alone settles between the two.
+        let one_mode = c;
+        for mode2_hz in [15.0, 30.0, 60.0, 120.0, 200.0, 330.0, 550.0] {
+            let mut start = one_mode;
+            start.v[Slot::Mode2Hz as usize] = mode2_hz;
+            let (m, _) = levenberg_marquardt(start, &MODE2, &coarse, Fit::Tcp, 15);
+            let both: Vec<Slot> = MODE.iter().chain(&MODE2).chain(&probe_slots).copied().collect();
+            let fitted = levenberg_marquardt(m, &both, &coarse, Fit::Tcp, 20);
+            // A tie keeps the earlier: on an axis with one mode the second stays small.
+            if fitted.1 < tcp_rms {
+                (c, tcp_rms) = fitted;
+            }
+        }
+    }
 
     // Everything on both readings.
     let mut all: Vec<Slot> = SERVO.iter().chain(&MODE).copied().collect();
+    if effects.second_mode {
+        all.extend(MODE2);
+    }
     all.extend(encoder_slots.iter().chain(&probe_slots));
     let (c, _) = levenberg_marquardt(c, &all, &fine, Fit::Both, 30);
     // Reported over the whole of the fine sample's groups.
@@ -771,9 +859,9 @@ mod tests {
         Dataset { manifest: Manifest::new(SERVO_RATE_HZ, "", vec![info(0, 10.0), info(1, 40.0)]), groups }
     }
 
-    /// Five axes with friction, hysteresis and ripple, each a little different.
+    /// Five axes with friction, hysteresis, ripple and a second mode, each a little different.
     fn candidates() -> Vec<Candidate> {
-        let effects = AxisEffects { friction: true, hysteresis: true, ripple_pitch_um: Some(4.0) };
+        let effects = AxisEffects { friction: true, hysteresis: true, ripple_pitch_um: Some(4.0), second_mode: true };
         (0..5)
             .map(|i| {
                 let w = 2.0 * PI * (60.0 + 25.0 * i as f64);
@@ -799,6 +887,9 @@ mod tests {
                     (Slot::RipplePhase, 0.3 * i as f64),
                     (Slot::Ripple2, 5.0),
                     (Slot::RipplePitch, 4.0),
+                    (Slot::Mode2Hz, 210.0 - 15.0 * i as f64),
+                    (Slot::Zeta2, 0.04),
+                    (Slot::Gain2, 0.3),
                 ] {
                     v[slot as usize] = x;
                 }

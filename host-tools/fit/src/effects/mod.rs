@@ -12,7 +12,8 @@
 //! | `axis-coupling` | X acceleration gain and the spindle's once-per-revolution sine |
 //! | `setpoint-delay` | a Laguerre bank on the command velocity: the axis's linear response to the command (the delay and the servo's own lag) ([`linear`]) |
 //! | `structural-mode` inside the band | a resonance (the second-order high-pass of the command) beside a Laguerre bank on the command velocity ([`linear`]) |
-//! | `structural-mode` above the band, `loop-delay` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
+//! | `structural-mode` beside an axis effect | the servo-axis twin's second mode, driven like its first by the slide's acceleration (the axis effects' forces ring it at the command's harmonics) |
+//! | `structural-mode` above the band otherwise, `loop-delay` | linear changes of the response at the command frequency: carried by the refitted amplitude and phase formulas (no per-tick term) |
 //! | `sensor-gain` | a probe gain (estimated on the slowest groups) is taken out of the readings and recorded in the model file, so that `compare` and `diagnose` read data as the fit did; an accelerometer gain is carried by the refitted formulas |
 //!
 //! How: the terms are fitted first: drift and coupling on what the formulas can never explain
@@ -330,18 +331,10 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
     // An in-band mode brings its own velocity bank, which a setpoint delay then shares (two
     // banks and a resonance would exceed the tick's budget). With a servo-axis twin, which
     // simulates the axis's whole linear response itself (a late setpoint in its command
-    // delay), the mode keeps its resonance only, and the axis is identified on readings
-    // without it (the axis's own mode lies above the band).
+    // delay), the mode, in the band or above it, is that twin's second mode.
     let has_axis = names.iter().any(|n| is_axis(n));
-    let in_band_mode = if names.iter().any(|n| n == "structural-mode") {
-        linear::fit_mode(dataset, &inputs)?.map(|(mode_terms, params)| {
-            let kept = if has_axis {
-                mode_terms.into_iter().filter(|t| matches!(t, TickTerm::Resonance { .. })).collect()
-            } else {
-                mode_terms
-            };
-            (kept, params)
-        })
+    let in_band_mode = if names.iter().any(|n| n == "structural-mode") && !has_axis {
+        linear::fit_mode(dataset, &inputs)?
     } else {
         None
     };
@@ -370,12 +363,14 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
                 let (term, params) = linear::fit_setpoint_delay(dataset, &inputs)?;
                 (vec![term], params, "the axis's linear response to the command velocity (a Laguerre bank): the setpoint's delay and the servo's own lag, so that the formulas fit only what is left".to_string())
             }
+            "structural-mode" if has_axis => {
+                // Beside friction, hysteresis or a ripple, whose forces ring the mode at the
+                // command's harmonics (no formula at the command frequency carries that): the
+                // axis twin's second mode, in the band or above it.
+                axis_names.push(name.clone());
+                continue;
+            }
             "structural-mode" => match &in_band_mode {
-                Some((mode_terms, params)) if has_axis => (
-                    mode_terms.clone(),
-                    params.clone(),
-                    "a mode inside the measurement's band: a resonance term (the second-order high-pass of the command at the mode's frequency and damping) beside the servo-axis twin, which is identified on the readings without it".to_string(),
-                ),
                 Some((mode_terms, params)) => (
                     mode_terms.clone(),
                     params.clone(),
@@ -397,14 +392,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         terms.extend(new_terms);
     }
     if !axis_names.is_empty() {
-        let (term, axis_records) = match in_band_mode.as_ref().map(|(t, _)| t.as_slice()) {
-            Some(resonance) if !resonance.is_empty() => {
-                // The probe without the in-band mode's motion.
-                let (without, _) = without_terms(dataset, resonance);
-                fit_axis(&without, &all_group_inputs(&without)?, &axis_names)?
-            }
-            _ => fit_axis(dataset, &inputs, &axis_names)?,
-        };
+        let (term, axis_records) = fit_axis(dataset, &inputs, &axis_names)?;
         terms.push(term);
         records.extend(axis_records);
     }
@@ -473,6 +461,7 @@ fn fit_axis(
         friction: has("coulomb-friction"),
         hysteresis: has("presliding-hysteresis"),
         ripple_pitch_um,
+        second_mode: has("structural-mode"),
     };
     let fit = axis::identify(dataset, effects).map_err(|e| FitError::IdentifyAxis { source: Box::new(e) })?;
     let p = fit.params;
@@ -513,6 +502,13 @@ fn fit_axis(
                 ]
             }),
             SERVO_AXIS => Vec::new(),
+            "structural-mode" => p.second_mode.map_or_else(Vec::new, |m| {
+                vec![
+                    ("freq_hz".to_string(), f64::from(m.freq_hz)),
+                    ("damping".to_string(), f64::from(m.damping)),
+                    ("tcp_gain".to_string(), f64::from(m.tcp_gain)),
+                ]
+            }),
             _ => p.ripple.map_or_else(Vec::new, |r| {
                 vec![
                     ("amp_nm".to_string(), f64::from(r.amp_nm)),
@@ -530,7 +526,11 @@ fn fit_axis(
             terms: usize::from(first),
             note: format!(
                 "servo-axis twin (controller, slide, mode{}, simulated from the command; forces per kg; the firmware compensates through it){}",
-                if name == SERVO_AXIS { "" } else { " and the effect" },
+                match name.as_str() {
+                    SERVO_AXIS => "",
+                    "structural-mode" => " and a second mode: this effect",
+                    _ => " and the effect",
+                },
                 if first { "" } else { ": the term above" }
             ),
         });

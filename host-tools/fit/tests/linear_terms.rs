@@ -1,6 +1,7 @@
 //! `fit --effect` for the effects of the axis's linear response: an in-band structural mode
-//! (a resonance term beside a velocity bank) and a late setpoint (the bank), identified on
-//! emulator measurements whose parameters are known.
+//! (a resonance term beside a velocity bank), a late setpoint (the bank) and a mode beside
+//! friction (the servo-axis twin's second mode), identified on emulator measurements whose
+//! parameters are known.
 
 use sts_emulator::MeasureConfig;
 use sts_fit::effects::prepare;
@@ -76,4 +77,28 @@ fn the_in_band_evidence_is_held_out_and_absent_without_a_mode() {
     for effects in [&[][..], &["setpoint-delay:delay_us=300"][..]] {
         assert!(in_band_mode_evidence(&measure(effects), 5).expect("evidence").is_none(), "{effects:?}");
     }
+}
+
+/// Beside friction (or hysteresis, or a ripple) a mode is the servo-axis twin's second mode,
+/// driven like its first by the slide's acceleration: identified with the axis, frequency and
+/// modal gain close to the emulated machine's.
+#[test]
+fn a_mode_beside_friction_is_the_axis_twins_second_mode() {
+    let data = measure(&[
+        "coulomb-friction:coulomb_n=3,static_n=4.5,stribeck_mps=2e-4",
+        "structural-mode:freq_hz=210,damping=0.03,tcp_gain=0.9,acc_shape=1",
+    ]);
+    let names = ["coulomb-friction".to_string(), "structural-mode".to_string()];
+    let prepared = prepare(&data, &names).expect("prepare");
+    let [TickTerm::Axis(axis)] = prepared.terms.as_slice() else { panic!("one axis twin: {:?}", prepared.terms) };
+    let mode = axis.second_mode.expect("a second mode");
+    println!(
+        "identified: {:.2} Hz, damping {:.4}, modal gain {:.4} (true 210, 0.03, 0.9); first mode {:.1} Hz",
+        mode.freq_hz, mode.damping, mode.tcp_gain, axis.mode_freq_hz
+    );
+    assert!((mode.freq_hz / 210.0 - 1.0).abs() < 0.02, "frequency {} Hz", mode.freq_hz);
+    assert!((mode.tcp_gain / 0.9 - 1.0).abs() < 0.1, "modal gain {}", mode.tcp_gain);
+    assert!((mode.damping / 0.03 - 1.0).abs() < 0.5, "damping {}", mode.damping);
+    assert!(axis.friction.is_some());
+    assert_eq!(param(&prepared.records, "structural-mode", "freq_hz"), f64::from(mode.freq_hz));
 }

@@ -207,12 +207,12 @@ pub mod tick_cost {
     /// supervisor), whose formulas are not evaluated in the tick (the model update runs at
     /// low priority). The command-store test moved the kernel programs by 2-6 instructions
     /// (register allocation): the kernel terms' figures below were raised by what each
-    /// needed.
-    pub const FIXED: u32 = 522;
+    /// needed. Recalibrated 2026-11-29 on every bench case (BENCHMARKS.md): 532 measured.
+    pub const FIXED: u32 = 532;
     /// More for a servo-axis twin, whose correction is synthesised as a harmonic term: the
     /// tick stores its command in the ring the twin's compensator reads at low priority (552
-    /// measured with it, 38 over the paper program's 514).
-    pub const AXIS_COMMANDS: u32 = 12;
+    /// measured with it, 38 over the paper program's 514; 578 on 2026-11-29, 46 over 532).
+    pub const AXIS_COMMANDS: u32 = 20;
     /// A harmonic term in a program without kernel terms (25.9 measured).
     pub const HARMONIC: u32 = 26;
     /// A harmonic term in a program with kernel terms (41.5 measured: the harmonic pass
@@ -225,10 +225,12 @@ pub mod tick_cost {
     /// two-bank program (802 measured after a switch) and three harmonics beside a bank (802)
     /// are refused.
     pub const LAGUERRE_POSITION_SINE: u32 = 119;
-    /// A Laguerre bank on the velocity sign (130; 134), with 32-bit stages and divisions.
-    pub const LAGUERRE_VELOCITY_SIGN: u32 = 134;
-    /// A Laguerre bank on the Dahl state (146; 151), with 32-bit stages.
-    pub const LAGUERRE_DAHL: u32 = 151;
+    /// A Laguerre bank on the velocity sign (130; 134; 145 on 2026-11-29, 719 in all), with
+    /// 32-bit stages and divisions.
+    pub const LAGUERRE_VELOCITY_SIGN: u32 = 145;
+    /// A Laguerre bank on the Dahl state (146; 151; 162 on 2026-11-29, 736 in all), with
+    /// 32-bit stages.
+    pub const LAGUERRE_DAHL: u32 = 162;
     /// More for a Laguerre bank whose stages need 64 bits: a pole above 0.995 or gains
     /// above 2^32 in sum (173 measured).
     pub const LAGUERRE_WIDE_STAGES: u32 = 178;
@@ -237,17 +239,19 @@ pub mod tick_cost {
     /// operands (161 measured with, at most 234 on the bench's worst tick).
     pub const VELOCITY_64_BIT_DIVISION: u32 = 260;
     /// A drift term, with its 64-bit step every 256 ticks (41; beside a velocity-sign bank
-    /// 44 since the servo-axis term joined the kernels; 46 alone since its command store).
-    pub const DRIFT: u32 = 46;
+    /// 44 since the servo-axis term joined the kernels; 46 alone since its command store; 53 on
+    /// 2026-11-29, 627 in all).
+    pub const DRIFT: u32 = 53;
     /// An axis-coupling term (90 measured with the bus's X acceleration and spindle words,
     /// 48 when the servo passed constant zeros the compiler could fold; beside a Dahl bank
     /// 97 since the servo-axis term joined the kernels, so that pair, 802, is refused; 100
-    /// alone since the axis twin's command store).
-    pub const AXIS_COUPLING: u32 = 100;
+    /// alone since the axis twin's command store; 110 on 2026-11-29, 684 in all).
+    pub const AXIS_COUPLING: u32 = 110;
     /// A resonance: its f32 state update and one saturating conversion (84 measured alone,
     /// 95 beside a velocity-sign bank: 787 in all; 131 alone when the output went through a
-    /// 64-bit conversion, a library call).
-    pub const RESONANCE: u32 = 96;
+    /// 64-bit conversion, a library call; 78 alone and 75 beside the velocity-sign bank on
+    /// 2026-11-29, 652 and 794 in all: the in-band mode's program stays accepted, at 798).
+    pub const RESONANCE: u32 = 79;
 }
 
 impl TickTerm {

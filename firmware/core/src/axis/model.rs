@@ -33,18 +33,12 @@ pub struct AxisModel {
     p11: f32,
     p12: f32,
     p22: f32,
-    gu: [f32; 5],
-    gf: [f32; 5],
-    // Mode rows over [v, f, q, q'].
-    p3: [f32; 4],
-    p4: [f32; 4],
-    // The second mode's rows over [v, f, q2, q2'] and its input columns [u, F] (zero and
-    // skipped when the axis has one mode).
+    gu: [f32; 3],
+    gf: [f32; 3],
+    mode: ModeRows,
+    // The second mode's (zero and skipped when the axis has one mode).
     second_mode: bool,
-    p5: [f32; 4],
-    p6: [f32; 4],
-    gu2: [f32; 2],
-    gf2: [f32; 2],
+    mode2: ModeRows,
     // The effects' coefficients (zero when absent) and which are present: `step` runs one
     // of eight instances without the absent ones' branches.
     effects: u8,
@@ -53,6 +47,35 @@ pub struct AxisModel {
     hysteresis: (f32, f32, f32),
     /// First and second harmonic (m), turns per nm, phase.
     ripple: (f32, f32, u32, u32),
+}
+
+/// A structural mode's rows of the transition over `[v, f, q, q']` and its input columns
+/// `[u, F]`, for `q` and `q'`.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+struct ModeRows {
+    rows: [[f32; 4]; 2],
+    gu: [f32; 2],
+    gf: [f32; 2],
+}
+
+impl ModeRows {
+    /// Rows 3 and 4 of a discretised axis (`zoh`), whose mode they are.
+    fn of(phi: &[[f64; 5]; 5], gamma: &[[f64; 2]; 5]) -> Self {
+        let c = |x: f64| x as f32;
+        let row = |i: usize| [c(phi[i][1]), c(phi[i][2]), c(phi[i][3]), c(phi[i][4])];
+        Self { rows: [row(3), row(4)], gu: [c(gamma[3][0]), c(gamma[4][0])], gf: [c(gamma[3][1]), c(gamma[4][1])] }
+    }
+
+    /// The mode's `(q, q')` after the tick from `(q, q')`, the slide's velocity and motor
+    /// force before it, last tick's force command and the nonlinear force.
+    #[inline(always)]
+    fn step(&self, (v, f): (f32, f32), (q, qd): (f32, f32), u_prev: f32, force: f32) -> (f32, f32) {
+        let [r, rd] = &self.rows;
+        (
+            r[0] * v + r[1] * f + r[2] * q + r[3] * qd + self.gu[0] * u_prev + self.gf[0] * force,
+            rd[0] * v + rd[1] * f + rd[2] * q + rd[3] * qd + self.gu[1] * u_prev + self.gf[1] * force,
+        )
+    }
 }
 
 const FRICTION: u8 = 1;
@@ -137,8 +160,8 @@ impl AxisModel {
         let (phi, gamma) = zoh(&continuous, TICK_S);
         // The modes do not act back on the slide: the second mode's rows are the mode rows of
         // the same axis discretised with the second mode in the first's place.
-        let (phi2, gamma2) = p.second_mode.map_or(([[0.0; 5]; 5], [[0.0; 2]; 5]), |m| {
-            zoh(
+        let mode2 = p.second_mode.map_or(ModeRows::default(), |m| {
+            let (phi2, gamma2) = zoh(
                 &Continuous {
                     mode_rad_per_s: 2.0 * core::f64::consts::PI * m.freq_hz as f64,
                     mode_damping: m.damping as f64,
@@ -146,7 +169,8 @@ impl AxisModel {
                     ..continuous
                 },
                 TICK_S,
-            )
+            );
+            ModeRows::of(&phi2, &gamma2)
         });
         let c = |x: f64| x as f32;
         let friction = p.friction.map_or(FrictionCoef::default(), |f| FrictionCoef {
@@ -172,15 +196,11 @@ impl AxisModel {
             p11: c(phi[1][1]),
             p12: c(phi[1][2]),
             p22: c(phi[2][2]),
-            gu: [c(gamma[0][0]), c(gamma[1][0]), c(gamma[2][0]), c(gamma[3][0]), c(gamma[4][0])],
-            gf: [c(gamma[0][1]), c(gamma[1][1]), c(gamma[2][1]), c(gamma[3][1]), c(gamma[4][1])],
-            p3: [c(phi[3][1]), c(phi[3][2]), c(phi[3][3]), c(phi[3][4])],
-            p4: [c(phi[4][1]), c(phi[4][2]), c(phi[4][3]), c(phi[4][4])],
+            gu: [c(gamma[0][0]), c(gamma[1][0]), c(gamma[2][0])],
+            gf: [c(gamma[0][1]), c(gamma[1][1]), c(gamma[2][1])],
+            mode: ModeRows::of(&phi, &gamma),
             second_mode: p.second_mode.is_some(),
-            p5: [c(phi2[3][1]), c(phi2[3][2]), c(phi2[3][3]), c(phi2[3][4])],
-            p6: [c(phi2[4][1]), c(phi2[4][2]), c(phi2[4][3]), c(phi2[4][4])],
-            gu2: [c(gamma2[3][0]), c(gamma2[4][0])],
-            gf2: [c(gamma2[3][1]), c(gamma2[4][1])],
+            mode2,
             effects,
             friction,
             hysteresis: p
@@ -281,33 +301,9 @@ impl AxisModel {
             force += f0 + slope_theta * (v_free + g * f0 - v) / (1.0 - g * slope_theta);
         }
         let step_x = self.p01 * v + self.p02 * f + self.gu[0] * u_prev + self.gf[0] * force;
-        let (q, qd) = (st.q, st.qd);
-        st.q = self.p3[0] * v
-            + self.p3[1] * f
-            + self.p3[2] * q
-            + self.p3[3] * qd
-            + self.gu[3] * u_prev
-            + self.gf[3] * force;
-        st.qd = self.p4[0] * v
-            + self.p4[1] * f
-            + self.p4[2] * q
-            + self.p4[3] * qd
-            + self.gu[4] * u_prev
-            + self.gf[4] * force;
+        (st.q, st.qd) = self.mode.step((v, f), (st.q, st.qd), u_prev, force);
         if self.second_mode {
-            let (q2, qd2) = (st.q2, st.qd2);
-            st.q2 = self.p5[0] * v
-                + self.p5[1] * f
-                + self.p5[2] * q2
-                + self.p5[3] * qd2
-                + self.gu2[0] * u_prev
-                + self.gf2[0] * force;
-            st.qd2 = self.p6[0] * v
-                + self.p6[1] * f
-                + self.p6[2] * q2
-                + self.p6[3] * qd2
-                + self.gu2[1] * u_prev
-                + self.gf2[1] * force;
+            (st.q2, st.qd2) = self.mode2.step((v, f), (st.q2, st.qd2), u_prev, force);
         }
         st.v = v_free + self.gf[1] * force;
         st.f = self.p22 * f + self.gu[2] * u_prev;

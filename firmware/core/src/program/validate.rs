@@ -370,7 +370,7 @@ mod tests {
         // needs 64-bit stages.
         let three = with_terms(&[velocity, dahl, sine, drift, coupling]);
         let cost = three.tick_cost();
-        assert_eq!(cost, 532 + 42 + 145 + 162 + 119 + 53 + 110);
+        assert_eq!(cost, 534 + 42 + 145 + 162 + 119 + 53 + 111);
         assert_eq!(three.validate(), Err(ProgramError::TickBudget { cost: cost as u16, budget: 800 }));
         let slow_pole = with_terms(&[laguerre(TermInput::PositionSine { turns_per_nm: 4295, phase_turns: 0 }, 0.999)]);
         assert!(matches!(slow_pole.validate(), Err(ProgramError::TickBudget { .. })));

@@ -154,11 +154,19 @@ fn within(x: f32, lo: f32, hi: f32) -> bool {
     x >= lo && x <= hi
 }
 
+/// The first failed check's field, as the error.
+fn all_within(checks: &[(&'static str, bool)]) -> Result<(), AxisError> {
+    match checks.iter().find(|(_, ok)| !ok) {
+        Some((name, _)) => Err(AxisError::OutOfRange(name)),
+        None => Ok(()),
+    }
+}
+
 impl AxisParams {
     /// Checks every value is finite and physically plausible: gains and times positive
     /// and bounded so the coefficients and states stay well inside single precision.
     pub fn check(&self) -> Result<(), AxisError> {
-        let checks: [(&'static str, bool); 11] = [
+        all_within(&[
             ("cmd_delay_ticks", self.cmd_delay_ticks <= MAX_CMD_DELAY_TICKS),
             ("kp_per_s2", within(self.kp_per_s2, 1.0, 1e9)),
             ("ki_per_s3", within(self.ki_per_s3, 0.0, 1e12)),
@@ -170,24 +178,14 @@ impl AxisParams {
             ("mode_freq_hz", within(self.mode_freq_hz, 1.0, 3000.0)),
             ("mode_damping", within(self.mode_damping, 0.001, 10.0)),
             ("mode_tcp_gain", within(self.mode_tcp_gain, -100.0, 100.0)),
-        ];
-        for (name, ok) in checks {
-            if !ok {
-                return Err(AxisError::OutOfRange(name));
-            }
-        }
+        ])?;
         if let Some(f) = &self.friction {
-            let checks: [(&'static str, bool); 4] = [
+            all_within(&[
                 ("friction.coulomb_mps2", within(f.coulomb_mps2, 0.0, 1e3)),
                 ("friction.static_mps2", within(f.static_mps2, 0.0, 1e3)),
                 ("friction.stribeck_mps", within(f.stribeck_mps, 1e-7, 1.0)),
                 ("friction.smooth_mps", within(f.smooth_mps, 1e-8, 1.0)),
-            ];
-            for (name, ok) in checks {
-                if !ok {
-                    return Err(AxisError::OutOfRange(name));
-                }
-            }
+            ])?;
         }
         if let Some(h) = &self.hysteresis {
             if !within(h.force_mps2, 1e-6, 1e3) {
@@ -209,16 +207,11 @@ impl AxisParams {
             }
         }
         if let Some(m) = &self.second_mode {
-            let checks: [(&'static str, bool); 3] = [
+            all_within(&[
                 ("second_mode.freq_hz", within(m.freq_hz, 1.0, 3000.0)),
                 ("second_mode.damping", within(m.damping, 0.001, 10.0)),
                 ("second_mode.tcp_gain", within(m.tcp_gain, -100.0, 100.0)),
-            ];
-            for (name, ok) in checks {
-                if !ok {
-                    return Err(AxisError::OutOfRange(name));
-                }
-            }
+            ])?;
         }
         Ok(())
     }

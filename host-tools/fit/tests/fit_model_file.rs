@@ -101,6 +101,8 @@ fn a_corrupt_program_is_named() {
         ("odd.json", hex[1..].to_string(), "not hexadecimal"),
         ("truncated.json", hex[..(hex.len() / 2) & !1].to_string(), "program"),
         ("trailing.json", hex.clone() + "00", "after the program"),
+        // A twin of an earlier release (its program's first byte is the format version).
+        ("version1.json", "01".to_string() + &hex[2..], "format version 1, this release reads version 2"),
     ] {
         let message = read_error(name, &text().replace(hex.as_str(), &replacement));
         assert!(message.contains("field `program_postcard_hex` ") && message.contains(expect), "{name}: {message}");

@@ -76,6 +76,14 @@ pub enum ModelError {
         /// How many.
         count: usize,
     },
+    /// The program is of another format version (a twin made by another release of sts-twin).
+    #[error("holds a program of format version {found}, this release reads version {expected}: fit the twin again with this release")]
+    ProgramVersion {
+        /// The file's program version.
+        found: u16,
+        /// [`sts_twin_core::program::PROGRAM_VERSION`].
+        expected: u16,
+    },
     /// The decoded program does not validate.
     #[error("holds an invalid program: {error}")]
     InvalidProgram {

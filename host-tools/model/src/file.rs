@@ -278,6 +278,13 @@ impl ModelFile {
     /// The firmware program, decoded from the postcard bytes and validated.
     pub fn firmware_program(&self) -> Result<Program, ModelError> {
         let bytes = hex_decode(&self.program_postcard_hex).ok_or(ModelError::NotHex)?;
+        // The version first: another version's terms may not decode as this one's.
+        if let Ok((found, _)) = postcard::take_from_bytes::<u16>(&bytes) {
+            let expected = sts_twin_core::program::PROGRAM_VERSION;
+            if found != expected {
+                return Err(ModelError::ProgramVersion { found, expected });
+            }
+        }
         let (program, rest): (Program, &[u8]) =
             postcard::take_from_bytes(&bytes).map_err(|error| ModelError::NotPostcard { error })?;
         if !rest.is_empty() {

@@ -230,20 +230,30 @@ impl AxisModel {
     /// The step specialised for the effects present (no per-tick tests of absent ones).
     #[inline(always)]
     fn dispatch(&self, st: &mut AxisState, cmd_pos_nm: i32, added_nm: i32) -> i32 {
-        match self.effects {
-            0 => self.step_with::<false, false, false>(st, cmd_pos_nm, added_nm),
-            FRICTION => self.step_with::<true, false, false>(st, cmd_pos_nm, added_nm),
-            HYSTERESIS => self.step_with::<false, true, false>(st, cmd_pos_nm, added_nm),
-            RIPPLE => self.step_with::<false, false, true>(st, cmd_pos_nm, added_nm),
-            3 => self.step_with::<true, true, false>(st, cmd_pos_nm, added_nm),
-            5 => self.step_with::<true, false, true>(st, cmd_pos_nm, added_nm),
-            6 => self.step_with::<false, true, true>(st, cmd_pos_nm, added_nm),
-            _ => self.step_with::<true, true, true>(st, cmd_pos_nm, added_nm),
+        // One mode or two: an axis without a second mode runs the step it ran before it.
+        if self.second_mode {
+            self.dispatch_effects::<true>(st, cmd_pos_nm, added_nm)
+        } else {
+            self.dispatch_effects::<false>(st, cmd_pos_nm, added_nm)
         }
     }
 
     #[inline(always)]
-    fn step_with<const F: bool, const H: bool, const R: bool>(
+    fn dispatch_effects<const M: bool>(&self, st: &mut AxisState, cmd_pos_nm: i32, added_nm: i32) -> i32 {
+        match self.effects {
+            0 => self.step_with::<false, false, false, M>(st, cmd_pos_nm, added_nm),
+            FRICTION => self.step_with::<true, false, false, M>(st, cmd_pos_nm, added_nm),
+            HYSTERESIS => self.step_with::<false, true, false, M>(st, cmd_pos_nm, added_nm),
+            RIPPLE => self.step_with::<false, false, true, M>(st, cmd_pos_nm, added_nm),
+            3 => self.step_with::<true, true, false, M>(st, cmd_pos_nm, added_nm),
+            5 => self.step_with::<true, false, true, M>(st, cmd_pos_nm, added_nm),
+            6 => self.step_with::<false, true, true, M>(st, cmd_pos_nm, added_nm),
+            _ => self.step_with::<true, true, true, M>(st, cmd_pos_nm, added_nm),
+        }
+    }
+
+    #[inline(always)]
+    fn step_with<const F: bool, const H: bool, const R: bool, const M: bool>(
         &self,
         st: &mut AxisState,
         cmd_pos_nm: i32,
@@ -279,7 +289,7 @@ impl AxisModel {
         // TCP - command = (r - command) - (r - x) + q; the first part exact in nanometres.
         let lag_nm = r_nm.wrapping_sub(cmd_pos_nm);
         // The lag is a few ticks of command motion (far below 2 mm); |q - w| < 2 mm (the reset).
-        let modal = if self.second_mode { st.q + st.q2 } else { st.q };
+        let modal = if M { st.q + st.q2 } else { st.q };
         let out_pm = lag_nm.wrapping_mul(1000).wrapping_add(((modal - st.w) * 1e12) as i32);
 
         // Over the tick with last tick's force command; friction linearly implicit in the
@@ -302,7 +312,7 @@ impl AxisModel {
         }
         let step_x = self.p01 * v + self.p02 * f + self.gu[0] * u_prev + self.gf[0] * force;
         (st.q, st.qd) = self.mode.step((v, f), (st.q, st.qd), u_prev, force);
-        if self.second_mode {
+        if M {
             (st.q2, st.qd2) = self.mode2.step((v, f), (st.q2, st.qd2), u_prev, force);
         }
         st.v = v_free + self.gf[1] * force;
@@ -329,8 +339,9 @@ impl AxisModel {
         }
         // NaN compares false, and a non-finite velocity, force or rate reaches the
         // following error or the mode within a tick.
+        let excursion = if M { st.w.abs() + st.q.abs() + st.q2.abs() } else { st.w.abs() + st.q.abs() };
         #[allow(clippy::neg_cmp_op_on_partial_ord)] // NaN must fail it too, in one comparison
-        if !(st.w.abs() + st.q.abs() + st.q2.abs() < DIVERGED_M) {
+        if !(excursion < DIVERGED_M) {
             self.reset(st);
         }
         out_pm

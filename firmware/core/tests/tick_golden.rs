@@ -27,6 +27,11 @@
 //! store raised the cost model (the validator refuses it at 813): its own hash and those of
 //! the switching runs were pinned again from the code of that change; the other programs'
 //! hashes held. The supervisor is switched off in these runs (the stream is open loop).
+//!
+//! The second program was a velocity-sign bank with an axis coupling until the cost model was
+//! fitted again on the bench (2026-11-29: that pair, 832, is refused): it is the bank with a
+//! drift now, its own hashes and those of the switching runs pinned from the code of that
+//! change; the other programs' hashes held.
 
 use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
 use sts_twin_core::features::FeatureConfig;
@@ -111,8 +116,6 @@ fn harmonic(order: u8, amp_reg: u8) -> TickTerm {
 /// The programs of the run, in order.
 fn programs() -> Vec<Program> {
     let drift = TickTerm::Drift { offset_pm: 300_000, decay_pm: -450_000, tau_ticks: 9000 };
-    let coupling =
-        TickTerm::AxisCoupling { x_gain_pm_per_mps2: 800_000, spindle_amp_pm: 50_000, spindle_phase_turns: 1 << 29 };
     let velocity = laguerre(TermInput::VelocitySign { smooth_nm_per_4_ticks: 300 }, 0.93, 150_000);
     let dahl = laguerre(TermInput::Dahl { inv_x0_q30: (1 << 30) / 2000 }, 0.93, 120_000);
     let sine = laguerre(TermInput::PositionSine { turns_per_nm: 4_294_967, phase_turns: 7 << 28 }, 0.9, 90_000);
@@ -122,7 +125,9 @@ fn programs() -> Vec<Program> {
     }
     vec![
         program(11, &harmonics),
-        program(12, &[velocity, coupling]),
+        // (A velocity bank with a coupling until the cost model's recalibration of 2026-11-29
+        // put that pair at 832: a velocity bank with a drift now.)
+        program(12, &[velocity, drift]),
         // Kernels beside a harmonic (between two until the supervisor's command store raised
         // the cost model: that program, 813, is refused now).
         program(13, &[harmonic(3, 2), sine, drift]),
@@ -190,12 +195,12 @@ fn twin_run(window_samples: u32, ticks: u32, request_at: impl Fn(u32) -> Option<
 
 #[test]
 fn the_twins_outputs_are_those_pinned_ramps_settling_between_updates() {
-    assert_eq!(twin_hash(2000, 24_000), 16_653_862_834_649_541_244, "window 2000");
+    assert_eq!(twin_hash(2000, 24_000), 1_172_237_732_981_430_062, "window 2000");
 }
 
 #[test]
 fn the_twins_outputs_are_those_pinned_ramps_never_settling() {
-    assert_eq!(twin_hash(800, 24_000), 12_412_206_902_894_436_417, "window 800");
+    assert_eq!(twin_hash(800, 24_000), 18_048_703_951_985_695_510, "window 800");
 }
 
 /// Each program of the run alone, never switched, under both schedules: a program switch may
@@ -204,7 +209,7 @@ fn the_twins_outputs_are_those_pinned_ramps_never_settling() {
 fn the_twins_outputs_without_a_program_switch_are_those_pinned() {
     let pinned: [[u64; 2]; 5] = [
         [9_100_906_065_443_868_003, 9_571_390_674_043_219_037],
-        [16_111_111_655_017_494_969, 17_926_420_157_072_301_425],
+        [4_715_860_211_714_405_979, 3_838_874_250_454_834_930],
         [9_679_915_960_794_309_429, 8_331_655_143_772_813_187],
         [14_419_431_135_460_686_159, 16_391_232_033_328_672_457],
         [13_188_647_319_128_626_359, 2_583_491_077_265_107_475],

@@ -10,7 +10,7 @@
 
 use serde::Serialize;
 use sts_dataset::Dataset;
-use sts_fit::effects::{fit_with, EffectRecord};
+use sts_fit::effects::{fit_with, EffectRecord, AXIS_EFFECTS};
 use sts_fit::{fit, FitConfig, FitError};
 use sts_model::ModelFile;
 
@@ -165,9 +165,6 @@ pub enum ExplainError {
 
 /// Significant candidates a rung tries, strongest first, before it stops.
 const MAX_TRIES: usize = 3;
-
-/// The effects the servo-axis twin carries (`sts_fit::effects::axis`).
-const AXIS_EFFECTS: [&str; 3] = ["coulomb-friction", "presliding-hysteresis", "force-ripple"];
 
 /// Least relative fall of the held-out error that keeps the axis twin's second mode when
 /// `diagnose` did not name it: an axis with one mode gains a little from a second one too.

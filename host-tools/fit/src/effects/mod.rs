@@ -47,7 +47,7 @@ use sts_model::{hex_encode, ModelFile};
 use crate::FitError;
 
 /// The effects the servo-axis twin carries.
-const AXIS_EFFECTS: [&str; 3] = ["coulomb-friction", "presliding-hysteresis", "force-ripple"];
+pub const AXIS_EFFECTS: [&str; 3] = ["coulomb-friction", "presliding-hysteresis", "force-ripple"];
 
 /// Not an effect but the servo-axis twin alone (controller, slide and structural mode,
 /// simulated from the command, no nonlinear effect): the twin for a machine's whole speed

@@ -79,6 +79,40 @@ fn the_in_band_evidence_is_held_out_and_absent_without_a_mode() {
     }
 }
 
+/// The evidence `diagnose` names a late setpoint from in the lab's workflow: at the slowest
+/// groups the error lags the motion as a delay's does, and the lag read there is the whole
+/// response's (the controller's own 2-tick pipeline included), so a setpoint 300 us late adds
+/// 300 us to it; the velocity bank's held-out leftover is known for every group, and small
+/// beside the error it fits.
+#[test]
+fn the_linear_response_evidence_reads_the_whole_responses_lag() {
+    use sts_fit::effects::linear_response_evidence;
+    let clean = linear_response_evidence(&measure(&[]), 5).expect("evidence");
+    let late_data = measure(&["setpoint-delay:delay_us=300"]);
+    let late = linear_response_evidence(&late_data, 5).expect("evidence");
+    println!(
+        "slowest groups ({} Hz): clean {:.1} us at {:.1} deg, late {:.1} us at {:.1} deg",
+        clean.slowest_freq_hz,
+        clean.slowest_lag_us,
+        clean.slowest_phase_deg,
+        late.slowest_lag_us,
+        late.slowest_phase_deg
+    );
+    assert_eq!(late.slowest_freq_hz, 1.0);
+    for e in [&clean, &late] {
+        assert!((e.slowest_phase_deg + 90.0).abs() < 15.0, "phase {} deg", e.slowest_phase_deg);
+    }
+    let added = late.slowest_lag_us - clean.slowest_lag_us;
+    assert!((added - 300.0).abs() < 15.0, "lag added {added} us");
+    assert!(clean.slowest_lag_us > 200.0, "the pipeline's 250 us: {} us", clean.slowest_lag_us);
+    assert_eq!(late.bank_only_ss_um2.len(), late_data.groups.len());
+    assert!(late.bank_only_ss_um2.iter().all(|x| x.is_finite() && *x >= 0.0));
+    // What the bank leaves, against the error's own power at the command frequency (the
+    // phasors' squared magnitudes are at least the 40 Hz groups' um^2).
+    let left_um2: f64 = late.bank_only_ss_um2.iter().sum();
+    assert!(left_um2 < 1e-3 * late_data.groups.len() as f64, "the bank leaves {left_um2} um^2");
+}
+
 /// Beside friction (or hysteresis, or a ripple) a mode is the servo-axis twin's second mode,
 /// driven like its first by the slide's acceleration: identified with the axis, frequency and
 /// modal gain close to the emulated machine's.

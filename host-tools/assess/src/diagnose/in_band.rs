@@ -40,6 +40,22 @@ pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Resul
     let Some(evidence) = sts_fit::effects::in_band_mode_evidence(dataset, FOLDS)? else {
         return Ok(None);
     };
+    Ok(rank(&evidence, d))
+}
+
+/// Whether the data's own error holds a resonance inside the band beyond the axis's linear
+/// response (the stage's test, whatever the twin leaves): what a mode named on a twin's
+/// residual must also show before it stands against a late setpoint, whose error a twin's
+/// formulas bend into a resonance's shape at the bottom of the band.
+pub(super) fn mode_beyond_linear_response(dataset: &Dataset, d: &Diagnosis) -> Result<bool, AssessError> {
+    Ok(sts_fit::effects::in_band_mode_evidence(dataset, FOLDS)?
+        .and_then(|evidence| rank(&evidence, d))
+        .is_some_and(|r| r.significant))
+}
+
+/// The mode's evidence through the test every candidate takes.
+fn rank(evidence: &sts_fit::effects::InBandModeEvidence, d: &Diagnosis) -> Option<Ranked> {
+    let floor_um = d.repeatability.known_floor_um().max(NOT_REPEATING_MIN_UM);
     let pairs: Vec<(f64, f64)> = evidence
         .bank_only_ss_um2
         .iter()
@@ -48,7 +64,7 @@ pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Resul
         .map(|(a, b)| (*a, *b))
         .collect();
     if pairs.is_empty() {
-        return Ok(None);
+        return None;
     }
     let reductions: Vec<f64> = pairs.iter().map(|(a, b)| a - b).collect();
     let relative: Vec<f64> = pairs.iter().map(|(a, b)| relative_improvement(a - b, *a)).collect();
@@ -60,7 +76,7 @@ pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Resul
     let explained_rms_um = (gained.max(0.0) / 2.0 / pairs.len() as f64).sqrt();
     let significant =
         explained_fraction >= MIN_EXPLAINED && p_value < significance_threshold() && explained_rms_um > floor_um;
-    Ok(Some(Ranked {
+    Some(Ranked {
         effect: "structural-mode".into(),
         explained_fraction,
         p_value,
@@ -79,5 +95,5 @@ pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Resul
         significant,
         explained_rms_um,
         without_fundamental: false,
-    }))
+    })
 }

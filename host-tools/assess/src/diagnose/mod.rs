@@ -40,6 +40,14 @@
 //! clean machine's error, and `none` is then the right answer (the suite counts it so where the
 //! twin's error stays within 1.5x of the clean twin's).
 //!
+//! **After the candidates, in the data's own error.** Where none is significant, two stages
+//! look at the error's phasors at the command frequency rather than at a residual the twin's
+//! formulas have bent: a structural mode inside the band (module `in_band`), then a late
+//! setpoint (module `late_setpoint`: the axis's linear response from the command, a velocity
+//! bank, against the twin's own residual, where the error at the slowest groups lags the
+//! motion as a delay's does). A mode that a candidate names inside the band must also hold
+//! there beyond that linear response, or the late setpoint, when significant, is named instead.
+//!
 //! **The test for `none`.** The best candidate is the verdict only if (1) it explains at least
 //! [`MIN_EXPLAINED`] of the held-out residual, (2) its per-group reductions of the held-out
 //! residual add up to more than chance allows: a one-sided sign-flip test over groups
@@ -54,6 +62,7 @@
 
 mod candidates;
 mod in_band;
+mod late_setpoint;
 mod probe_check;
 pub mod structure;
 
@@ -318,20 +327,44 @@ pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> Result<Diagnosis, Asses
     let ctx = contexts(dataset, &samples, model)?;
     let mut d = diagnose_contexts(&ctx, model.validation.waveform_rms_um);
     d.test.push_str(&format!(
-        " Where none is significant, the residual at the command frequency exceeds {:.0}x the data's floor and the twin carries no resonance, the data's own error is searched for a mode inside the band: its phasors at the command frequency fitted with a velocity bank alone and with a resonance beside it, held out by fold of groups, the per-group reductions through the same test; a significant mode is the verdict.",
-        in_band::FUNDAMENTAL_OVER_FLOOR
+        " Where none is significant, the residual at the command frequency exceeds {:.0}x the data's floor and the twin carries no resonance, the data's own error is searched for a mode inside the band: its phasors at the command frequency fitted with a velocity bank alone and with a resonance beside it, held out by fold of groups, the per-group reductions through the same test; a significant mode is the verdict. Where still none is and the twin carries nothing driven by the command's velocity, while the error at the slowest frequency lags the motion within {:.0} deg of a delay's 90, the same phasors are fitted with the velocity bank alone, held out, against the twin's own residual there, through the same test, with what the bank takes at least {:.1}x the floor; a significant gain names setpoint-delay (also over a mode named inside the band that adds nothing to the bank in the data's own error).",
+        in_band::FUNDAMENTAL_OVER_FLOOR,
+        late_setpoint::DELAY_PHASE_TOLERANCE_DEG,
+        late_setpoint::GAIN_OVER_FLOOR
     ));
-    if d.verdict != "none" {
-        return Ok(d);
-    }
-    if let Some(mode) = in_band::look(dataset, model, &d)?.filter(|m| m.significant) {
-        d.ranking.retain(|r| r.effect != mode.effect);
-        d.verdict = mode.effect.clone();
-        d.summary = format!("{}: {}", mode.effect, mode.evidence);
+    let found = if d.verdict == "none" {
+        match in_band::look(dataset, model, &d)?.filter(|m| m.significant) {
+            Some(mode) => Some(mode),
+            None => late_setpoint::look(dataset, model, &ctx, &d)?.filter(|m| m.significant),
+        }
+    } else if named_mode_in_band(&d, &ctx) {
+        // A mode named on the residual inside the band must hold in the data's own error
+        // beyond the axis's linear response; a late setpoint's error, bent by the formulas,
+        // can take a resonance's shape on the residual.
+        match late_setpoint::look(dataset, model, &ctx, &d)?.filter(|m| m.significant) {
+            Some(late) if !in_band::mode_beyond_linear_response(dataset, &d)? => Some(late),
+            _ => None,
+        }
+    } else {
+        None
+    };
+    if let Some(found) = found {
+        d.ranking.retain(|r| r.effect != found.effect);
+        d.verdict = found.effect.clone();
+        d.summary = format!("{}: {}", found.effect, found.evidence);
         d.unexplained = None;
-        d.ranking.insert(0, mode);
+        d.ranking.insert(0, found);
     }
     Ok(d)
+}
+
+/// Whether the verdict is a structural mode the candidate found inside the test's band.
+fn named_mode_in_band(d: &Diagnosis, ctx: &[GroupCtx]) -> bool {
+    let top_hz = ctx.iter().map(|c| c.sample.info.freq_hz).fold(0.0, f64::max);
+    d.verdict == "structural-mode"
+        && d.ranking
+            .first()
+            .is_some_and(|r| r.effect == d.verdict && r.params.iter().any(|(name, f)| name == "freq_hz" && *f < top_hz))
 }
 
 /// Diagnoses prepared group contexts; `model_cv_rms_um` is the model's own held-out error.

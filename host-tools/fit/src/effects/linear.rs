@@ -179,6 +179,22 @@ impl ModePhasors {
         }
     }
 
+    /// Per group, the squared phasor error the bank alone leaves, fitted on the other folds
+    /// (NaN where a fold could not be fitted), um^2.
+    fn bank_only_held_out(&self, folds: usize) -> Vec<f64> {
+        let n = self.phasors.len();
+        let mut ss = vec![f64::NAN; n];
+        for fold in 0..folds {
+            let train = |i: usize| i % folds != fold;
+            if let Some((bank, _)) = self.fit(&train, None) {
+                for (i, s) in ss.iter_mut().enumerate().filter(|(i, _)| !train(*i)) {
+                    *s = self.group_ss(i, &bank, None);
+                }
+            }
+        }
+        ss
+    }
+
     fn sse_at(&self, train: &(dyn Fn(usize) -> bool + Sync), point: (f64, f64)) -> f64 {
         self.fit(train, Some(point)).map_or(f64::INFINITY, |(_, rms)| rms)
     }
@@ -254,22 +270,67 @@ pub fn in_band_mode_evidence(dataset: &Dataset, folds: usize) -> Result<Option<I
     };
     let n = m.phasors.len();
     let folds = folds.clamp(2, n.max(2));
-    let mut bank_only_ss_um2 = vec![f64::NAN; n];
+    let bank_only_ss_um2 = m.bank_only_held_out(folds);
     let mut with_mode_ss_um2 = vec![f64::NAN; n];
     for fold in 0..folds {
         let train = |i: usize| i % folds != fold;
-        let (Some((bank, _)), Some(mode)) = (m.fit(&train, None), m.search(&train, true)) else {
+        let Some(mode) = m.search(&train, true) else {
             continue;
         };
         let Some((with_mode, _)) = m.fit(&train, Some(mode)) else {
             continue;
         };
         for i in (0..n).filter(|i| !train(*i)) {
-            bank_only_ss_um2[i] = m.group_ss(i, &bank, None);
             with_mode_ss_um2[i] = m.group_ss(i, &with_mode, Some(mode));
         }
     }
     Ok(Some(InBandModeEvidence { freq_hz, damping, bank_only_ss_um2, with_mode_ss_um2 }))
+}
+
+/// The axis's linear response to the command fitted on the data's own error (the velocity
+/// bank alone, the term `fit --effect setpoint-delay` carries), and the error's lag at the
+/// bottom of the band, where a delay ahead of the servo loop shows plainly.
+#[derive(Clone, Debug)]
+pub struct LinearResponseEvidence {
+    /// Per group, held out (k folds by group, round robin): the squared phasor error at the
+    /// command frequency that the velocity bank leaves, um^2 (as
+    /// [`InBandModeEvidence::bank_only_ss_um2`]; NaN where a fold could not be fitted).
+    pub bank_only_ss_um2: Vec<f64>,
+    /// The test's slowest command frequency, Hz.
+    pub slowest_freq_hz: f64,
+    /// The error's phase against the command there, pooled over the strokes, degrees
+    /// (a delay's error, `cmd(t - tau) - cmd(t)`, is at -90).
+    pub slowest_phase_deg: f64,
+    /// The lag of the whole response there, `-Im(E / C) / w` pooled over the strokes, us:
+    /// every delay between the trajectory and the tool, the controller's pipeline included.
+    pub slowest_lag_us: f64,
+}
+
+/// [`LinearResponseEvidence`] of the data's own error; `folds` score the bank held out.
+pub fn linear_response_evidence(dataset: &Dataset, folds: usize) -> Result<LinearResponseEvidence, FitError> {
+    let inputs = super::all_group_inputs(dataset)?;
+    let kind = velocity_input(&inputs);
+    let m = ModePhasors::new(dataset, &inputs, &kind);
+    let folds = folds.clamp(2, m.phasors.len().max(2));
+    let slowest_freq_hz = m.freqs_hz.iter().copied().fold(f64::INFINITY, f64::min);
+    // Sum of E conj(C) and of |C|^2 over the slowest groups: E / C weighted by |C|^2.
+    let (mut re, mut im, mut cc) = (0.0, 0.0, 0.0);
+    for ((c, e), f) in m.phasors.iter().zip(&m.freqs_hz) {
+        if *f <= slowest_freq_hz {
+            re += e.0 * c.0 + e.1 * c.1;
+            im += e.1 * c.0 - e.0 * c.1;
+            cc += c.0 * c.0 + c.1 * c.1;
+        }
+    }
+    let w = 2.0 * std::f64::consts::PI * slowest_freq_hz;
+    let (slowest_phase_deg, slowest_lag_us) =
+        if cc > 0.0 { (im.atan2(re).to_degrees(), -im / cc / w * 1e6) } else { (f64::NAN, f64::NAN) };
+    Ok(LinearResponseEvidence {
+        bank_only_ss_um2: m.bank_only_held_out(folds),
+        slowest_freq_hz,
+        slowest_phase_deg,
+        slowest_lag_us,
+    })
 }
 
 /// A structural mode inside the band: its frequency and damping from a grid (the error's

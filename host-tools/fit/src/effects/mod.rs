@@ -29,7 +29,7 @@
 
 pub mod axis;
 mod linear;
-pub use linear::{in_band_mode_evidence, InBandModeEvidence};
+pub use linear::{in_band_mode_evidence, linear_response_evidence, InBandModeEvidence, LinearResponseEvidence};
 
 use std::f64::consts::PI;
 use std::path::Path;

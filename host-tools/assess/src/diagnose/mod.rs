@@ -327,9 +327,10 @@ pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> Result<Diagnosis, Asses
     let ctx = contexts(dataset, &samples, model)?;
     let mut d = diagnose_contexts(&ctx, model.validation.waveform_rms_um);
     d.test.push_str(&format!(
-        " Where none is significant, the residual at the command frequency exceeds {:.0}x the data's floor and the twin carries no resonance, the data's own error is searched for a mode inside the band: its phasors at the command frequency fitted with a velocity bank alone and with a resonance beside it, held out by fold of groups, the per-group reductions through the same test; a significant mode is the verdict. Where still none is and the twin carries nothing driven by the command's velocity, while the error at the slowest frequency lags the motion within {:.0} deg of a delay's 90, the same phasors are fitted with the velocity bank alone, held out, against the twin's own residual there, through the same test, with what the bank takes at least {:.1}x the floor; a significant gain names setpoint-delay (also over a mode named inside the band that adds nothing to the bank in the data's own error).",
+        " Where none is significant, the residual at the command frequency exceeds {:.0}x the data's floor and the twin carries no resonance, the data's own error is searched for a mode inside the band: its phasors at the command frequency fitted with a velocity bank alone and with a resonance beside it, held out by fold of groups, the per-group reductions through the same test; a significant mode is the verdict. Where still none is and the twin carries nothing driven by the command's velocity, while the error at the slowest frequency lags the motion as a delay's does (in quadrature with it, at most {:.0} deg short of it, where the servo's own in-phase error would pull it, and {:.0} deg past it, where a servo's own first-order lag would turn it), the same phasors are fitted with the velocity bank alone, held out, against the twin's own residual there, through the same test, with what the bank takes at least {:.1}x the floor; a significant gain names setpoint-delay (also over a mode named inside the band that adds nothing to the bank in the data's own error).",
         in_band::FUNDAMENTAL_OVER_FLOOR,
-        late_setpoint::DELAY_PHASE_TOLERANCE_DEG,
+        late_setpoint::DELAY_PHASE_SHORT_DEG,
+        late_setpoint::DELAY_PHASE_PAST_DEG,
         late_setpoint::GAIN_OVER_FLOOR
     ));
     let found = if d.verdict == "none" {

@@ -56,8 +56,11 @@ pub const DELAY_PHASE_SHORT_DEG: f64 = 9.0;
 /// sits 3.7 deg past at 2 Hz. That lag belongs to the servo, not to a late setpoint.
 pub const DELAY_PHASE_PAST_DEG: f64 = 1.0;
 
-/// Whether the model's program already predicts from the command: a velocity bank or the
-/// servo-axis twin (each carries the axis's linear response, a delay ahead of it included).
+/// Whether the model's program already predicts from the command: a velocity bank (the
+/// axis's linear response, a delay ahead of it included) or the servo-axis twin, whose
+/// command delay is identified in whole ticks from 1 to 3 (a later setpoint than that is left
+/// in its residual, and this stage does not look for it there: BENCHMARKS.md, "The late
+/// setpoint in the lab's workflow", the sets).
 fn carries_command_response(model: &ModelFile) -> bool {
     model.firmware_program().is_ok_and(|p| {
         p.terms

@@ -18,7 +18,7 @@ use sts_dataset::Dataset;
 use sts_model::ModelFile;
 use sts_twin_core::program::TickTerm;
 
-use super::{relative_improvement, sign_flip_p, significance_threshold, Diagnosis, Ranked, FOLDS, MIN_EXPLAINED};
+use super::{Diagnosis, PhasorGain, Ranked, FOLDS};
 use sts_analysis::repeat::NOT_REPEATING_MIN_UM;
 
 /// The residual at the command frequency must be this many times the data's floor (or
@@ -56,31 +56,13 @@ pub(super) fn mode_beyond_linear_response(dataset: &Dataset, d: &Diagnosis) -> R
 /// The mode's evidence through the test every candidate takes.
 fn rank(evidence: &sts_fit::effects::InBandModeEvidence, d: &Diagnosis) -> Option<Ranked> {
     let floor_um = d.repeatability.known_floor_um().max(NOT_REPEATING_MIN_UM);
-    let pairs: Vec<(f64, f64)> = evidence
-        .bank_only_ss_um2
-        .iter()
-        .zip(&evidence.with_mode_ss_um2)
-        .filter(|(a, b)| a.is_finite() && b.is_finite())
-        .map(|(a, b)| (*a, *b))
-        .collect();
-    if pairs.is_empty() {
-        return None;
-    }
-    let reductions: Vec<f64> = pairs.iter().map(|(a, b)| a - b).collect();
-    let relative: Vec<f64> = pairs.iter().map(|(a, b)| relative_improvement(a - b, *a)).collect();
-    let p_value = sign_flip_p(&reductions).min(sign_flip_p(&relative));
-    let bank_ss: f64 = pairs.iter().map(|(a, _)| a).sum();
-    let gained: f64 = reductions.iter().sum();
-    let explained_fraction = if bank_ss > 0.0 { gained / bank_ss } else { 0.0 };
-    // A phasor q is a sine of RMS |q| / sqrt(2).
-    let explained_rms_um = (gained.max(0.0) / 2.0 / pairs.len() as f64).sqrt();
-    let significant =
-        explained_fraction >= MIN_EXPLAINED && p_value < significance_threshold() && explained_rms_um > floor_um;
+    let gain =
+        PhasorGain::of(evidence.bank_only_ss_um2.iter().copied().zip(evidence.with_mode_ss_um2.iter().copied()))?;
     Some(Ranked {
         effect: "structural-mode".into(),
-        explained_fraction,
-        p_value,
-        groups_improved: reductions.iter().filter(|r| **r > 0.0).count(),
+        explained_fraction: gain.explained_fraction,
+        p_value: gain.p_value,
+        groups_improved: gain.improved(),
         params: vec![("freq_hz".into(), evidence.freq_hz), ("damping".into(), evidence.damping)],
         evidence: format!(
             "the twin leaves {:.1} nm at the command frequency ({:.1}x the data's floor); in the data's own error a resonance at {:.1} Hz (damping {:.3}) beside the axis's linear response (a velocity bank) takes {:.0}% of what the bank alone leaves at the command frequency, held out ({} of {} groups better): a mode between the test's frequencies, whose peak the twin's formulas do not follow",
@@ -88,12 +70,12 @@ fn rank(evidence: &sts_fit::effects::InBandModeEvidence, d: &Diagnosis) -> Optio
             d.structure.fundamental.rms_um / floor_um,
             evidence.freq_hz,
             evidence.damping,
-            explained_fraction * 100.0,
-            reductions.iter().filter(|r| **r > 0.0).count(),
-            reductions.len()
+            gain.explained_fraction * 100.0,
+            gain.improved(),
+            gain.reductions.len()
         ),
-        significant,
-        explained_rms_um,
+        significant: gain.significant(floor_um),
+        explained_rms_um: gain.explained_rms_um,
         without_fundamental: false,
     })
 }

@@ -11,7 +11,7 @@
 //! accelerometer's resolution, and the candidate scored on that residual (a delay of the
 //! measured motion at every frequency) finds nothing of its shape, since the formulas follow
 //! the delay everywhere the accelerometer sees it. The data's own error keeps the shape. So,
-//! where the residual at the command frequency stands above the data's floor, the twin
+//! where the residual at the command frequency stands 1.5x above the data's floor, the twin
 //! carries nothing driven by the command's velocity, and the error at the slowest frequency
 //! is a delay's (in quadrature with the motion, the servo's own in-phase part small beside
 //! it), the axis's linear response to the command (the velocity
@@ -27,9 +27,7 @@ use sts_dataset::Dataset;
 use sts_model::ModelFile;
 use sts_twin_core::program::{TermInput, TickTerm};
 
-use super::{
-    relative_improvement, sign_flip_p, significance_threshold, Diagnosis, GroupCtx, Ranked, FOLDS, MIN_EXPLAINED,
-};
+use super::{Diagnosis, GroupCtx, PhasorGain, Ranked, FOLDS};
 
 /// What the bank takes beyond the twin must stand this many times above the data's floor.
 /// Not once: on a clean machine, too, the bank follows the slowest groups better than formulas
@@ -88,35 +86,18 @@ pub(super) fn look(
         return Ok(None);
     }
     // The twin's residual at the command frequency per group, against what the bank leaves.
-    let pairs: Vec<(f64, f64)> = ctx
-        .iter()
-        .map(|c| {
-            let r = phasor(&c.theta, &c.residual);
-            (r.0 * r.0 + r.1 * r.1, evidence.bank_only_ss_um2[c.sample.index])
-        })
-        .filter(|(a, b)| a.is_finite() && b.is_finite())
-        .collect();
-    if pairs.is_empty() {
+    let Some(gain) = PhasorGain::of(ctx.iter().map(|c| {
+        let r = phasor(&c.theta, &c.residual);
+        (r.0 * r.0 + r.1 * r.1, evidence.bank_only_ss_um2[c.sample.index])
+    })) else {
         return Ok(None);
-    }
-    let reductions: Vec<f64> = pairs.iter().map(|(a, b)| a - b).collect();
-    let relative: Vec<f64> = pairs.iter().map(|(a, b)| relative_improvement(a - b, *a)).collect();
-    let p_value = sign_flip_p(&reductions).min(sign_flip_p(&relative));
-    let twin_ss: f64 = pairs.iter().map(|(a, _)| a).sum();
-    let gained: f64 = reductions.iter().sum();
-    let explained_fraction = if twin_ss > 0.0 { gained / twin_ss } else { 0.0 };
-    // A phasor q is a sine of RMS |q| / sqrt(2).
-    let explained_rms_um = (gained.max(0.0) / 2.0 / pairs.len() as f64).sqrt();
-    let significant = explained_fraction >= MIN_EXPLAINED
-        && p_value < significance_threshold()
-        && explained_rms_um > GAIN_OVER_FLOOR * floor_um;
-    let improved = reductions.iter().filter(|r| **r > 0.0).count();
+    };
     let lag_deg_at_40 = 360.0 * 40.0 * evidence.slowest_lag_us * 1e-6;
     Ok(Some(Ranked {
         effect: "setpoint-delay".into(),
-        explained_fraction,
-        p_value,
-        groups_improved: improved,
+        explained_fraction: gain.explained_fraction,
+        p_value: gain.p_value,
+        groups_improved: gain.improved(),
         params: vec![("delay_us".into(), evidence.slowest_lag_us), ("phase_lag_at_40hz_deg".into(), lag_deg_at_40)],
         evidence: format!(
             "the twin leaves {:.1} nm at the command frequency ({:.1}x the data's floor); at the slowest groups ({} Hz) the error lags the motion by {:.1} deg, as a delay's does, and the whole response is {:.0} us late there ({:.2} deg at 40 Hz, every delay between the trajectory and the tool); the axis's linear response fitted from the command (a velocity bank) takes {:.0}% of what the twin leaves at the command frequency, held out ({} of {} groups better): a delay ahead of the servo loop (the setpoint or the command path) whose error the twin's formulas, reading the accelerometer, do not follow where it barely sees the motion",
@@ -126,12 +107,12 @@ pub(super) fn look(
             -evidence.slowest_phase_deg,
             evidence.slowest_lag_us,
             lag_deg_at_40,
-            explained_fraction * 100.0,
-            improved,
-            reductions.len()
+            gain.explained_fraction * 100.0,
+            gain.improved(),
+            gain.reductions.len()
         ),
-        significant,
-        explained_rms_um,
+        significant: gain.significant(GAIN_OVER_FLOOR * floor_um),
+        explained_rms_um: gain.explained_rms_um,
         without_fundamental: false,
     }))
 }

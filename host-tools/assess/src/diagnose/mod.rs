@@ -270,6 +270,52 @@ fn relative_improvement(d: f64, ss: f64) -> f64 {
     }
 }
 
+/// A stage's held-out gain at the command frequency, from per-group squared phasor errors
+/// `(without, with)` its term, through the test every candidate takes (the floor's condition
+/// is the stage's own).
+struct PhasorGain {
+    /// The groups' reductions, `without - with`, um^2.
+    reductions: Vec<f64>,
+    /// The sign-flip test's p-value, the smaller of the absolute and the relative statistic.
+    p_value: f64,
+    /// The share of `without` the term takes.
+    explained_fraction: f64,
+    /// The RMS of what it takes, um (a phasor `q` is a sine of RMS `|q| / sqrt(2)`).
+    explained_rms_um: f64,
+}
+
+impl PhasorGain {
+    /// `None` without a group whose both errors are known.
+    fn of(pairs: impl IntoIterator<Item = (f64, f64)>) -> Option<Self> {
+        let pairs: Vec<(f64, f64)> = pairs.into_iter().filter(|(a, b)| a.is_finite() && b.is_finite()).collect();
+        if pairs.is_empty() {
+            return None;
+        }
+        let reductions: Vec<f64> = pairs.iter().map(|(a, b)| a - b).collect();
+        let relative: Vec<f64> = pairs.iter().map(|(a, b)| relative_improvement(a - b, *a)).collect();
+        let without_ss: f64 = pairs.iter().map(|(a, _)| a).sum();
+        let gained: f64 = reductions.iter().sum();
+        Some(Self {
+            p_value: sign_flip_p(&reductions).min(sign_flip_p(&relative)),
+            explained_fraction: if without_ss > 0.0 { gained / without_ss } else { 0.0 },
+            explained_rms_um: (gained.max(0.0) / 2.0 / pairs.len() as f64).sqrt(),
+            reductions,
+        })
+    }
+
+    /// Groups the term made better.
+    fn improved(&self) -> usize {
+        self.reductions.iter().filter(|r| **r > 0.0).count()
+    }
+
+    /// Whether it passes the test, with what it takes above `min_rms_um`.
+    fn significant(&self, min_rms_um: f64) -> bool {
+        self.explained_fraction >= MIN_EXPLAINED
+            && self.p_value < significance_threshold()
+            && self.explained_rms_um > min_rms_um
+    }
+}
+
 /// P(Binomial(n, 1/2) >= k).
 pub fn sign_test_p(k: usize, n: usize) -> f64 {
     if n == 0 {

@@ -12,6 +12,7 @@ use sts_twin_core::bus::{InputSlot, OutputSlot, RING_SLOTS};
 use super::bus::{BusCounters, BusFile, Diagnostics};
 use super::link::ControlPort;
 use super::log::{self, LogLine, LogSink, SharedLog};
+use super::placement::QemuPlacement;
 use super::process::{self, QemuProcess};
 use super::{firmware, HilError};
 
@@ -47,6 +48,8 @@ pub struct HilConfig {
     /// (`sts_link`), through [`Hil::control_pty`]; [`Hil::link`] and [`Hil::transact`] are
     /// not available.
     pub control_pty: bool,
+    /// Which CPU QEMU's threads run on ([`QemuPlacement`]; by default all on one).
+    pub placement: QemuPlacement,
 }
 
 impl Default for HilConfig {
@@ -63,6 +66,7 @@ impl Default for HilConfig {
             echo_logs: std::env::var_os("STS_TWIN_HIL_ECHO").is_some(),
             bus_path: None,
             control_pty: false,
+            placement: QemuPlacement::default(),
         }
     }
 }
@@ -148,8 +152,11 @@ impl Hil {
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        let mut qemu =
-            QemuProcess::spawn(cmd, bus.inherited_fds()).map_err(|e| HilError::io(format!("starting {program}"), e))?;
+        let cpu = config.placement.resolve();
+        let mut qemu = QemuProcess::spawn(cmd, bus.inherited_fds(), cpu).map_err(|e| match cpu {
+            Some(cpu) => HilError::io(format!("starting {program} on CPU {cpu}"), e),
+            None => HilError::io(format!("starting {program}"), e),
+        })?;
         let logs: SharedLog = Arc::new(Mutex::new(LogSink::default()));
         if let Some(out) = qemu.take_stdout() {
             log::spawn_decoder(elf.to_path_buf(), out, logs.clone(), config.echo_logs, config.control_pty);

@@ -8,6 +8,7 @@ mod firmware;
 mod harness;
 mod link;
 mod log;
+mod placement;
 mod process;
 
 pub use bench::{
@@ -22,6 +23,7 @@ pub use firmware::{
 pub use harness::{Hil, HilConfig};
 pub use link::ControlPort;
 pub use log::LogLine;
+pub use placement::QemuPlacement;
 pub use process::{install_signal_cleanup, live_qemu_pids, QEMU_ENV};
 
 /// The board crate, re-exported: the bus access, the QEMU memory map and the bring-up

@@ -93,13 +93,21 @@ pub(crate) struct QemuProcess {
 
 impl QemuProcess {
     /// Spawns `command` with the death signal set and `keep_fds` inherited (the bus file).
-    pub(crate) fn spawn(mut command: Command, keep_fds: Vec<i32>) -> io::Result<Self> {
+    pub(crate) fn spawn(mut command: Command, keep_fds: Vec<i32>, cpu: Option<usize>) -> io::Result<Self> {
         use std::os::unix::process::CommandExt;
         // SAFETY: the closure runs between fork and exec and only makes async-signal-safe
-        // syscalls (prctl, getppid, fcntl, _exit).
+        // syscalls (prctl, getppid, sched_setaffinity, fcntl, _exit).
         let parent = unsafe { libc::getpid() };
         unsafe {
             command.pre_exec(move || {
+                // Before exec, so that every thread QEMU starts inherits the CPU.
+                if let Some(cpu) = cpu {
+                    let mut set: libc::cpu_set_t = std::mem::zeroed();
+                    libc::CPU_SET(cpu, &mut set);
+                    if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+                        return Err(io::Error::last_os_error());
+                    }
+                }
                 if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL, 0, 0, 0) != 0 {
                     return Err(io::Error::last_os_error());
                 }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use sts_twin_core::wire::{Request, Response};
 
 use sts_hil::board::qemu::Mps2Image;
-use sts_hil::{bench_instructions_prepared, bench_throughput, FirmwareVariant, HilConfig};
+use sts_hil::{bench_instructions_prepared, bench_throughput, FirmwareVariant, HilConfig, QemuPlacement};
 use sts_rig::{request_on, Coprocessor, HilCoprocessor};
 
 /// Arguments of `sts-twin hil`.
@@ -28,6 +28,18 @@ pub struct Args {
     /// The same firmware image runs on both.
     #[arg(long, global = true, value_enum, default_value_t = Board::An386)]
     pub board: Board,
+    /// Where QEMU's threads run: `one` (all on one CPU of this process's set: the default),
+    /// `any` (wherever the kernel puts them) or a CPU number.
+    #[arg(long, global = true, default_value = "one", value_parser = parse_placement)]
+    pub qemu_cpu: QemuPlacement,
+}
+
+fn parse_placement(text: &str) -> Result<QemuPlacement, String> {
+    match text {
+        "one" => Ok(QemuPlacement::OneCpu),
+        "any" => Ok(QemuPlacement::Anywhere),
+        _ => text.parse().map(QemuPlacement::Cpu).map_err(|_| format!("`{text}` is not `one`, `any` or a CPU number")),
+    }
 }
 
 /// The QEMU boards the firmware runs on.
@@ -88,6 +100,7 @@ fn config(args: &Args) -> HilConfig {
         variant: if args.bringup { FirmwareVariant::BringUp } else { FirmwareVariant::Twin },
         echo_logs: args.logs || HilConfig::default().echo_logs,
         board: args.board.into(),
+        placement: args.qemu_cpu,
         ..HilConfig::default()
     }
 }

@@ -152,8 +152,9 @@ impl Hil {
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        let cpu = config.placement.resolve();
-        let mut qemu = QemuProcess::spawn(cmd, bus.inherited_fds(), cpu).map_err(|e| match cpu {
+        let pin = config.placement.resolve();
+        let cpu = pin.as_ref().map(|pin| pin.cpu);
+        let mut qemu = QemuProcess::spawn(cmd, bus.inherited_fds(), pin).map_err(|e| match cpu {
             Some(cpu) => HilError::io(format!("starting {program} on CPU {cpu}"), e),
             None => HilError::io(format!("starting {program}"), e),
         })?;

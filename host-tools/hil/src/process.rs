@@ -14,6 +14,7 @@ use std::sync::mpsc;
 use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
+use super::placement::CpuPin;
 use super::HilError;
 
 /// Environment variable naming the QEMU binary (default `qemu-system-arm`).
@@ -89,15 +90,18 @@ fn spawn_from_keeper(command: Command) -> io::Result<Child> {
 pub(crate) struct QemuProcess {
     child: Child,
     status: Option<ExitStatus>,
+    /// Held as long as QEMU is (its place is free again when it ends).
+    pin: Option<CpuPin>,
 }
 
 impl QemuProcess {
     /// Spawns `command` with the death signal set and `keep_fds` inherited (the bus file).
-    pub(crate) fn spawn(mut command: Command, keep_fds: Vec<i32>, cpu: Option<usize>) -> io::Result<Self> {
+    pub(crate) fn spawn(mut command: Command, keep_fds: Vec<i32>, pin: Option<CpuPin>) -> io::Result<Self> {
         use std::os::unix::process::CommandExt;
         // SAFETY: the closure runs between fork and exec and only makes async-signal-safe
         // syscalls (prctl, getppid, sched_setaffinity, fcntl, _exit).
         let parent = unsafe { libc::getpid() };
+        let cpu = pin.as_ref().map(|pin| pin.cpu);
         unsafe {
             command.pre_exec(move || {
                 // Before exec, so that every thread QEMU starts inherits the CPU.
@@ -127,7 +131,7 @@ impl QemuProcess {
         command.process_group(0);
         let child = spawn_from_keeper(command)?;
         LIVE.lock().unwrap_or_else(|e| e.into_inner()).push(child.id());
-        Ok(Self { child, status: None })
+        Ok(Self { child, status: None, pin })
     }
 
     /// The process id.
@@ -180,6 +184,7 @@ impl QemuProcess {
             ExitStatus::from_raw(libc::SIGKILL)
         });
         self.forget();
+        self.pin = None;
         self.status = Some(status);
         status
     }

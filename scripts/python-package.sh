@@ -6,7 +6,8 @@
 #   scripts/python-package.sh [build|test|all] [PYTEST ARGS...]   (default: all)
 #
 # `build` alone makes the wheel in target/wheels; `test` installs it and runs pytest (scripts/
-# test.sh builds it before the release test build, which reuses most of its third-party crates).
+# test.sh builds it after the release test build, whose crates it reuses: host-tools/python/
+# Cargo.toml gives them the test build's features).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mode=all

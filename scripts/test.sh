@@ -34,9 +34,10 @@ step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none
 cargo --locked xtask firmware --locked
 step "core library for RISC-V (riscv32imac-unknown-none-elf)"
 cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
-# The release test build below reuses most of the wheel's third-party crates (59 of 87: nalgebra,
-# rustfft, fixed, ...); serde, rayon and the project's crates build again, with the features
-# the whole workspace asks of them.
+step "the release test build"
+cargo test --workspace --locked --release --no-run
+# The wheel's crates have the test build's features (host-tools/python/Cargo.toml unifies
+# them), so maturin reuses every one of them and builds only pyo3 and the module itself.
 step "the Python package's wheel (maturin)"
 bash scripts/python-package.sh build
 step "tests: core, host tools, HIL"

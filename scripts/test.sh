@@ -2,16 +2,54 @@
 # Runs every test of sts-twin: formatting and lints, the firmware for QEMU and the real board,
 # the core for RISC-V, then the host, core and HIL test suites (the HIL tests boot the
 # firmware in QEMU), and the Python package's (built with maturin, tested with pytest).
+#
+# On a 2-core machine every step keeps both cores busy, so steps run side by side only where
+# one of them leaves a core idle (BENCHMARKS.md, "CI time"): the firmware images (fat LTO,
+# one codegen unit, mostly one core) beside the lints and the RISC-V build, and pytest beside
+# the tests that need no QEMU. The QEMU tests run alone: each lockstep tick is a hand-off
+# between the host and QEMU's threads, and other load delays those many times over.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 STS_TWIN_PYTHON_LATER=1 bash scripts/setup.sh
-# The Python packages download while the builds below use the cores.
-python_log=$(mktemp)
-bash scripts/setup-python.sh >"$python_log" 2>&1 &
-python_setup=$!
 
 export CARGO_TERM_COLOR=${CARGO_TERM_COLOR:-never}
 step() { printf '\n== %s (%s)\n' "$*" "$(date -u +%H:%M:%S)"; }
+
+# Background steps: each writes a log, printed when `finish` waits for it; a failure ends the
+# run with the step's status. Whatever is still running when the script exits is stopped.
+declare -A job_pid job_log
+background() {
+    local name=$1
+    shift
+    job_log[$name]=$(mktemp)
+    "$@" >"${job_log[$name]}" 2>&1 &
+    job_pid[$name]=$!
+}
+finish() {
+    local name=$1 status=0
+    wait "${job_pid[$name]}" || status=$?
+    step "$name (in the background)"
+    cat "${job_log[$name]}"
+    rm -f "${job_log[$name]}"
+    if [ "$status" -ne 0 ]; then
+        echo "error: $name failed (exit status $status)" >&2
+        exit "$status"
+    fi
+}
+trap 'jobs -pr | xargs -r kill 2>/dev/null || true' EXIT
+
+# The clippy runs of the firmware apps (each a workspace of its own; the QEMU app also as
+# bring-up) check into a target directory of their own, beside the images' build.
+firmware_clippy() {
+    export CARGO_TARGET_DIR=$PWD/target/firmware-lint
+    (cd firmware/qemu-app && cargo clippy --locked -- -D warnings && cargo clippy --locked --features bringup -- -D warnings)
+    (cd firmware/stm32h7-app && cargo clippy --locked -- -D warnings)
+}
+
+# The Python packages download, and the firmware images build, while the lints use the cores.
+background "Python packages for the tests" bash scripts/setup-python.sh
+background "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)" \
+    cargo --locked xtask firmware --locked
 
 step "formatting (the root workspace and the two firmware apps, which are workspaces of their own)"
 cargo fmt --all -- --check
@@ -22,28 +60,36 @@ cargo --locked xtask layering >/dev/null
 step "clippy (root workspace)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 step "clippy (the firmware apps, each a workspace of its own; the QEMU app also as bring-up)"
-(cd firmware/qemu-app && cargo clippy --locked -- -D warnings && cargo clippy --locked --features bringup -- -D warnings)
-(cd firmware/stm32h7-app && cargo clippy --locked -- -D warnings)
-step "Python packages for the tests (installed in the background)"
-if ! wait "$python_setup"; then
-    cat "$python_log" >&2
-    exit 1
-fi
-cat "$python_log"
-step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"
-cargo --locked xtask firmware --locked
+firmware_clippy
 step "core library for RISC-V (riscv32imac-unknown-none-elf)"
 cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
+finish "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"
 step "the release test build"
 cargo test --workspace --locked --release --no-run
+finish "Python packages for the tests"
 # The wheel's crates have the test build's features (host-tools/python/Cargo.toml unifies
 # them), so maturin reuses every one of them and builds only pyo3 and the module itself.
 step "the Python package's wheel (maturin)"
 bash scripts/python-package.sh build
-step "tests: core, host tools, HIL"
+
 # The HIL harness finds the ELFs at these places by itself; named here to be explicit.
-STS_TWIN_FIRMWARE_ELF="$PWD/firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
-STS_TWIN_BRINGUP_ELF="$PWD/firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware" \
-    cargo test --workspace --locked --release
-step "Python package: pytest against the CLI, docs/python-loop.py"
-bash scripts/python-package.sh test
+export STS_TWIN_FIRMWARE_ELF="$PWD/firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
+export STS_TWIN_BRINGUP_ELF="$PWD/firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
+# The test binaries that boot QEMU; every other runs in the second group. All are selected
+# with `--workspace`, so that no crate is built again with other features.
+qemu_tests=(hil board_cli)
+mapfile -t other_tests < <(cargo metadata --locked --no-deps --format-version 1 | python3 -c '
+import json, sys
+skip = set(sys.argv[1:])
+for package in json.load(sys.stdin)["packages"]:
+    for target in package["targets"]:
+        if "test" in target["kind"] and target["name"] not in skip:
+            print(target["name"])
+' "${qemu_tests[@]}" | sort -u)
+step "tests that boot the firmware in QEMU (HIL, the CLI's boards), alone"
+cargo test --workspace --locked --release "${qemu_tests[@]/#/--test=}"
+step "the other tests: core and host tools (unit, integration, doc), pytest beside them"
+background "Python package: pytest against the CLI, docs/python-loop.py" bash scripts/python-package.sh test
+cargo test --workspace --locked --release --lib --bins "${other_tests[@]/#/--test=}"
+cargo test --workspace --locked --release --doc
+finish "Python package: pytest against the CLI, docs/python-loop.py"

@@ -14,11 +14,10 @@
 //! so this stage names a mode exactly where that fit would carry one with a term.
 
 use crate::AssessError;
-use sts_dataset::Dataset;
 use sts_model::ModelFile;
 use sts_twin_core::program::TickTerm;
 
-use super::{Diagnosis, PhasorGain, Ranked, FOLDS};
+use super::{DataError, Diagnosis, PhasorGain, Ranked};
 use sts_analysis::repeat::NOT_REPEATING_MIN_UM;
 
 /// The residual at the command frequency must be this many times the data's floor (or
@@ -31,13 +30,13 @@ fn carries_resonance(model: &ModelFile) -> bool {
 }
 
 /// The stage's ranked result, when it applies and the data holds an in-band mode; `None`
-/// otherwise. `dataset` as the model reads it (its probe gain divided out).
-pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Result<Option<Ranked>, AssessError> {
+/// otherwise. `data_error` of the dataset as the model reads it (its probe gain divided out).
+pub(super) fn look(data_error: &DataError, model: &ModelFile, d: &Diagnosis) -> Result<Option<Ranked>, AssessError> {
     let floor_um = d.repeatability.known_floor_um().max(NOT_REPEATING_MIN_UM);
     if carries_resonance(model) || d.structure.fundamental.rms_um <= FUNDAMENTAL_OVER_FLOOR * floor_um {
         return Ok(None);
     }
-    let Some(evidence) = sts_fit::effects::in_band_mode_evidence(dataset, FOLDS)? else {
+    let Some(evidence) = data_error.phasors()?.in_band_mode() else {
         return Ok(None);
     };
     Ok(rank(&evidence, d))
@@ -47,8 +46,10 @@ pub(super) fn look(dataset: &Dataset, model: &ModelFile, d: &Diagnosis) -> Resul
 /// response (the stage's test, whatever the twin leaves): what a mode named on a twin's
 /// residual must also show before it stands against a late setpoint, whose error a twin's
 /// formulas bend into a resonance's shape at the bottom of the band.
-pub(super) fn mode_beyond_linear_response(dataset: &Dataset, d: &Diagnosis) -> Result<bool, AssessError> {
-    Ok(sts_fit::effects::in_band_mode_evidence(dataset, FOLDS)?
+pub(super) fn mode_beyond_linear_response(data_error: &DataError, d: &Diagnosis) -> Result<bool, AssessError> {
+    Ok(data_error
+        .phasors()?
+        .in_band_mode()
         .and_then(|evidence| rank(&evidence, d))
         .is_some_and(|r| r.significant))
 }

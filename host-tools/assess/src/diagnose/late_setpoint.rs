@@ -23,11 +23,10 @@
 use crate::AssessError;
 use sts_analysis::repeat::NOT_REPEATING_MIN_UM;
 use sts_analysis::response::phasor;
-use sts_dataset::Dataset;
 use sts_model::ModelFile;
 use sts_twin_core::program::{TermInput, TickTerm};
 
-use super::{Diagnosis, GroupCtx, PhasorGain, Ranked, FOLDS};
+use super::{DataError, Diagnosis, GroupCtx, PhasorGain, Ranked};
 
 /// What the bank takes beyond the twin must stand this many times above the data's floor.
 /// Not once: on a clean machine, too, the bank follows the slowest groups better than formulas
@@ -68,9 +67,10 @@ fn carries_command_response(model: &ModelFile) -> bool {
 }
 
 /// The stage's ranked result, when it applies and the data holds a late setpoint; `None`
-/// otherwise. `dataset` as the model reads it (its probe gain divided out), `ctx` its groups.
+/// otherwise. `data_error` of the dataset as the model reads it (its probe gain divided out),
+/// `ctx` its groups.
 pub(super) fn look(
-    dataset: &Dataset,
+    data_error: &DataError,
     model: &ModelFile,
     ctx: &[GroupCtx],
     d: &Diagnosis,
@@ -80,7 +80,7 @@ pub(super) fn look(
     if carries_command_response(model) || d.structure.fundamental.rms_um <= GAIN_OVER_FLOOR * floor_um {
         return Ok(None);
     }
-    let evidence = sts_fit::effects::linear_response_evidence(dataset, FOLDS)?;
+    let evidence = data_error.phasors()?.linear_response();
     let off_deg = evidence.slowest_phase_deg + 90.0;
     if !((-DELAY_PHASE_PAST_DEG..=DELAY_PHASE_SHORT_DEG).contains(&off_deg) && evidence.slowest_lag_us > 0.0) {
         return Ok(None);

@@ -66,6 +66,7 @@ mod late_setpoint;
 mod probe_check;
 pub mod structure;
 
+use std::cell::OnceCell;
 use std::f64::consts::PI;
 
 use rayon::prelude::*;
@@ -75,6 +76,7 @@ use sts_dataset::Dataset;
 use sts_analysis::lsq::Stats;
 use sts_analysis::repeat::{group_non_repeating_um, Repeatability, NOT_REPEATING_MIN_UM};
 use sts_analysis::{self as analysis, GroupSample};
+use sts_fit::effects::DataErrorPhasors;
 use sts_model::replay::predict_group;
 use sts_model::ModelFile;
 
@@ -379,17 +381,18 @@ pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> Result<Diagnosis, Asses
         late_setpoint::DELAY_PHASE_PAST_DEG,
         late_setpoint::GAIN_OVER_FLOOR
     ));
+    let data_error = DataError { dataset, phasors: OnceCell::new() };
     let found = if d.verdict == "none" {
-        match in_band::look(dataset, model, &d)?.filter(|m| m.significant) {
+        match in_band::look(&data_error, model, &d)?.filter(|m| m.significant) {
             Some(mode) => Some(mode),
-            None => late_setpoint::look(dataset, model, &ctx, &d)?.filter(|m| m.significant),
+            None => late_setpoint::look(&data_error, model, &ctx, &d)?.filter(|m| m.significant),
         }
     } else if named_mode_in_band(&d, &ctx) {
         // A mode named on the residual inside the band must hold in the data's own error
         // beyond the axis's linear response; a late setpoint's error, bent by the formulas,
         // can take a resonance's shape on the residual.
-        match late_setpoint::look(dataset, model, &ctx, &d)?.filter(|m| m.significant) {
-            Some(late) if !in_band::mode_beyond_linear_response(dataset, &d)? => Some(late),
+        match late_setpoint::look(&data_error, model, &ctx, &d)?.filter(|m| m.significant) {
+            Some(late) if !in_band::mode_beyond_linear_response(&data_error, &d)? => Some(late),
             _ => None,
         }
     } else {
@@ -403,6 +406,24 @@ pub fn diagnose(dataset: &Dataset, model: &ModelFile) -> Result<Diagnosis, Asses
         d.ranking.insert(0, found);
     }
     Ok(d)
+}
+
+/// The data's own error at the command frequency, for the stages that read it rather than
+/// the twin's residual (the in-band mode, the late setpoint): built when the first of them
+/// asks, once for both.
+struct DataError<'a> {
+    dataset: &'a Dataset,
+    phasors: OnceCell<DataErrorPhasors>,
+}
+
+impl DataError<'_> {
+    fn phasors(&self) -> Result<&DataErrorPhasors, AssessError> {
+        if let Some(phasors) = self.phasors.get() {
+            return Ok(phasors);
+        }
+        let phasors = DataErrorPhasors::new(self.dataset, FOLDS)?;
+        Ok(self.phasors.get_or_init(|| phasors))
+    }
 }
 
 /// Whether the verdict is a structural mode the candidate found inside the test's band.

@@ -3,7 +3,8 @@
 //! all per kg of moving mass, by Levenberg-Marquardt on the encoder and probe readings
 //! (output error: the whole axis simulated from the command).
 //!
-//! The fit is local, so it starts from a grid: command delays of 1-3 ticks times servo
+//! The fit is local, so it starts from a grid: command delays of 1-3 ticks (stepped further
+//! from a survivor at 3 while the fit improves, for a late setpoint) times servo
 //! bandwidths of 30-300 Hz (controller gains of a well-damped PID at that bandwidth), the
 //! servo and the effect fitted together on the encoder, the starts thinned by successive
 //! halving; then the mode from a grid of frequencies on the probe; then everything on both.
@@ -28,7 +29,7 @@ use std::f64::consts::PI;
 use rayon::prelude::*;
 use sts_dataset::Dataset;
 use sts_twin_core::axis::discretise::{zoh, Continuous, STATES};
-use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple, StructuralMode};
+use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple, StructuralMode, MAX_CMD_DELAY_TICKS};
 
 use sts_analysis::lsq::{solve, solve_damped, Stats};
 
@@ -119,6 +120,10 @@ impl Slot {
         }
     }
 }
+
+/// The command delays of the starts' grid, 1 tick to this; a survivor at the top steps on
+/// towards [`MAX_CMD_DELAY_TICKS`].
+const GRID_TOP_DELAY_TICKS: usize = 3;
 
 /// A candidate axis: the parameter vector and the command delay.
 #[derive(Clone, Copy, Debug)]
@@ -723,7 +728,7 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
 
     // Servo and effect from a grid of starts, on the encoder (the probe's mode comes later).
     let mut starts = Vec::new();
-    for delay in 1..=3 {
+    for delay in 1..=GRID_TOP_DELAY_TICKS {
         for bandwidth_hz in [30.0, 55.0, 100.0, 180.0, 300.0] {
             let w: f64 = 2.0 * PI * bandwidth_hz;
             let mut v = base;
@@ -760,6 +765,20 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
         pool.truncate(keep);
         pool =
             pool.into_iter().map(|(c, _)| levenberg_marquardt(c, &free, &coarse, Fit::Encoder, iterations)).collect();
+    }
+    // A late setpoint (a trajectory or command path some ticks behind) puts the whole
+    // response later than the grid's top delay: from a survivor there, the delay steps up
+    // while the encoder fits better, as far as the firmware takes.
+    for entry in pool.iter_mut().filter(|(c, _)| c.delay == GRID_TOP_DELAY_TICKS) {
+        while entry.0.delay < usize::from(MAX_CMD_DELAY_TICKS) {
+            let mut later = entry.0;
+            later.delay += 1;
+            let fitted = levenberg_marquardt(later, &free, &coarse, Fit::Encoder, 30);
+            if fitted.1 >= entry.1 {
+                break;
+            }
+            *entry = fitted;
+        }
     }
     if effects.friction {
         // The Stribeck velocity from a grid too, from the best servo: a local fit from one

@@ -19,6 +19,8 @@
 //! and the resonance's responses there in closed form): a small fit per point instead of a
 //! pass over the samples.
 
+use std::cell::OnceCell;
+
 use rayon::prelude::*;
 use sts_analysis::bases::laguerre;
 use sts_analysis::lsq::{least_squares, solve, Stats};
@@ -257,34 +259,82 @@ pub struct InBandModeEvidence {
     pub with_mode_ss_um2: Vec<f64>,
 }
 
-/// Looks for a structural mode inside the measurement's band in the data's own error (not a
-/// twin's residual, which a twin fitted on the same data has distorted where its formulas
-/// absorbed the mode): the grid `fit --effect structural-mode` chooses from, so `None` exactly
-/// where that fit would leave the mode to the formulas. `folds` score it held out.
-pub fn in_band_mode_evidence(dataset: &Dataset, folds: usize) -> Result<Option<InBandModeEvidence>, FitError> {
-    let inputs = super::all_group_inputs(dataset)?;
-    let kind = velocity_input(&inputs);
-    let m = ModePhasors::new(dataset, &inputs, &kind);
-    let Some((freq_hz, damping)) = m.search(&|_| true, false) else {
-        return Ok(None);
-    };
-    let n = m.phasors.len();
-    let folds = folds.clamp(2, n.max(2));
-    let bank_only_ss_um2 = m.bank_only_held_out(folds);
-    let mut with_mode_ss_um2 = vec![f64::NAN; n];
-    for fold in 0..folds {
-        let train = |i: usize| i % folds != fold;
-        let Some(mode) = m.search(&train, true) else {
-            continue;
-        };
-        let Some((with_mode, _)) = m.fit(&train, Some(mode)) else {
-            continue;
-        };
-        for i in (0..n).filter(|i| !train(*i)) {
-            with_mode_ss_um2[i] = m.group_ss(i, &with_mode, Some(mode));
+/// The data's own error at the command frequency per group, the phasors that both
+/// [`DataErrorPhasors::in_band_mode`] and [`DataErrorPhasors::linear_response`] read, built
+/// once (with what the velocity bank alone leaves of them, held out, on first use): a diagnosis
+/// that asks for both pays for the group inputs and the bank's folds once.
+pub struct DataErrorPhasors {
+    m: ModePhasors,
+    folds: usize,
+    bank_only_ss_um2: OnceCell<Vec<f64>>,
+}
+
+impl DataErrorPhasors {
+    /// The phasors of `dataset`'s groups; `folds` score what is fitted on them held out.
+    pub fn new(dataset: &Dataset, folds: usize) -> Result<Self, FitError> {
+        let inputs = super::all_group_inputs(dataset)?;
+        let kind = velocity_input(&inputs);
+        let m = ModePhasors::new(dataset, &inputs, &kind);
+        let folds = folds.clamp(2, m.phasors.len().max(2));
+        Ok(Self { m, folds, bank_only_ss_um2: OnceCell::new() })
+    }
+
+    fn bank_only_ss_um2(&self) -> &[f64] {
+        self.bank_only_ss_um2.get_or_init(|| self.m.bank_only_held_out(self.folds))
+    }
+
+    /// Looks for a structural mode inside the measurement's band in the data's own error (not
+    /// a twin's residual, which a twin fitted on the same data has distorted where its formulas
+    /// absorbed the mode): the grid `fit --effect structural-mode` chooses from, so `None`
+    /// exactly where that fit would leave the mode to the formulas.
+    pub fn in_band_mode(&self) -> Option<InBandModeEvidence> {
+        let (m, folds) = (&self.m, self.folds);
+        let (freq_hz, damping) = m.search(&|_| true, false)?;
+        let n = m.phasors.len();
+        let mut with_mode_ss_um2 = vec![f64::NAN; n];
+        for fold in 0..folds {
+            let train = |i: usize| i % folds != fold;
+            let Some(mode) = m.search(&train, true) else {
+                continue;
+            };
+            let Some((with_mode, _)) = m.fit(&train, Some(mode)) else {
+                continue;
+            };
+            for i in (0..n).filter(|i| !train(*i)) {
+                with_mode_ss_um2[i] = m.group_ss(i, &with_mode, Some(mode));
+            }
+        }
+        Some(InBandModeEvidence { freq_hz, damping, bank_only_ss_um2: self.bank_only_ss_um2().to_vec(), with_mode_ss_um2 })
+    }
+
+    /// [`LinearResponseEvidence`] of the data's own error.
+    pub fn linear_response(&self) -> LinearResponseEvidence {
+        let m = &self.m;
+        let slowest_freq_hz = m.freqs_hz.iter().copied().fold(f64::INFINITY, f64::min);
+        // Sum of E conj(C) and of |C|^2 over the slowest groups: E / C weighted by |C|^2.
+        let (mut re, mut im, mut cc) = (0.0, 0.0, 0.0);
+        for ((c, e), f) in m.phasors.iter().zip(&m.freqs_hz) {
+            if *f <= slowest_freq_hz {
+                re += e.0 * c.0 + e.1 * c.1;
+                im += e.1 * c.0 - e.0 * c.1;
+                cc += c.0 * c.0 + c.1 * c.1;
+            }
+        }
+        let w = 2.0 * std::f64::consts::PI * slowest_freq_hz;
+        let (slowest_phase_deg, slowest_lag_us) =
+            if cc > 0.0 { (im.atan2(re).to_degrees(), -im / cc / w * 1e6) } else { (f64::NAN, f64::NAN) };
+        LinearResponseEvidence {
+            bank_only_ss_um2: self.bank_only_ss_um2().to_vec(),
+            slowest_freq_hz,
+            slowest_phase_deg,
+            slowest_lag_us,
         }
     }
-    Ok(Some(InBandModeEvidence { freq_hz, damping, bank_only_ss_um2, with_mode_ss_um2 }))
+}
+
+/// [`DataErrorPhasors::in_band_mode`] of `dataset`; `folds` score it held out.
+pub fn in_band_mode_evidence(dataset: &Dataset, folds: usize) -> Result<Option<InBandModeEvidence>, FitError> {
+    Ok(DataErrorPhasors::new(dataset, folds)?.in_band_mode())
 }
 
 /// The axis's linear response to the command fitted on the data's own error (the velocity
@@ -308,29 +358,7 @@ pub struct LinearResponseEvidence {
 
 /// [`LinearResponseEvidence`] of the data's own error; `folds` score the bank held out.
 pub fn linear_response_evidence(dataset: &Dataset, folds: usize) -> Result<LinearResponseEvidence, FitError> {
-    let inputs = super::all_group_inputs(dataset)?;
-    let kind = velocity_input(&inputs);
-    let m = ModePhasors::new(dataset, &inputs, &kind);
-    let folds = folds.clamp(2, m.phasors.len().max(2));
-    let slowest_freq_hz = m.freqs_hz.iter().copied().fold(f64::INFINITY, f64::min);
-    // Sum of E conj(C) and of |C|^2 over the slowest groups: E / C weighted by |C|^2.
-    let (mut re, mut im, mut cc) = (0.0, 0.0, 0.0);
-    for ((c, e), f) in m.phasors.iter().zip(&m.freqs_hz) {
-        if *f <= slowest_freq_hz {
-            re += e.0 * c.0 + e.1 * c.1;
-            im += e.1 * c.0 - e.0 * c.1;
-            cc += c.0 * c.0 + c.1 * c.1;
-        }
-    }
-    let w = 2.0 * std::f64::consts::PI * slowest_freq_hz;
-    let (slowest_phase_deg, slowest_lag_us) =
-        if cc > 0.0 { (im.atan2(re).to_degrees(), -im / cc / w * 1e6) } else { (f64::NAN, f64::NAN) };
-    Ok(LinearResponseEvidence {
-        bank_only_ss_um2: m.bank_only_held_out(folds),
-        slowest_freq_hz,
-        slowest_phase_deg,
-        slowest_lag_us,
-    })
+    Ok(DataErrorPhasors::new(dataset, folds)?.linear_response())
 }
 
 /// A structural mode inside the band: its frequency and damping from a grid (the error's

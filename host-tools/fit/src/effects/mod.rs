@@ -29,7 +29,9 @@
 
 pub mod axis;
 mod linear;
-pub use linear::{in_band_mode_evidence, linear_response_evidence, InBandModeEvidence, LinearResponseEvidence};
+pub use linear::{
+    in_band_mode_evidence, linear_response_evidence, DataErrorPhasors, InBandModeEvidence, LinearResponseEvidence,
+};
 
 use std::f64::consts::PI;
 use std::path::Path;

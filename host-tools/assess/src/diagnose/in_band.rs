@@ -47,11 +47,7 @@ pub(super) fn look(data_error: &DataError, model: &ModelFile, d: &Diagnosis) -> 
 /// residual must also show before it stands against a late setpoint, whose error a twin's
 /// formulas bend into a resonance's shape at the bottom of the band.
 pub(super) fn mode_beyond_linear_response(data_error: &DataError, d: &Diagnosis) -> Result<bool, AssessError> {
-    Ok(data_error
-        .phasors()?
-        .in_band_mode()
-        .and_then(|evidence| rank(&evidence, d))
-        .is_some_and(|r| r.significant))
+    Ok(data_error.phasors()?.in_band_mode().and_then(|evidence| rank(&evidence, d)).is_some_and(|r| r.significant))
 }
 
 /// The mode's evidence through the test every candidate takes.

@@ -304,7 +304,12 @@ impl DataErrorPhasors {
                 with_mode_ss_um2[i] = m.group_ss(i, &with_mode, Some(mode));
             }
         }
-        Some(InBandModeEvidence { freq_hz, damping, bank_only_ss_um2: self.bank_only_ss_um2().to_vec(), with_mode_ss_um2 })
+        Some(InBandModeEvidence {
+            freq_hz,
+            damping,
+            bank_only_ss_um2: self.bank_only_ss_um2().to_vec(),
+            with_mode_ss_um2,
+        })
     }
 
     /// [`LinearResponseEvidence`] of the data's own error.

@@ -42,6 +42,14 @@ impl Drop for BusFile {
     }
 }
 
+/// One board at a time: two boards stepping at once each share the cores with the other's
+/// QEMU, and in a CI run the calibration's ticks then came too slowly for its settling check
+/// (30 s for 200 ms of ticks).
+fn one_board_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static BOARD: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    BOARD.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
 fn boot(bus: &Path) -> Hil {
     Hil::start(HilConfig { bus_path: Some(bus.to_path_buf()), control_pty: true, ..HilConfig::default() })
         .expect("the twin firmware boots in QEMU (build it with `cargo xtask firmware`)")
@@ -49,6 +57,7 @@ fn boot(bus: &Path) -> Hil {
 
 #[test]
 fn a_lab_uploads_sets_enables_and_saves_a_twin_on_a_board_on_a_serial_port() {
+    let _board = one_board_at_a_time();
     let bus = BusFile(std::env::temp_dir().join(format!("sts-twin-board-cli-{}.bus", std::process::id())));
     let hil = boot(&bus.0);
     let pty = hil.control_pty().unwrap().to_str().unwrap().to_string();
@@ -124,6 +133,7 @@ fn a_lab_uploads_sets_enables_and_saves_a_twin_on_a_board_on_a_serial_port() {
 /// axis that moves the tool 2.25 um per volt read.
 #[test]
 fn calibrate_offset_on_a_serial_port_stores_what_the_labs_instruments_read() {
+    let _board = one_board_at_a_time();
     let bus = BusFile(std::env::temp_dir().join(format!("sts-twin-board-cal-{}.bus", std::process::id())));
     let dac_file = BusFile(std::env::temp_dir().join(format!("sts-twin-board-cal-{}.dac", std::process::id())));
     let publish = |code: i16| {

@@ -48,7 +48,7 @@ pub use term::{
     MAX_HARMONIC_ORDER, NARROW_POLE_MAX_Q30, RESONANCE_DAMPING_RANGE, RESONANCE_FREQ_RANGE_HZ, RESONANCE_GAIN_MAX,
     TICK_BUDGET_INSTRUCTIONS, VELOCITY_SMOOTH_32_BIT_LIMIT,
 };
-pub use validate::ProgramError;
+pub use validate::{terms_tick_cost, ProgramError};
 
 use heapless::Vec;
 use serde::{Deserialize, Serialize};

@@ -175,9 +175,7 @@ impl Program {
     /// ([`tick_cost`]): [`tick_cost::FIXED`], [`tick_cost::KERNELS`] if it has kernel
     /// terms, and each term's [`TickTerm::tick_cost`].
     pub fn tick_cost(&self) -> u32 {
-        let with_kernels = self.terms.iter().any(TickTerm::is_kernel);
-        let kernels = if with_kernels { tick_cost::KERNELS } else { 0 };
-        tick_cost::FIXED + kernels + self.terms.iter().map(|term| term.tick_cost(with_kernels)).sum::<u32>()
+        terms_tick_cost(&self.terms)
     }
 
     /// Walks the code once, simulating the stack depth; returns the set of stored registers.
@@ -239,6 +237,14 @@ impl TickTerm {
     fn is_valid(&self, written: u16) -> bool {
         self.check(written)
     }
+}
+
+/// The servo tick's instructions at worst with per-tick terms `terms` ([`Program::tick_cost`]
+/// of a program holding them): for a caller that weighs terms before it builds the program.
+pub fn terms_tick_cost(terms: &[TickTerm]) -> u32 {
+    let with_kernels = terms.iter().any(TickTerm::is_kernel);
+    let kernels = if with_kernels { tick_cost::KERNELS } else { 0 };
+    tick_cost::FIXED + kernels + terms.iter().map(|term| term.tick_cost(with_kernels)).sum::<u32>()
 }
 
 #[cfg(test)]

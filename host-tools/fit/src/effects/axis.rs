@@ -52,6 +52,10 @@ pub struct AxisEffects {
     pub ripple_pitch_um: Option<f64>,
     /// A second structural mode between slide and TCP.
     pub second_mode: bool,
+    /// Where the command's own phasors put a mode inside the band (frequency Hz, damping
+    /// ratio), one more start of the second mode's search: its grid's starts a factor of two
+    /// apart miss a lightly damped mode between the test's frequencies.
+    pub second_mode_start: Option<(f64, f64)>,
 }
 
 /// Parameter slots of the fit. Positive quantities are fitted on a log scale, signed ones
@@ -829,9 +833,13 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
         // The second mode from a grid of frequencies too, on what the first leaves on the
         // probe, then both modes together: the first alone settles between the two.
         let one_mode = c;
-        for mode2_hz in [15.0, 30.0, 60.0, 120.0, 200.0, 330.0, 550.0] {
+        let grid = [15.0, 30.0, 60.0, 120.0, 200.0, 330.0, 550.0].map(|hz| (hz, None));
+        for (mode2_hz, zeta2) in grid.into_iter().chain(effects.second_mode_start.map(|(hz, zeta)| (hz, Some(zeta)))) {
             let mut start = one_mode;
             start.v[Slot::Mode2Hz as usize] = mode2_hz;
+            if let Some(zeta) = zeta2 {
+                start.v[Slot::Zeta2 as usize] = zeta;
+            }
             let (m, _) = levenberg_marquardt(start, &MODE2, &coarse, Fit::Tcp, 15);
             let both: Vec<Slot> = MODE.iter().chain(&MODE2).chain(&probe_slots).copied().collect();
             let fitted = levenberg_marquardt(m, &both, &coarse, Fit::Tcp, 20);
@@ -882,7 +890,13 @@ mod tests {
 
     /// Five axes with friction, hysteresis, ripple and a second mode, each a little different.
     fn candidates() -> Vec<Candidate> {
-        let effects = AxisEffects { friction: true, hysteresis: true, ripple_pitch_um: Some(4.0), second_mode: true };
+        let effects = AxisEffects {
+            friction: true,
+            hysteresis: true,
+            ripple_pitch_um: Some(4.0),
+            second_mode: true,
+            second_mode_start: None,
+        };
         (0..5)
             .map(|i| {
                 let w = 2.0 * PI * (60.0 + 25.0 * i as f64);

@@ -366,6 +366,13 @@ pub fn linear_response_evidence(dataset: &Dataset, folds: usize) -> Result<Linea
     Ok(DataErrorPhasors::new(dataset, folds)?.linear_response())
 }
 
+/// A mode inside the band as the command's and the error's phasors show it (frequency Hz,
+/// damping ratio), for the servo-axis twin's second mode to start from; `None` where the best
+/// mode lies above the band.
+pub(super) fn in_band_mode_start(dataset: &Dataset, inputs: &[GroupInputs]) -> Option<(f64, f64)> {
+    ModePhasors::new(dataset, inputs, &velocity_input(inputs)).search(&|_| true, false)
+}
+
 /// A structural mode inside the band: its frequency and damping from a grid (the error's
 /// phasors against the velocity bank beside the resonance), then the bank and the resonance
 /// fitted together on the samples. `None` when the best mode lies above the band (the

@@ -39,7 +39,7 @@ use std::path::Path;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sts_dataset::{Dataset, GroupData};
-use sts_twin_core::program::{TermInput, TickTerm};
+use sts_twin_core::program::{terms_tick_cost, TermInput, TickTerm, TICK_BUDGET_INSTRUCTIONS};
 
 use sts_analysis::lsq::{solve, Projection, Stats};
 use sts_analysis::targets;
@@ -393,6 +393,26 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         records.push(EffectRecord { effect: name.clone(), params, terms: new_terms.len(), note });
         terms.extend(new_terms);
     }
+    // A late setpoint or an in-band mode is a linear response to the command: as kernel terms
+    // (a velocity bank, a resonance) beside a drift or a coupling they can take the servo tick
+    // over its budget (a bank and a coupling: 832 of 800). The servo-axis twin simulates the
+    // axis's whole linear response at low priority (the setpoint in its command delay, the mode
+    // as its second mode), costing the tick a harmonic: the effects then ride on it instead.
+    let linear_response = names.iter().any(|n| n == "setpoint-delay") || in_band_mode.is_some();
+    if !has_axis && linear_response {
+        let cost = terms_tick_cost(&terms);
+        if cost > TICK_BUDGET_INSTRUCTIONS {
+            let mut with_axis = names.to_vec();
+            with_axis.push(SERVO_AXIS.to_string());
+            let mut prepared = prepare(dataset, &with_axis)?;
+            if let Some(record) = prepared.records.iter_mut().find(|r| r.effect == SERVO_AXIS) {
+                record.note.push_str(&format!(
+                    ": it carries the axis's linear response, whose kernel terms beside the others would take the servo tick to about {cost} of its {TICK_BUDGET_INSTRUCTIONS} instructions"
+                ));
+            }
+            return Ok(prepared);
+        }
+    }
     if !axis_names.is_empty() {
         let (term, axis_records) = fit_axis(dataset, &inputs, &axis_names)?;
         terms.push(term);
@@ -464,6 +484,7 @@ fn fit_axis(
         hysteresis: has("presliding-hysteresis"),
         ripple_pitch_um,
         second_mode: has("structural-mode"),
+        second_mode_start: if has("structural-mode") { linear::in_band_mode_start(dataset, inputs) } else { None },
     };
     let fit = axis::identify(dataset, effects).map_err(|e| FitError::IdentifyAxis { source: Box::new(e) })?;
     let p = fit.params;

@@ -139,26 +139,6 @@ fn deg_to_turns_wide(turns: f32) -> u32 {
     (frac * 4_294_967_296.0) as i64 as u32
 }
 
-/// `p / 1_000_000` truncated toward zero, for `|p| <= 2^62`, with 32-bit divisions (a 64-bit
-/// division is a library call of about a hundred instructions on a Cortex-M4): `p / 10^6 =
-/// (|p| / 64) / 15625`, the 56-bit quotient dividend taken in chunks of 20, 18 and 18 bits.
-#[inline]
-pub(crate) fn div_1e6(p: i64) -> i64 {
-    const D: u32 = 15_625;
-    let n = p.unsigned_abs() >> 6;
-    let (n2, n1, n0) = ((n >> 36) as u32, ((n >> 18) & 0x3_ffff) as u32, (n & 0x3_ffff) as u32);
-    let (q2, r2) = (n2 / D, n2 % D);
-    let m1 = (r2 << 18) | n1;
-    let (q1, r1) = (m1 / D, m1 % D);
-    let q0 = ((r1 << 18) | n0) / D;
-    let q = ((u64::from(q2) << 36) | (u64::from(q1) << 18) | u64::from(q0)) as i64;
-    if p < 0 {
-        -q
-    } else {
-        q
-    }
-}
-
 /// Integer square root (floor) of `v < 2^62`: its one use is `1 - a^2` of a Laguerre pole
 /// in Q60, at most 2^60 (beyond 2^62 the squares it checks would overflow).
 pub(crate) fn isqrt_u64(v: u64) -> u64 {
@@ -325,34 +305,6 @@ mod tests {
         assert_eq!(um_to_pm(1.5), 1_500_000);
         assert_eq!(um_to_pm(f32::INFINITY), 1_000_000_000);
         assert_eq!(um_to_pm(f32::NAN), 0);
-    }
-
-    #[test]
-    fn dividing_by_a_million_without_64_bit_division_is_exact() {
-        let mut seed = 3u64;
-        let mut values = std::vec![
-            0i64,
-            1,
-            -1,
-            999_999,
-            1_000_000,
-            -1_000_000,
-            1 << 62,
-            -(1 << 62),
-            (1 << 62) - 1,
-            4_611_686_018_427_387_903
-        ];
-        for k in 0..200_000 {
-            let r = rng(&mut seed);
-            values.push(match k % 3 {
-                0 => (r as i32 as i64) * (rng(&mut seed) as i32 as i64),
-                1 => (r >> 2) as i64 * if r & 1 == 0 { 1 } else { -1 },
-                _ => (r % 10_000_000_000) as i64 - 5_000_000_000,
-            });
-        }
-        for &p in &values {
-            assert_eq!(div_1e6(p), p / 1_000_000, "{p}");
-        }
     }
 
     #[test]

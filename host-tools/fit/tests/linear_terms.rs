@@ -137,13 +137,14 @@ fn a_mode_beside_friction_is_the_axis_twins_second_mode() {
     assert_eq!(param(&prepared.records, "structural-mode", "freq_hz"), f64::from(mode.freq_hz));
 }
 
-/// A late setpoint or an in-band mode beside a coupling: their kernel terms (a velocity bank,
-/// a resonance) and the coupling's would take the servo tick over its budget (832 of 800), so
-/// the servo-axis twin carries the axis's linear response (the setpoint in its command delay,
-/// the mode as its second mode, started from where the command's phasors put it), and the
-/// program is one the firmware takes.
+/// A late setpoint or an in-band mode beside a drift and a coupling: their kernel terms (a
+/// velocity bank, a resonance) and the others' would take the servo tick over its budget (the
+/// bank, a drift and a coupling 839 of 800; the mode's bank and resonance with a coupling 865),
+/// so the servo-axis twin carries the axis's linear response (the setpoint in its command
+/// delay, the mode as its second mode, started from where the command's phasors put it), and
+/// the program is one the firmware takes.
 #[test]
-fn the_linear_response_beside_a_coupling_rides_on_the_axis_twin() {
+fn the_linear_response_over_the_budget_rides_on_the_axis_twin() {
     let program_with = |terms: &[TickTerm]| {
         let mut program = sts_twin_core::program::paper_program();
         for term in terms {
@@ -152,17 +153,17 @@ fn the_linear_response_beside_a_coupling_rides_on_the_axis_twin() {
         program
     };
     let coupling = "axis-coupling:x_um_per_mps2=1.2,spindle_um=0.05,spindle_phase_deg=40";
-    let late = measure(&["setpoint-delay:delay_us=300", coupling]);
-    let names = ["setpoint-delay".to_string(), "axis-coupling".to_string()];
+    let late = measure(&["setpoint-delay:delay_us=300", "thermal-drift", coupling]);
+    let names = ["setpoint-delay".to_string(), "thermal-drift".to_string(), "axis-coupling".to_string()];
     let prepared = prepare(&late, &names).expect("prepare");
     assert!(
-        matches!(prepared.terms.as_slice(), [TickTerm::AxisCoupling { .. }, TickTerm::Axis(_)]),
+        matches!(prepared.terms.as_slice(), [TickTerm::Drift { .. }, TickTerm::AxisCoupling { .. }, TickTerm::Axis(_)]),
         "{:?}",
         prepared.terms
     );
     assert_eq!(program_with(&prepared.terms).validate(), Ok(()));
     let axis = prepared.records.iter().find(|r| r.effect == "servo-axis").expect("the axis twin's record");
-    assert!(axis.note.contains("832"), "{}", axis.note);
+    assert!(axis.note.contains("839"), "{}", axis.note);
     assert!((param(&prepared.records, "axis-coupling", "x_um_per_mps2") / 1.2 - 1.0).abs() < 0.05);
 
     let mode = measure(&["structural-mode:freq_hz=22,damping=0.05,tcp_gain=0.008,acc_shape=1", coupling]);

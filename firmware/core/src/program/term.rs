@@ -246,10 +246,12 @@ pub mod tick_cost {
     pub const DRIFT: u32 = 53;
     /// An axis-coupling term (90 measured with the bus's X acceleration and spindle words,
     /// 48 when the servo passed constant zeros the compiler could fold; beside a Dahl bank
-    /// 97 since the servo-axis term joined the kernels, so that pair, 802, is refused; 100
-    /// alone since the axis twin's command store; 110 on 2026-11-29, 684 in all, and one for
-    /// the timer's step).
-    pub const AXIS_COUPLING: u32 = 111;
+    /// 97 since the servo-axis term joined the kernels; 100 alone since the axis twin's
+    /// command store; 110 on 2026-11-29, 684 in all; 639 in all since the X gain is taken to
+    /// Q20 when the term starts instead of dividing by 10^6 each tick, 2026-12-02, and two
+    /// for the timer's step), so that a velocity bank beside it (786) is accepted and a Dahl
+    /// bank beside it (803) is not.
+    pub const AXIS_COUPLING: u32 = 65;
     /// A resonance: its f32 state update and one saturating conversion (84 measured alone,
     /// 95 beside a velocity-sign bank: 787 in all; 131 alone when the output went through a
     /// 64-bit conversion, a library call; 78 alone and 75 beside the velocity-sign bank on

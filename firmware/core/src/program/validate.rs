@@ -345,7 +345,8 @@ mod tests {
         };
         // Accepted: eight harmonics, the terms of each `fit --effect` (the axis twin with
         // friction, hysteresis or encoder error, or all three, which the servo synthesises as
-        // a harmonic; drift; coupling), one bank with a drift, the axis twin with a coupling.
+        // a harmonic; drift; coupling), one bank with a drift, a velocity bank with a coupling
+        // (a late setpoint beside it), the axis twin with a coupling, and with a drift too.
         let eight: std::vec::Vec<TickTerm> = (2..10).map(harmonic).collect();
         let fitted =
             [axis(true, false, false), axis(false, true, false), axis(false, false, true), axis(true, true, true)];
@@ -362,6 +363,8 @@ mod tests {
             &[velocity, drift],
             &[dahl, drift],
             &[fitted[0], coupling],
+            &[velocity, coupling],
+            &[fitted[3], drift, coupling],
         ] {
             let program = with_terms(terms);
             assert_eq!(program.validate(), Ok(()), "{terms:?}: {}", program.tick_cost());
@@ -376,7 +379,7 @@ mod tests {
         // needs 64-bit stages.
         let three = with_terms(&[velocity, dahl, sine, drift, coupling]);
         let cost = three.tick_cost();
-        assert_eq!(cost, 534 + 42 + 145 + 162 + 119 + 53 + 111);
+        assert_eq!(cost, 534 + 42 + 145 + 162 + 119 + 53 + 65);
         assert_eq!(three.validate(), Err(ProgramError::TickBudget { cost: cost as u16, budget: 800 }));
         let slow_pole = with_terms(&[laguerre(TermInput::PositionSine { turns_per_nm: 4295, phase_turns: 0 }, 0.999)]);
         assert!(matches!(slow_pole.validate(), Err(ProgramError::TickBudget { .. })));

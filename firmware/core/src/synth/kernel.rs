@@ -12,7 +12,7 @@
 use super::resonance::Resonance;
 use super::TickInput;
 use crate::axis::{AxisModel, AxisState};
-use crate::math::{div_1e6, harmonic_pm, isqrt_u64, sin_q31};
+use crate::math::{harmonic_pm, isqrt_u64, sin_q31};
 use crate::program::{laguerre_stages_are_narrow, TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
 
 /// Ticks between two steps of a [`TickTerm::Drift`]'s exponential (its value is held in between).
@@ -62,8 +62,12 @@ pub(super) struct KernelState {
     dahl_q30: i32,
     /// The decaying part of a drift, picometres (Q8).
     drift_q8: i64,
-    /// `exp(-DRIFT_STEP_TICKS / tau)`, Q23 (so the product stays within 64 bits).
-    drift_step_q23: i64,
+    /// A drift's `exp(-DRIFT_STEP_TICKS / tau)`, Q23 (so the product stays within 64 bits);
+    /// or a coupling's X gain in picometres per (um/s^2), Q20, set when the term starts, so
+    /// that the tick multiplies the acceleration by it instead of dividing the product by
+    /// 10^6 (the 64-bit quotient took some 35 instructions of a tick). One field for both:
+    /// a larger slot moved the whole servo handler's register allocation (BENCHMARKS.md).
+    scale: i64,
     /// `sqrt(1 - a^2)` of a Laguerre bank, Q30.
     g_q30: i64,
     /// `2a` and `-2a` of a Laguerre bank, Q30: stored, so that the compiler keeps
@@ -85,7 +89,7 @@ impl KernelState {
         pos_hist: [0; 4],
         dahl_q30: 0,
         drift_q8: 0,
-        drift_step_q23: 0,
+        scale: 0,
         g_q30: 0,
         two_pole_q30: 0,
         minus_two_pole_q30: 0,
@@ -116,6 +120,7 @@ impl KernelState {
                 state.axis = AxisModel::new(params).ok().map(|model| (model, AxisState::INITIAL))
             }
             TickTerm::Resonance { .. } => state.resonance = Resonance::new(term),
+            TickTerm::AxisCoupling { x_gain_pm_per_mps2, .. } => state.scale = x_gain_q20(x_gain_pm_per_mps2),
             _ => {}
         }
         state
@@ -136,6 +141,15 @@ impl KernelState {
     }
 }
 
+/// `x_gain_pm_per_mps2 / 10^6` in Q20, rounded to nearest (half away from zero): within half a
+/// unit of 2^-20 pm per um/s^2, so a tick's X part lies within `|x_acc| 2^-21 + 1` pm of the
+/// exact product (5 pm at 10 m/s^2).
+fn x_gain_q20(x_gain_pm_per_mps2: i32) -> i64 {
+    let scaled = i64::from(x_gain_pm_per_mps2) << 20;
+    let half = if scaled < 0 { -500_000 } else { 500_000 };
+    (scaled + half) / 1_000_000
+}
+
 /// `exp(-x)` for the drift's set-up (not per tick).
 fn exp_neg(x: f64) -> f64 {
     libm::exp(-x)
@@ -148,7 +162,7 @@ pub(super) fn drift_at(state: &mut KernelState, decay_pm: i32, tau_ticks: u32, t
     let steps = ticks / u64::from(DRIFT_STEP_TICKS);
     let t = (steps * u64::from(DRIFT_STEP_TICKS)) as f64;
     state.drift_q8 = (f64::from(decay_pm) * exp_neg(t / tau) * 256.0) as i64;
-    state.drift_step_q23 = (exp_neg(f64::from(DRIFT_STEP_TICKS) / tau) * 8388608.0) as i64;
+    state.scale = (exp_neg(f64::from(DRIFT_STEP_TICKS) / tau) * 8388608.0) as i64;
 }
 
 /// The saturated sign of a velocity, `clamp((dv << 30) / smooth, -2^30, 2^30)` for a
@@ -233,12 +247,13 @@ pub(super) fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput
         TickTerm::Harmonic { .. } => 0,
         TickTerm::Drift { offset_pm, .. } => {
             if ticks % u64::from(DRIFT_STEP_TICKS) == 0 && ticks != 0 {
-                st.drift_q8 = (st.drift_q8 * st.drift_step_q23) >> 23;
+                st.drift_q8 = (st.drift_q8 * st.scale) >> 23;
             }
             *offset_pm as i64 + (st.drift_q8 >> 8)
         }
-        TickTerm::AxisCoupling { x_gain_pm_per_mps2, spindle_amp_pm, spindle_phase_turns } => {
-            let x = div_1e6(*x_gain_pm_per_mps2 as i64 * input.x_acc_um_per_s2 as i64);
+        TickTerm::AxisCoupling { spindle_amp_pm, spindle_phase_turns, .. } => {
+            // At most 2^32 x 2^31 in magnitude: within 64 bits.
+            let x = (st.scale * i64::from(input.x_acc_um_per_s2)) >> 20;
             x + harmonic_pm(*spindle_amp_pm, input.spindle_turns.wrapping_add(*spindle_phase_turns)) as i64
         }
         TickTerm::Laguerre { input: kind, pole_q30, gains_pm } => laguerre_pm(kind, *pole_q30, gains_pm, st, input),
@@ -544,6 +559,28 @@ mod tests {
         let out =
             synth.next_input(&TickInput { x_acc_um_per_s2: 250_000, spindle_turns: 1 << 30, ..TickInput::default() });
         assert!((out - 250_000).abs() < 20, "{out}");
+    }
+
+    #[test]
+    fn the_couplings_x_part_is_the_exact_product_within_its_bound() {
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 32) as u32 as i32
+        };
+        let edges = [0, 1, -1, 999_999, -1_000_000, 800_000, i32::MAX, i32::MIN];
+        for k in 0..20_000 {
+            let gain = if k < edges.len() { edges[k] } else { next() };
+            let acc = if k % 3 == 0 { next() } else { next() >> 8 };
+            let mut synth = Synth::new(0);
+            let term = TickTerm::AxisCoupling { x_gain_pm_per_mps2: gain, spindle_amp_pm: 0, spindle_phase_turns: 0 };
+            synth.update(&ModelOutput::default(), &[term]);
+            let out = synth.next_input(&TickInput { x_acc_um_per_s2: acc, ..TickInput::default() });
+            let exact = i64::from(gain) as f64 * f64::from(acc) / 1e6;
+            let expected = exact.clamp(f64::from(i32::MIN), f64::from(i32::MAX));
+            let bound = f64::from(acc).abs() / f64::from(1u32 << 21) + 1.0;
+            assert!((f64::from(out) - expected).abs() <= bound, "{gain} x {acc}: {out} vs {exact}");
+        }
     }
 
     #[test]

@@ -414,7 +414,17 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         }
     }
     if !axis_names.is_empty() {
-        let (term, axis_records) = fit_axis(dataset, &inputs, &axis_names)?;
+        // On the readings less the terms fitted so far (a drift or a coupling moves the probe
+        // only, and the axis twin would otherwise bend its mode to follow them).
+        let reduced;
+        let (axis_data, axis_inputs) = if terms.is_empty() {
+            (dataset, inputs)
+        } else {
+            reduced = without_terms(dataset, &terms).0;
+            let reduced_inputs = all_group_inputs(&reduced)?;
+            (&reduced, reduced_inputs)
+        };
+        let (term, axis_records) = fit_axis(axis_data, &axis_inputs, &axis_names)?;
         terms.push(term);
         records.extend(axis_records);
     }

@@ -171,7 +171,7 @@ const MAX_TRIES: usize = 3;
 const SECOND_MODE_MIN_GAIN: f64 = 0.2;
 
 /// Least relative fall of the held-out error that keeps a named effect with a partner when
-/// the named effect alone brought no gain ([`partner_try`]).
+/// the named effect alone brought no gain ([`best_partner`]).
 const PARTNER_MIN_GAIN: f64 = 0.2;
 
 /// The effects whose terms reach beyond the command frequency (the others are carried by the
@@ -179,14 +179,23 @@ const PARTNER_MIN_GAIN: f64 = 0.2;
 const OWN_TERM_EFFECTS: [&str; 5] =
     ["coulomb-friction", "presliding-hysteresis", "thermal-drift", "force-ripple", "axis-coupling"];
 
-/// Where the strongest named effect's refit alone did not lower the error: the candidates to
-/// try beside it, the [`MAX_TRIES`] strongest others with a term of their own, significant or
-/// not (the pair that ends lowest is kept). An
-/// effect the twin does not carry can bend the refitted formulas enough to hide what the named
-/// one's term brings: a ripple turns the phase at the slowest groups, and a coupling's refit
-/// alone ended at 605.3 nm against 311.5 without it (the sets of issue 17, BENCHMARKS.md),
-/// while both together ended at 5 nm.
-fn partner_tries(d: &Diagnosis, named: usize, carried: &[String]) -> Vec<usize> {
+/// Where the strongest named effect (`named`, of the ranking) did not lower the error when
+/// refitted alone: refits it beside each of the [`MAX_TRIES`] strongest other candidates with
+/// a term of their own, significant or not, and returns the partner and the refit of the pair
+/// that ends lowest (kept by the caller if it lowers the error by [`PARTNER_MIN_GAIN`]). An effect the twin does
+/// not carry can bend the refitted formulas enough to hide what the named one's term brings:
+/// a ripple turns the phase formula at the slowest groups, and a coupling's refit alone ended
+/// at 605.3 nm against 311.5 without it, both together at 5.2 nm (the sets of issue 17,
+/// BENCHMARKS.md).
+fn best_partner(
+    dataset: &Dataset,
+    description: &str,
+    config: &ExplainConfig,
+    d: &Diagnosis,
+    named: usize,
+    carried: &[String],
+    progress: &mut dyn FnMut(ExplainProgress),
+) -> Option<(usize, (ModelFile, Vec<EffectRecord>))> {
     let mut partners: Vec<usize> = (0..d.ranking.len())
         .filter(|&j| j != named && d.ranking[j].explained_fraction > 0.0)
         .filter(|&j| {
@@ -198,7 +207,18 @@ fn partner_tries(d: &Diagnosis, named: usize, carried: &[String]) -> Vec<usize> 
     partners
         .sort_by(|&a, &b| d.ranking[b].explained_fraction.total_cmp(&d.ranking[a].explained_fraction).then(a.cmp(&b)));
     partners.truncate(MAX_TRIES);
-    partners
+    let mut best: Option<(usize, (ModelFile, Vec<EffectRecord>))> = None;
+    for j in partners {
+        let mut with: Vec<String> = carried.to_vec();
+        with.extend([d.ranking[named].effect.clone(), d.ranking[j].effect.clone()]);
+        progress(ExplainProgress::Refitting { effects: &with });
+        let Ok((m, r)) = fit_with(dataset, &with, description, &config.fit, &mut |_| {}) else { continue };
+        let lowest = best.as_ref().map_or(f64::INFINITY, |(_, (b, _))| b.validation.waveform_rms_um);
+        if m.validation.waveform_rms_um < lowest {
+            best = Some((j, (m, r)));
+        }
+    }
+    best
 }
 
 /// Where the twin carries a servo-axis twin with one mode and `diagnose` names again an effect
@@ -308,71 +328,54 @@ pub fn explain(
             };
             first_failure.get_or_insert(failure);
         }
-        if added.is_none() {
-            if let (Some(&first), Some(Stop::NoGain { waveform_rms_um: alone_um, .. })) =
-                (tries.first(), &first_failure)
-            {
-                let named_alone = named_stop.is_none() && Some(first) != unnamed_try && alone_um.is_finite();
-                let partners = if named_alone && steps.len() + 2 <= config.max_effects {
-                    partner_tries(&d, first, &names)
-                } else {
-                    Vec::new()
-                };
-                let a = &d.ranking[first];
-                let mut best: Option<(usize, (ModelFile, Vec<EffectRecord>))> = None;
-                for j in partners {
-                    let mut with: Vec<String> = names.clone();
-                    with.extend([a.effect.clone(), d.ranking[j].effect.clone()]);
-                    progress(ExplainProgress::Refitting { effects: &with });
-                    if let Ok((m, r)) = fit_with(dataset, &with, description, &config.fit, &mut |_| {}) {
-                        let after_um = m.validation.waveform_rms_um;
-                        let lowest = best
-                            .as_ref()
-                            .map_or(rms_um * (1.0 - PARTNER_MIN_GAIN), |(_, (b, _))| b.validation.waveform_rms_um);
-                        if after_um < lowest {
-                            best = Some((j, (m, r)));
-                        }
-                    }
-                }
-                if let Some((j, (m, r))) = best {
-                    let b = &d.ranking[j];
-                    let after_um = m.validation.waveform_rms_um;
-                    let params_of = |effect: &str| {
-                        r.iter().find(|x| x.effect == effect).map_or_else(Vec::new, |x| x.params.clone())
-                    };
-                    steps.push(Step {
-                        effect: a.effect.clone(),
-                        explained_fraction: a.explained_fraction,
-                        p_value: a.p_value,
-                        evidence: format!(
-                            "{}; refitted alone it raised the held-out error to {:.1} nm, kept with the next step",
-                            a.evidence,
-                            alone_um * 1e3
-                        ),
-                        params: params_of(&a.effect),
-                        waveform_rms_um_before: rms_um,
-                        waveform_rms_um_after: *alone_um,
-                    });
-                    steps.push(Step {
-                        effect: b.effect.clone(),
-                        explained_fraction: b.explained_fraction,
-                        p_value: b.p_value,
-                        evidence: format!(
-                            "{}; {} alone, tried beside {}, whose refit alone brought no gain: together they lowered the held-out error by {:.0}%",
-                            b.evidence,
-                            if b.significant { "significant" } else { "not significant" },
-                            a.effect,
-                            (1.0 - after_um / rms_um) * 100.0
-                        ),
-                        params: params_of(&b.effect),
-                        waveform_rms_um_before: *alone_um,
-                        waveform_rms_um_after: after_um,
-                    });
-                    model = m;
-                    records = r;
-                    rms_um = after_um;
-                    continue;
-                }
+        // Every named try without gain: the first again, with a partner.
+        if let (None, Some(&first), Some(Stop::NoGain { waveform_rms_um: alone_um, .. })) =
+            (&added, tries.first(), &first_failure)
+        {
+            let named_alone = named_stop.is_none() && Some(first) != unnamed_try && alone_um.is_finite();
+            let pair = if named_alone && steps.len() + 2 <= config.max_effects {
+                best_partner(dataset, description, config, &d, first, &names, progress)
+                    .filter(|(_, (m, _))| m.validation.waveform_rms_um < (1.0 - PARTNER_MIN_GAIN) * rms_um)
+            } else {
+                None
+            };
+            if let Some((j, (m, r))) = pair {
+                let (a, b) = (&d.ranking[first], &d.ranking[j]);
+                let after_um = m.validation.waveform_rms_um;
+                let params_of =
+                    |effect: &str| r.iter().find(|x| x.effect == effect).map_or_else(Vec::new, |x| x.params.clone());
+                steps.push(Step {
+                    effect: a.effect.clone(),
+                    explained_fraction: a.explained_fraction,
+                    p_value: a.p_value,
+                    evidence: format!(
+                        "{}; refitted alone it raised the held-out error to {:.1} nm, kept with the next step",
+                        a.evidence,
+                        alone_um * 1e3
+                    ),
+                    params: params_of(&a.effect),
+                    waveform_rms_um_before: rms_um,
+                    waveform_rms_um_after: *alone_um,
+                });
+                steps.push(Step {
+                    effect: b.effect.clone(),
+                    explained_fraction: b.explained_fraction,
+                    p_value: b.p_value,
+                    evidence: format!(
+                        "{}; {} alone, tried beside {}, whose refit alone brought no gain: together they lowered the held-out error by {:.0}%",
+                        b.evidence,
+                        if b.significant { "significant" } else { "not significant" },
+                        a.effect,
+                        (1.0 - after_um / rms_um) * 100.0
+                    ),
+                    params: params_of(&b.effect),
+                    waveform_rms_um_before: *alone_um,
+                    waveform_rms_um_after: after_um,
+                });
+                model = m;
+                records = r;
+                rms_um = after_um;
+                continue;
             }
         }
         let Some((i, (next_model, next_records))) = added else {

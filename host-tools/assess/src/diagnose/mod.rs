@@ -55,8 +55,9 @@
 //! each group's sum of squares and the same relative to it, at `p < ALPHA / 26` (Bonferroni
 //! over the thirteen scores and the two statistics), and (3) what it explains is more than
 //! the data's own floor: its RMS exceeds the part of the error that does not repeat from one
-//! command period to the next (the sensors' noise; [`Repeatability::floor_um`]) and
-//! [`NOT_REPEATING_MIN_UM`]. The floor is the data's, not the model's: a model fitted on the
+//! command period to the next (the sensors' noise; [`Repeatability::floor_um`]; less the
+//! twin's drift and coupling terms, which do not repeat with the command either, once it
+//! carries them) and [`NOT_REPEATING_MIN_UM`]. The floor is the data's, not the model's: a model fitted on the
 //! same data (the lab's workflow) has the missing effect in its own held-out error, so a test
 //! against that error would hide every effect it is asked to find.
 
@@ -74,11 +75,12 @@ use serde::Serialize;
 use sts_dataset::Dataset;
 
 use sts_analysis::lsq::Stats;
-use sts_analysis::repeat::{group_non_repeating_um, Repeatability, NOT_REPEATING_MIN_UM};
+use sts_analysis::repeat::{group_non_repeating_um, non_repeating_rms_um, Repeatability, NOT_REPEATING_MIN_UM};
 use sts_analysis::{self as analysis, GroupSample};
-use sts_fit::effects::DataErrorPhasors;
+use sts_fit::effects::{terms_output, DataErrorPhasors};
 use sts_model::replay::predict_group;
 use sts_model::ModelFile;
+use sts_twin_core::program::TickTerm;
 
 use crate::AssessError;
 
@@ -166,6 +168,12 @@ pub struct GroupCtx<'a> {
     /// Set when the residual has the group's fundamental taken out: candidates' columns lose
     /// theirs too ([`GroupCtx::stats`]).
     pub without_fundamental: Option<Fundamental>,
+    /// The output of the model's terms that do not repeat with the command (a drift, an axis
+    /// coupling) over the whole group, um, where it has any: taken out of the error before its
+    /// non-repeating part sets the data's floor, since what the twin carries is no longer
+    /// noise (an X slide's coupling raised the floor from 5 to 55 nm, hiding every effect
+    /// below that once the coupling was carried).
+    pub aperiodic_um: Option<Vec<f64>>,
 }
 
 /// A group's fundamental over the scored window (the command frequency's sine and cosine),
@@ -198,6 +206,18 @@ impl Fundamental {
 }
 
 impl GroupCtx<'_> {
+    /// The non-repeating part of the group's error in steady motion, less the model's terms
+    /// that do not repeat with the command ([`GroupCtx::aperiodic_um`]).
+    fn non_repeating_um(&self) -> Option<f64> {
+        let Some(carried) = &self.aperiodic_um else {
+            return group_non_repeating_um(self.data, self.sample, self.sample_rate_hz);
+        };
+        let g = self.data;
+        let error_um: Vec<f64> =
+            (self.sample.feature_start..g.len()).map(|k| g.z_tcp_um[k] - g.z_cmd_um[k] - carried[k]).collect();
+        non_repeating_rms_um(&error_um, self.sample.info.freq_hz, self.sample_rate_hz)
+    }
+
     /// The least-squares statistics of `columns` (over the window) against the residual, the
     /// columns' fundamental taken out when the residual's is.
     pub fn stats(&self, columns: &[Vec<f64>]) -> Stats {
@@ -223,6 +243,8 @@ impl GroupCtx<'_> {
             theta: self.theta.clone(),
             sample_rate_hz: self.sample_rate_hz,
             without_fundamental: Some(f),
+            // The floor is read on the groups as they are.
+            aperiodic_um: None,
         })
     }
 }
@@ -340,11 +362,18 @@ pub fn contexts<'a>(
 ) -> Result<Vec<GroupCtx<'a>>, AssessError> {
     let program = model.firmware_program()?;
     let fs = dataset.manifest.sample_rate_hz;
+    let aperiodic: Vec<TickTerm> = program
+        .terms
+        .iter()
+        .filter(|t| matches!(t, TickTerm::Drift { .. } | TickTerm::AxisCoupling { .. }))
+        .copied()
+        .collect();
     Ok(samples
         .par_iter()
         .map(|s| {
             let data = &dataset.groups[s.index];
             let (predicted_um, _) = predict_group(&program, s, data, fs);
+            let aperiodic_um = (!aperiodic.is_empty()).then(|| terms_output(&aperiodic, data, s.info.start_s, fs));
             let start = s.targets.window_start;
             let residual = (start..data.len()).map(|k| data.z_tcp_um[k] - data.z_cmd_um[k] - predicted_um[k]).collect();
             let theta = (start..data.len())
@@ -359,6 +388,7 @@ pub fn contexts<'a>(
                 theta,
                 sample_rate_hz: fs,
                 without_fundamental: None,
+                aperiodic_um,
             }
         })
         .collect())
@@ -441,9 +471,7 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
     let (residual_ss, total_n) = sums_of_squares(ctx);
     let residual_rms_um = (residual_ss / total_n.max(1) as f64).sqrt();
     let folds = FOLDS.min(n).max(2);
-    let repeatability = Repeatability::from_groups(
-        ctx.par_iter().map(|c| group_non_repeating_um(c.data, c.sample, c.sample_rate_hz)).collect(),
-    );
+    let repeatability = Repeatability::from_groups(ctx.par_iter().map(GroupCtx::non_repeating_um).collect());
     // The data's floor; unknown (groups too short) counts as none, leaving the minimum.
     let floor_um = repeatability.known_floor_um();
     // A twin fitted on this data has absorbed what an effect does to each group's

@@ -395,7 +395,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
     }
     // A late setpoint or an in-band mode is a linear response to the command: as kernel terms
     // (a velocity bank, a resonance) beside a drift or a coupling they can take the servo tick
-    // over its budget (a bank and a coupling: 832 of 800). The servo-axis twin simulates the
+    // over its budget (a bank, a drift and a coupling: 839 of 800). The servo-axis twin simulates the
     // axis's whole linear response at low priority (the setpoint in its command delay, the mode
     // as its second mode), costing the tick a harmonic: the effects then ride on it instead.
     let linear_response = names.iter().any(|n| n == "setpoint-delay") || in_band_mode.is_some();

@@ -74,10 +74,18 @@ pub fn non_repeating_rms_um(error_um: &[f64], freq_hz: f64, sample_rate_hz: f64)
 }
 
 /// [`non_repeating_rms_um`] of a group's dynamic error (`z_tcp_um - z_cmd_um`) in steady
-/// motion: from its feature window's start to its end.
-pub fn group_non_repeating_um(group: &GroupData, sample: &GroupSample, sample_rate_hz: f64) -> Option<f64> {
-    let error_um: Vec<f64> =
-        (sample.feature_start..group.len()).map(|k| group.z_tcp_um[k] - group.z_cmd_um[k]).collect();
+/// motion: from its feature window's start to its end. `less_um`, where given, is a series
+/// over the whole group taken out of the error first (a twin's terms that do not repeat with
+/// the command, such as a drift, whose own change would otherwise count as the floor).
+pub fn group_non_repeating_um(
+    group: &GroupData,
+    sample: &GroupSample,
+    sample_rate_hz: f64,
+    less_um: Option<&[f64]>,
+) -> Option<f64> {
+    let error_um: Vec<f64> = (sample.feature_start..group.len())
+        .map(|k| group.z_tcp_um[k] - group.z_cmd_um[k] - less_um.map_or(0.0, |l| l[k]))
+        .collect();
     non_repeating_rms_um(&error_um, sample.info.freq_hz, sample_rate_hz)
 }
 
@@ -109,7 +117,9 @@ impl Repeatability {
     /// `samples`.
     pub fn of_samples(dataset: &Dataset, samples: &[GroupSample]) -> Self {
         let fs = dataset.manifest.sample_rate_hz;
-        Self::from_groups(samples.par_iter().map(|s| group_non_repeating_um(&dataset.groups[s.index], s, fs)).collect())
+        Self::from_groups(
+            samples.par_iter().map(|s| group_non_repeating_um(&dataset.groups[s.index], s, fs, None)).collect(),
+        )
     }
 
     /// Summarises per-group values (see [`non_repeating_rms_um`]).

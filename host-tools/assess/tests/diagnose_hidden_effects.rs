@@ -39,6 +39,9 @@ use sts_fit::effects::prepare;
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
 
+mod support;
+use support::{step_dependence_nm, HUNTING_STEP_NM};
+
 /// Which twin a case is diagnosed against.
 #[derive(Clone, Copy, PartialEq)]
 enum Workflow {
@@ -87,33 +90,6 @@ struct Outcome {
     step_dependence_nm: f64,
     /// Groups `diagnose` found not repeating from one period to the next.
     not_repeating: usize,
-}
-
-/// The RMS change of the encoder reading when the emulator integrates with 16 sub-steps per
-/// tick instead of its 4, over the slow groups (1 and 5 Hz, 3 s), nm. Large only where the
-/// machine hunts: where a friction's Stribeck zone takes more damping than the servo gives,
-/// the slide oscillates by itself, and the oscillation's phase depends on everything down to
-/// the integration step, so no twin driven by the command can predict it.
-fn step_dependence_nm(effects: &[EffectSpec], seed: u64) -> f64 {
-    let config = MeasureConfig {
-        effects: effects.to_vec(),
-        seed,
-        freqs_hz: vec![1.0, 5.0],
-        duration_s: 3.0,
-        ..MeasureConfig::default()
-    };
-    let mut fine = config.clone();
-    fine.plant.servo.substeps = 16;
-    let a = sts_emulator::measure::run(&config, &|_| {}).expect("measurement");
-    let b = sts_emulator::measure::run(&fine, &|_| {}).expect("measurement");
-    let (mut sum, mut n) = (0.0, 0usize);
-    for (ga, gb) in a.groups.iter().zip(&b.groups) {
-        for (x, y) in ga.z_enc_um.iter().zip(&gb.z_enc_um) {
-            sum += (x - y).powi(2);
-            n += 1;
-        }
-    }
-    (sum / n.max(1) as f64).sqrt() * 1e3
 }
 
 /// The case of a structural mode inside the test band (the other cases are named by their
@@ -299,7 +275,7 @@ fn run_suite(suite: &Suite) {
     for (effect, seed, o) in &falls {
         let (before, clean, step_nm, not_repeating) =
             (o.reference_rms_um, clean_rms, o.step_dependence_nm, o.not_repeating);
-        let determined = step_nm <= 5.0;
+        let determined = step_nm <= HUNTING_STEP_NM;
         unpredictable += usize::from(!determined);
         // The user is told: `diagnose` finds the groups whose error does not repeat.
         let told = determined || not_repeating > 0;

@@ -7,7 +7,11 @@
 //! twin's held-out waveform RMS against a twin of the clean machine fitted on the same grid.
 //! An effect the ladder did not name counts as absorbed where the formulas can carry it
 //! (loop delay, an above-band structural mode, a sensor gain: a change of the response at the
-//! command frequency) and the final twin ends within 2x of the clean twin's error.
+//! command frequency) and the final twin ends within 2x of the clean twin's error. Where the
+//! machine hunts (a friction's limit cycle: a slow group's reading depends on the emulator's
+//! integration step), the final diagnosis must find groups that do not repeat, and the 2x is
+//! taken over the groups where it does not hunt, against the clean twin's error over the same
+//! groups (issue 17: no twin driven by the command predicts a hunting axis).
 //!
 //! CI runs `ci_sets` (two sets on 5.5 s groups). The full run, every pair of the eight
 //! effects with `STS_SETS_SEEDS` seeds each and `STS_SETS_TRIPLES` random triples:
@@ -27,6 +31,10 @@ use sts_assess::explain::{explain, ExplainConfig, Stop};
 use sts_dataset::Dataset;
 use sts_emulator::{EffectSpec, MeasureConfig, EFFECT_NAMES};
 use sts_fit::{fit, FitConfig};
+use sts_model::ModelFile;
+
+mod support;
+use support::hunting_groups;
 
 /// Effects a refitted formula can carry: a linear change of the response at the command
 /// frequency. `none` for them is right where the twin ends near the clean one's error.
@@ -77,31 +85,64 @@ fn pairs_and_triples(triples: usize) -> Vec<Vec<&'static str>> {
 }
 
 struct Outcome {
+    /// The drawn effects as `sts-twin measure --effect` takes them.
+    specs: Vec<String>,
     named: Vec<String>,
     stop: Stop,
     start_rms_um: f64,
     final_rms_um: f64,
+    /// The groups where the machine hunts (their reading depends on the emulator's
+    /// integration step by more than the probe's noise: a limit cycle that no twin driven by
+    /// the command predicts), as files.
+    hunting: Vec<String>,
+    /// The files of the groups whose error the final diagnosis found not repeating.
+    not_repeating: Vec<String>,
+    /// The final twin's held-out waveform RMS per group: file, um.
+    final_groups: Vec<(String, f64)>,
+}
+
+/// Per group: file and held-out waveform RMS, um.
+fn group_rms(model: &ModelFile) -> Vec<(String, f64)> {
+    model.validation.groups.iter().map(|g| (g.file.clone(), g.waveform_rms_um)).collect()
+}
+
+/// The RMS over the groups not in `skip`, um.
+fn rms_without(groups: &[(String, f64)], skip: &[String]) -> f64 {
+    let kept: Vec<f64> = groups.iter().filter(|(f, _)| !skip.contains(f)).map(|(_, r)| *r).collect();
+    (kept.iter().map(|r| r * r).sum::<f64>() / kept.len().max(1) as f64).sqrt()
 }
 
 fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
     let mut rng = ChaCha8Rng::seed_from_u64(0x5e75_0000 + seed * 256 + set_index as u64);
     let effects: Vec<EffectSpec> = set.iter().map(|n| EffectSpec::random(n, &mut rng).expect("known effect")).collect();
-    let data = measure(s.paper_grid, effects, 500 + seed);
+    let data = measure(s.paper_grid, effects.clone(), 500 + seed);
+    let hunting = if set.contains(&"coulomb-friction") { hunting_groups(&effects, 500 + seed) } else { Vec::new() };
     let config = ExplainConfig { fit: FitConfig { max_epochs: s.epochs, ..FitConfig::default() }, max_effects: 4 };
     let e = explain(&data, "several effects", None, &config, &mut |_| {}).expect("explain");
     Outcome {
+        specs: effects.iter().map(ToString::to_string).collect(),
         named: e.steps.iter().map(|st| st.effect.clone()).collect(),
         stop: e.stop,
         start_rms_um: e.start_waveform_rms_um,
         final_rms_um: e.waveform_rms_um,
+        hunting: e
+            .model
+            .validation
+            .groups
+            .iter()
+            .filter(|g| hunting.iter().any(|&(f, a)| g.freq_hz == f && g.amp_um == a))
+            .map(|g| g.file.clone())
+            .collect(),
+        not_repeating: e.last.not_repeating_files().into_iter().map(String::from).collect(),
+        final_groups: group_rms(&e.model),
     }
 }
 
 fn run_sets(s: &Sets) {
     let clean = measure(s.paper_grid, Vec::new(), 1);
     let config = FitConfig { max_epochs: s.epochs, ..FitConfig::default() };
-    let clean_rms_um =
-        fit(&clean, "clean machine", &config, &mut |_| {}).expect("clean fit").validation.waveform_rms_um;
+    let clean_twin = fit(&clean, "clean machine", &config, &mut |_| {}).expect("clean fit");
+    let (clean_rms_um, clean_groups) = (clean_twin.validation.waveform_rms_um, group_rms(&clean_twin));
     println!("clean twin: held-out waveform RMS {:.2} nm", clean_rms_um * 1e3);
 
     let (mut cases, mut all_named, mut named_or_absorbed, mut within_2x) = (0usize, 0usize, 0usize, 0usize);
@@ -110,7 +151,18 @@ fn run_sets(s: &Sets) {
     for seed in s.first_seed..s.first_seed + s.seeds {
         for (index, set) in &s.sets {
             let o = run_set(s, set, *index, seed);
-            let ratio = o.final_rms_um / clean_rms_um;
+            // A hunting machine's error where it hunts is no test of the twin (issue 17): the
+            // ratio is taken over the other groups, against the clean twin's over the same
+            // groups, and the diagnosis must have found groups that do not repeat.
+            let hunts = !o.hunting.is_empty();
+            let told = !hunts || !o.not_repeating.is_empty();
+            let ratio = if hunts && told {
+                rms_without(&o.final_groups, &o.hunting) / rms_without(&clean_groups, &o.hunting)
+            } else if told {
+                o.final_rms_um / clean_rms_um
+            } else {
+                f64::INFINITY
+            };
             let missed: Vec<&str> = set.iter().copied().filter(|e| !o.named.iter().any(|n| n == e)).collect();
             let wrong: Vec<&String> = o.named.iter().filter(|n| !set.contains(&n.as_str())).collect();
             let absorbed = missed.iter().all(|m| ABSORBABLE.contains(m)) && ratio <= 2.0;
@@ -124,12 +176,20 @@ fn run_sets(s: &Sets) {
                 per_effect[i].1 += usize::from(o.named.iter().any(|n| n == e));
             }
             println!(
-                "{:<60} seed {seed:>2}: named {:<50} {:>6.1} -> {:>5.1} nm ({:.2}x clean), stop {}{}{}",
+                "{:<60} seed {seed:>2}: named {:<50} {:>6.1} -> {:>5.1} nm ({}), stop {}{}{}",
                 set.join("+"),
                 if o.named.is_empty() { "-".to_string() } else { o.named.join(", ") },
                 o.start_rms_um * 1e3,
                 o.final_rms_um * 1e3,
-                ratio,
+                match (hunts, told) {
+                    (false, _) => format!("{ratio:.2}x clean"),
+                    (true, true) => format!(
+                        "the machine hunts in {} groups: {ratio:.2}x clean without them; {} found not repeating",
+                        o.hunting.len(),
+                        o.not_repeating.len()
+                    ),
+                    (true, false) => "the machine hunts and the diagnosis did not find it".into(),
+                },
                 o.stop.describe(),
                 if missed.is_empty() {
                     String::new()
@@ -145,6 +205,12 @@ fn run_sets(s: &Sets) {
                     )
                 }
             );
+            if !(missed.is_empty() || absorbed) || ratio > 2.0 {
+                // The same machine through the CLI, to look at a failure by hand (the CLI
+                // records the paper's groups; CI's shorter ones only differ in length).
+                let effects: String = o.specs.iter().map(|spec| format!(" --effect {spec}")).collect();
+                println!("    sts-twin measure{effects} --seed {} --out DATA", 500 + seed);
+            }
         }
     }
     println!("\nper effect: named in how many of the sets that hid it");

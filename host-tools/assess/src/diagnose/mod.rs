@@ -75,7 +75,7 @@ use serde::Serialize;
 use sts_dataset::Dataset;
 
 use sts_analysis::lsq::Stats;
-use sts_analysis::repeat::{group_non_repeating_um, non_repeating_rms_um, Repeatability, NOT_REPEATING_MIN_UM};
+use sts_analysis::repeat::{group_non_repeating_um, Repeatability, NOT_REPEATING_MIN_UM};
 use sts_analysis::{self as analysis, GroupSample};
 use sts_fit::effects::{terms_output, DataErrorPhasors};
 use sts_model::replay::predict_group;
@@ -138,6 +138,8 @@ pub struct Diagnosis {
     /// The part of the measured error that does not repeat from one period to the next
     /// (positions of the diagnosed groups); see [`Diagnosis::not_repeating`].
     pub repeatability: Repeatability,
+    /// The diagnosed groups' files, in the positions that `repeatability` uses.
+    pub group_files: Vec<String>,
     /// When some groups do not repeat: which, and why no effect's term can explain that part.
     pub not_repeating: Option<String>,
     /// Where the residual lies (trend, fundamental, harmonics, the rest and its strongest
@@ -146,6 +148,13 @@ pub struct Diagnosis {
     /// When no candidate explains the residual yet it stands well above the data's floor:
     /// where it lies, in words, instead of the nearest wrong effect.
     pub unexplained: Option<String>,
+}
+
+impl Diagnosis {
+    /// The files of the groups whose error does not repeat from one period to the next.
+    pub fn not_repeating_files(&self) -> Vec<&str> {
+        self.repeatability.not_repeating.iter().filter_map(|&i| self.group_files.get(i)).map(String::as_str).collect()
+    }
 }
 
 /// Everything a candidate may use about one group (last-second window plus whole-group
@@ -209,13 +218,7 @@ impl GroupCtx<'_> {
     /// The non-repeating part of the group's error in steady motion, less the model's terms
     /// that do not repeat with the command ([`GroupCtx::aperiodic_um`]).
     fn non_repeating_um(&self) -> Option<f64> {
-        let Some(carried) = &self.aperiodic_um else {
-            return group_non_repeating_um(self.data, self.sample, self.sample_rate_hz);
-        };
-        let g = self.data;
-        let error_um: Vec<f64> =
-            (self.sample.feature_start..g.len()).map(|k| g.z_tcp_um[k] - g.z_cmd_um[k] - carried[k]).collect();
-        non_repeating_rms_um(&error_um, self.sample.info.freq_hz, self.sample_rate_hz)
+        group_non_repeating_um(self.data, self.sample, self.sample_rate_hz, self.aperiodic_um.as_deref())
     }
 
     /// The least-squares statistics of `columns` (over the window) against the residual, the
@@ -620,6 +623,7 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         summary,
         test,
         repeatability,
+        group_files: ctx.iter().map(|c| c.sample.info.file.clone()).collect(),
         not_repeating,
         structure,
         unexplained,

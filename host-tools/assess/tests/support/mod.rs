@@ -1,0 +1,56 @@
+//! Test support shared by the suites of this crate.
+
+// Each test binary compiles this module and uses a part of it.
+#![allow(dead_code)]
+
+use sts_emulator::{EffectSpec, MeasureConfig};
+
+/// The step dependence above which a machine hunts, nm: the probe's noise.
+pub const HUNTING_STEP_NM: f64 = 5.0;
+
+/// The RMS change of the encoder reading when the emulator integrates with 16 sub-steps per
+/// tick instead of its 4, per group of the slow groups (1 and 5 Hz, 3 s): the group's
+/// frequency (Hz), amplitude (um), the change's sum of squares (um^2) and its sample count. Large only where
+/// the machine hunts: where a friction's Stribeck zone takes more damping than the servo
+/// gives, the slide oscillates by itself, and the oscillation's phase depends on everything
+/// down to the integration step, so no twin driven by the command can predict it.
+fn step_dependence_per_group(effects: &[EffectSpec], seed: u64) -> Vec<(f64, f64, f64, usize)> {
+    let config = MeasureConfig {
+        effects: effects.to_vec(),
+        seed,
+        freqs_hz: vec![1.0, 5.0],
+        duration_s: 3.0,
+        ..MeasureConfig::default()
+    };
+    let mut fine = config.clone();
+    fine.plant.servo.substeps = 16;
+    let a = sts_emulator::measure::run(&config, &|_| {}).expect("measurement");
+    let b = sts_emulator::measure::run(&fine, &|_| {}).expect("measurement");
+    a.groups
+        .iter()
+        .zip(&b.groups)
+        .zip(&a.manifest.groups)
+        .map(|((ga, gb), info)| {
+            let sum: f64 = ga.z_enc_um.iter().zip(&gb.z_enc_um).map(|(x, y)| (x - y).powi(2)).sum();
+            let n = ga.z_enc_um.len().min(gb.z_enc_um.len());
+            (info.freq_hz, info.amp_um, sum, n)
+        })
+        .collect()
+}
+
+/// [`step_dependence_per_group`] over all the slow groups, nm.
+pub fn step_dependence_nm(effects: &[EffectSpec], seed: u64) -> f64 {
+    let groups = step_dependence_per_group(effects, seed);
+    let (sum, n) = groups.iter().fold((0.0, 0usize), |(s, n), g| (s + g.2, n + g.3));
+    (sum / n.max(1) as f64).sqrt() * 1e3
+}
+
+/// The slow groups where the machine hunts (their reading changes by more than
+/// [`HUNTING_STEP_NM`] with the integration step): frequency (Hz) and amplitude (um).
+pub fn hunting_groups(effects: &[EffectSpec], seed: u64) -> Vec<(f64, f64)> {
+    step_dependence_per_group(effects, seed)
+        .into_iter()
+        .filter(|g| (g.2 / g.3.max(1) as f64).sqrt() * 1e3 > HUNTING_STEP_NM)
+        .map(|g| (g.0, g.1))
+        .collect()
+}

@@ -89,6 +89,22 @@ pub fn group_non_repeating_um(
     non_repeating_rms_um(&error_um, sample.info.freq_hz, sample_rate_hz)
 }
 
+/// The RMS of per-group RMS values (`(file, rms)`, um) over the groups whose files are not in
+/// `skip`, um: a twin's error where the machine repeats itself, the groups that do not (a
+/// hunting axis) left out. `None` where no group is left out or none is left.
+pub fn rms_without<'a>(groups: impl IntoIterator<Item = (&'a str, f64)>, skip: &[String]) -> Option<f64> {
+    let (mut sum_sq, mut kept, mut left_out) = (0.0, 0usize, 0usize);
+    for (file, rms_um) in groups {
+        if skip.iter().any(|s| s == file) {
+            left_out += 1;
+        } else {
+            sum_sq += rms_um * rms_um;
+            kept += 1;
+        }
+    }
+    (left_out > 0 && kept > 0).then(|| (sum_sq / kept as f64).sqrt())
+}
+
 /// The non-repeating part over a dataset's groups.
 #[derive(Clone, Debug, Serialize)]
 pub struct Repeatability {
@@ -194,6 +210,17 @@ mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn the_rms_without_some_groups_leaves_them_out_and_needs_one_left_out_and_one_kept() {
+        let groups = [("a.csv", 3.0), ("b.csv", 40.0), ("c.csv", 4.0)];
+        let skip = |files: &[&str]| files.iter().map(|f| f.to_string()).collect::<Vec<_>>();
+        let rms = rms_without(groups, &skip(&["b.csv"])).expect("one left out");
+        assert!((rms - 12.5f64.sqrt()).abs() < 1e-12, "{rms}");
+        assert_eq!(rms_without(groups, &skip(&[])), None);
+        assert_eq!(rms_without(groups, &skip(&["x.csv"])), None);
+        assert_eq!(rms_without(groups, &skip(&["a.csv", "b.csv", "c.csv"])), None);
+    }
     use std::f64::consts::TAU;
 
     fn noise(n: usize, rms: f64, seed: u64) -> Vec<f64> {

@@ -9,6 +9,7 @@
 //! with like from the second step on.
 
 use serde::Serialize;
+use sts_analysis::repeat::rms_without;
 use sts_dataset::Dataset;
 use sts_fit::effects::{fit_with, EffectRecord, AXIS_EFFECTS};
 use sts_fit::{fit, FitConfig, FitError};
@@ -191,11 +192,7 @@ impl Standing {
     /// 314 Hz mode, five hunting groups at 1 Hz, the second mode took the rest 23.5 -> 13.4 nm
     /// but the whole 54.4 -> 48.6 nm only (the sets of issue 17, BENCHMARKS.md).
     fn repeating_rms_um(&self, skip: &[String]) -> f64 {
-        let kept: Vec<f64> = self.groups.iter().filter(|(file, _)| !skip.contains(file)).map(|(_, rms)| *rms).collect();
-        if kept.is_empty() || kept.len() == self.groups.len() {
-            return self.rms_um;
-        }
-        (kept.iter().map(|r| r * r).sum::<f64>() / kept.len() as f64).sqrt()
+        rms_without(self.groups.iter().map(|(file, rms)| (file.as_str(), *rms)), skip).unwrap_or(self.rms_um)
     }
 }
 
@@ -243,8 +240,7 @@ fn best_partner(
     partners
         .sort_by(|&a, &b| d.ranking[b].explained_fraction.total_cmp(&d.ranking[a].explained_fraction).then(a.cmp(&b)));
     partners.truncate(MAX_TRIES);
-    let skip: Vec<String> = d.not_repeating_files().into_iter().map(String::from).collect();
-    let skip = skip.as_slice();
+    let skip = &d.not_repeating_files();
     let mut best: Option<(usize, (ModelFile, Vec<EffectRecord>))> = None;
     for j in partners {
         let mut with: Vec<String> = carried.to_vec();
@@ -303,7 +299,7 @@ pub fn explain(
         progress(ExplainProgress::Diagnosing { effects: &names });
         let d = diagnose(dataset, &model)?;
         // A step's gain is judged where the error repeats (see `Standing::repeating_rms_um`).
-        let skip: Vec<String> = d.not_repeating_files().into_iter().map(String::from).collect();
+        let skip = d.not_repeating_files();
         let now_um = standing.repeating_rms_um(&skip);
         let gain_pct = |after: &ModelFile| (1.0 - Standing::of_fit(after).repeating_rms_um(&skip) / now_um) * 100.0;
         let over = if skip.is_empty() {

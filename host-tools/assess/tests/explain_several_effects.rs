@@ -27,11 +27,12 @@
 use rand::seq::IndexedRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use sts_analysis::repeat::rms_without;
 use sts_assess::explain::{explain, ExplainConfig, Stop};
 use sts_dataset::Dataset;
 use sts_emulator::{EffectSpec, MeasureConfig, EFFECT_NAMES};
 use sts_fit::{fit, FitConfig};
-use sts_model::ModelFile;
+use sts_model::Validation;
 
 mod support;
 use support::hunting_groups;
@@ -97,19 +98,15 @@ struct Outcome {
     hunting: Vec<String>,
     /// The files of the groups whose error the final diagnosis found not repeating.
     not_repeating: Vec<String>,
-    /// The final twin's held-out waveform RMS per group: file, um.
-    final_groups: Vec<(String, f64)>,
+    /// The final twin's held-out validation.
+    final_validation: Validation,
 }
 
-/// Per group: file and held-out waveform RMS, um.
-fn group_rms(model: &ModelFile) -> Vec<(String, f64)> {
-    model.validation.groups.iter().map(|g| (g.file.clone(), g.waveform_rms_um)).collect()
-}
-
-/// The RMS over the groups not in `skip`, um.
-fn rms_without(groups: &[(String, f64)], skip: &[String]) -> f64 {
-    let kept: Vec<f64> = groups.iter().filter(|(f, _)| !skip.contains(f)).map(|(_, r)| *r).collect();
-    (kept.iter().map(|r| r * r).sum::<f64>() / kept.len().max(1) as f64).sqrt()
+/// A twin's held-out waveform RMS over the groups not in `skip` (at least one of them left
+/// out), um.
+fn rms_over_others(validation: &Validation, skip: &[String]) -> f64 {
+    rms_without(validation.groups.iter().map(|g| (g.file.as_str(), g.waveform_rms_um)), skip)
+        .expect("some groups left out and some kept")
 }
 
 fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
@@ -133,8 +130,8 @@ fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
             .filter(|g| hunting.iter().any(|&(f, a)| g.freq_hz == f && g.amp_um == a))
             .map(|g| g.file.clone())
             .collect(),
-        not_repeating: e.last.not_repeating_files().into_iter().map(String::from).collect(),
-        final_groups: group_rms(&e.model),
+        not_repeating: e.last.not_repeating_files(),
+        final_validation: e.model.validation,
     }
 }
 
@@ -142,7 +139,7 @@ fn run_sets(s: &Sets) {
     let clean = measure(s.paper_grid, Vec::new(), 1);
     let config = FitConfig { max_epochs: s.epochs, ..FitConfig::default() };
     let clean_twin = fit(&clean, "clean machine", &config, &mut |_| {}).expect("clean fit");
-    let (clean_rms_um, clean_groups) = (clean_twin.validation.waveform_rms_um, group_rms(&clean_twin));
+    let clean_rms_um = clean_twin.validation.waveform_rms_um;
     println!("clean twin: held-out waveform RMS {:.2} nm", clean_rms_um * 1e3);
 
     let (mut cases, mut all_named, mut named_or_absorbed, mut within_2x) = (0usize, 0usize, 0usize, 0usize);
@@ -157,7 +154,7 @@ fn run_sets(s: &Sets) {
             let hunts = !o.hunting.is_empty();
             let told = !hunts || !o.not_repeating.is_empty();
             let ratio = if hunts && told {
-                rms_without(&o.final_groups, &o.hunting) / rms_without(&clean_groups, &o.hunting)
+                rms_over_others(&o.final_validation, &o.hunting) / rms_over_others(&clean_twin.validation, &o.hunting)
             } else if told {
                 o.final_rms_um / clean_rms_um
             } else {

@@ -152,8 +152,8 @@ pub struct Diagnosis {
 
 impl Diagnosis {
     /// The files of the groups whose error does not repeat from one period to the next.
-    pub fn not_repeating_files(&self) -> Vec<&str> {
-        self.repeatability.not_repeating.iter().filter_map(|&i| self.group_files.get(i)).map(String::as_str).collect()
+    pub fn not_repeating_files(&self) -> Vec<String> {
+        self.repeatability.not_repeating.iter().filter_map(|&i| self.group_files.get(i)).cloned().collect()
     }
 }
 

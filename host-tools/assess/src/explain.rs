@@ -189,8 +189,8 @@ impl Standing {
     /// files of those that do not), um; the whole RMS where none is skipped. Where the axis
     /// moves by itself (a hunting limit cycle) no twin driven by the command can predict the
     /// error, and those groups' share swamps what a step gains elsewhere: friction with a
-    /// 314 Hz mode, five hunting groups at 1 Hz, the second mode took the rest 23.5 -> 13.4 nm
-    /// but the whole 54.4 -> 48.6 nm only (the sets of issue 17, BENCHMARKS.md).
+    /// 314 Hz mode hunting in six groups at 1 Hz, the second mode took the other 93 from 23.5
+    /// to 13.4 nm but the whole from 54.4 to 48.6 nm only (the sets of issue 17, BENCHMARKS.md).
     fn repeating_rms_um(&self, skip: &[String]) -> f64 {
         rms_without(self.groups.iter().map(|(file, rms)| (file.as_str(), *rms)), skip).unwrap_or(self.rms_um)
     }

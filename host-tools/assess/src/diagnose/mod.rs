@@ -593,7 +593,11 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
         MIN_EXPLAINED * 100.0
     );
     let not_repeating = repeatability.describe(|i| (ctx[i].sample.info.freq_hz, ctx[i].sample.info.amp_um));
-    let structure = structure::split(ctx);
+    // Where the error does not repeat (a hunting axis) no twin can follow it: the structure,
+    // and whether it stands above the floor, are read over the other groups (all of them
+    // where none repeats).
+    let leave_out: &[usize] = if repeatability.not_repeating.len() < n { &repeatability.not_repeating } else { &[] };
+    let structure = structure::split(ctx, leave_out);
     // A line that holds most of what lies beyond the command's harmonics is not the sensors'
     // noise even where it sets the floor (it does not repeat with the command's period).
     let dominant_line = structure.line.as_ref().filter(|l| {
@@ -601,8 +605,8 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
     });
     let unexplained = if verdict != "none" {
         None
-    } else if residual_rms_um > UNEXPLAINED_OVER_FLOOR * floor_um.max(NOT_REPEATING_MIN_UM) {
-        Some(describe_unexplained(&structure, residual_rms_um, floor_um, ctx))
+    } else if structure.residual_rms_um > UNEXPLAINED_OVER_FLOOR * floor_um.max(NOT_REPEATING_MIN_UM) {
+        Some(describe_unexplained(&structure, floor_um, ctx))
     } else {
         dominant_line.map(|l| {
             format!(
@@ -640,7 +644,8 @@ pub const UNEXPLAINED_OVER_FLOOR: f64 = 2.0;
 
 /// Where an unexplained residual lies, in words: its parts above half the floor, largest
 /// first, each with the groups where it is largest.
-fn describe_unexplained(s: &structure::Structure, residual_rms_um: f64, floor_um: f64, ctx: &[GroupCtx]) -> String {
+fn describe_unexplained(s: &structure::Structure, floor_um: f64, ctx: &[GroupCtx]) -> String {
+    let residual_rms_um = s.residual_rms_um;
     let at = |part: &structure::Part| -> String {
         part.largest
             .iter()
@@ -698,8 +703,12 @@ fn describe_unexplained(s: &structure::Structure, residual_rms_um: f64, floor_um
     } else {
         "an effect outside the library's candidates, or one of them in a form they do not model"
     };
+    let over = match s.groups_left_out {
+        0 => String::new(),
+        left_out => format!(" over the {} groups whose error repeats", ctx.len() - left_out),
+    };
     format!(
-        "the residual (RMS {:.1} nm) is {:.1}x the data's floor ({:.1} nm), but no candidate explains it; it lies {}: {cause}",
+        "the residual{over} (RMS {:.1} nm) is {:.1}x the data's floor ({:.1} nm), but no candidate explains it; it lies {}: {cause}",
         residual_rms_um * 1e3,
         residual_rms_um / floor_um.max(NOT_REPEATING_MIN_UM),
         floor_um * 1e3,

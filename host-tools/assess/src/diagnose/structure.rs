@@ -17,10 +17,10 @@ pub const MAX_HARMONIC: usize = 7;
 /// A line is not reported within this distance of a group's harmonic, Hz.
 const HARMONIC_GUARD_HZ: f64 = 1.5;
 
-/// One part of the residual: its RMS over all groups and the groups where it is largest.
+/// One part of the residual: its RMS over the groups split and the groups where it is largest.
 #[derive(Clone, Debug, Serialize)]
 pub struct Part {
-    /// RMS over every group's window, um.
+    /// RMS over the windows of the groups split, um.
     pub rms_um: f64,
     /// The groups where it is largest, largest first (at most three): their index among the
     /// diagnosed groups and the part's RMS there, um.
@@ -49,6 +49,10 @@ pub struct Structure {
     pub rest: Part,
     /// The rest's strongest line (none when the windows are too short).
     pub line: Option<Line>,
+    /// How many groups were left out of the split, their error not repeating.
+    pub groups_left_out: usize,
+    /// The RMS of the residual over the groups split, um.
+    pub residual_rms_um: f64,
 }
 
 /// A group's parts' sums of squares, in the order trend, fundamental, harmonics, rest; and
@@ -110,33 +114,61 @@ fn strongest_line(rests: &[(Vec<f64>, f64)], sample_rate_hz: f64) -> Option<Line
     Some(Line { freq_hz: bin as f64 * bin_hz, rms_um: p.sqrt() / gain })
 }
 
-/// Splits the residual of every group.
-pub fn split(ctx: &[GroupCtx]) -> Structure {
-    let per_group: Vec<([f64; 4], Vec<f64>, usize)> = ctx
+/// One group's window as the split reads it.
+pub struct Window<'a> {
+    /// The group's position among the diagnosed groups.
+    pub position: usize,
+    /// The residual, um.
+    pub residual: &'a [f64],
+    /// The command's phase at each sample, rad.
+    pub theta: &'a [f64],
+    /// The command's frequency, Hz.
+    pub freq_hz: f64,
+}
+
+/// Splits the residual of every group but those at the positions `leave_out` (the groups
+/// whose error does not repeat: what no twin can predict is not structure a candidate
+/// misses). [`Part::largest`] keeps the positions in `ctx`.
+pub fn split(ctx: &[GroupCtx], leave_out: &[usize]) -> Structure {
+    let windows: Vec<Window> = ctx
         .iter()
-        .map(|c| {
-            let (ss, rest) = split_group(&c.residual, &c.theta);
-            (ss, rest, c.residual.len())
+        .enumerate()
+        .filter(|(i, _)| !leave_out.contains(i))
+        .map(|(position, c)| Window {
+            position,
+            residual: &c.residual,
+            theta: &c.theta,
+            freq_hz: c.sample.targets.freq_hz,
         })
         .collect();
-    let total_n: usize = per_group.iter().map(|g| g.2).sum::<usize>().max(1);
+    split_windows(&windows, ctx.len(), ctx.first().map_or(0.0, |c| c.sample_rate_hz))
+}
+
+/// Splits the given windows, `groups` of them diagnosed in all.
+pub fn split_windows(windows: &[Window], groups: usize, sample_rate_hz: f64) -> Structure {
+    let per_group: Vec<([f64; 4], Vec<f64>)> = windows.iter().map(|w| split_group(w.residual, w.theta)).collect();
+    let total_n: usize = windows.iter().map(|w| w.residual.len()).sum::<usize>().max(1);
     let part = |i: usize| -> Part {
         let rms_um = (per_group.iter().map(|g| g.0[i]).sum::<f64>() / total_n as f64).sqrt();
-        let mut by_group: Vec<(usize, f64)> =
-            per_group.iter().enumerate().map(|(g, p)| (g, (p.0[i] / p.2.max(1) as f64).sqrt())).collect();
+        let mut by_group: Vec<(usize, f64)> = per_group
+            .iter()
+            .zip(windows)
+            .map(|(g, w)| (w.position, (g.0[i] / w.residual.len().max(1) as f64).sqrt()))
+            .collect();
         by_group.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
         by_group.truncate(3);
         Part { rms_um, largest: by_group }
     };
-    let rests: Vec<(Vec<f64>, f64)> =
-        per_group.iter().zip(ctx).map(|(g, c)| (g.1.clone(), c.sample.targets.freq_hz)).collect();
-    let sample_rate_hz = ctx.first().map_or(0.0, |c| c.sample_rate_hz);
+    let rests: Vec<(Vec<f64>, f64)> = per_group.iter().zip(windows).map(|(g, w)| (g.1.clone(), w.freq_hz)).collect();
+    let residual_ss: f64 = windows.iter().flat_map(|w| w.residual).map(|r| r * r).sum();
     Structure {
         trend: part(0),
         fundamental: part(1),
         harmonics: part(2),
         rest: part(3),
         line: strongest_line(&rests, sample_rate_hz),
+        groups_left_out: groups - windows.len(),
+        residual_rms_um: (residual_ss / total_n as f64).sqrt(),
     }
 }
 
@@ -166,5 +198,23 @@ mod tests {
         let line = strongest_line(&[(rest, f0)], fs).expect("a line");
         assert_eq!(line.freq_hz, 137.0);
         assert!((line.rms_um - 0.02 / 2f64.sqrt()).abs() < 2e-3, "{line:?}");
+    }
+
+    #[test]
+    fn groups_left_out_are_not_in_any_part() {
+        let fs = 8000.0;
+        let theta: Vec<f64> = (0..4000).map(|k| 2.0 * std::f64::consts::PI * 20.0 * k as f64 / fs).collect();
+        let quiet: Vec<f64> = theta.iter().map(|t| 0.01 * t.sin()).collect();
+        let hunting: Vec<f64> = theta.iter().map(|t| 0.5 * (3.0 * t).sin() + 0.2).collect();
+        let window = |position, residual| Window { position, residual, theta: &theta, freq_hz: 20.0 };
+        let s = split_windows(&[window(0, &quiet), window(2, &quiet)], 3, fs);
+        assert_eq!(s.groups_left_out, 1);
+        assert!((s.residual_rms_um - 0.01 / 2f64.sqrt()).abs() < 1e-6, "{}", s.residual_rms_um);
+        assert!(s.harmonics.rms_um < 1e-6 && s.trend.rms_um < 1e-6, "{s:?}");
+        assert_eq!(s.fundamental.largest.iter().map(|p| p.0).collect::<Vec<_>>(), vec![0, 2]);
+        let all = split_windows(&[window(0, &quiet), window(1, &hunting), window(2, &quiet)], 3, fs);
+        assert_eq!(all.groups_left_out, 0);
+        assert_eq!(all.harmonics.largest[0].0, 1);
+        assert!(all.residual_rms_um > 0.2, "{}", all.residual_rms_um);
     }
 }

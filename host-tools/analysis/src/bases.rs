@@ -70,7 +70,8 @@ mod tests {
 
     #[test]
     fn every_size_gives_the_same_bits_as_the_general_bank() {
-        let u: Vec<f64> = (0..3000).map(|k| (k as f64 * 0.013).sin() + 0.3 * (k as f64 * 0.41).cos().signum()).collect();
+        let u: Vec<f64> =
+            (0..3000).map(|k| (k as f64 * 0.013).sin() + 0.3 * (k as f64 * 0.41).cos().signum()).collect();
         for stages in [4, 8, 16] {
             for start in [0, 1234, 3000, 4000] {
                 let fast = laguerre(&u, start, 0.93, stages);

@@ -482,10 +482,9 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
     // in what the formulas cannot touch (harmonics, steps, trends, lines). So the candidates
     // whose signature reaches there are also scored without the fundamental.
     let free: Option<Vec<GroupCtx>> = ctx.par_iter().map(GroupCtx::fundamental_free).collect();
-    let score = |cand: &candidates::Candidate, groups: &[GroupCtx]| -> Ranked {
+    let score = |cand: &candidates::Candidate, groups: &[GroupCtx], evaluated: candidates::Evaluated| -> Ranked {
         let group_ss: Vec<f64> = groups.iter().map(|c| c.residual.iter().map(|r| r * r).sum::<f64>()).collect();
         let (total_ss, total_n) = sums_of_squares(groups);
-        let evaluated = cand.evaluate(groups, folds);
         let improved = evaluated.improvements.iter().filter(|d| **d > 0.0).count();
         // Absolute reductions weigh the groups with the most residual, which finds an
         // effect confined to the slow, small groups (friction); relative ones weigh every
@@ -524,10 +523,12 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
     let results: Vec<Ranked> = candidates::ALL
         .par_iter()
         .map(|cand| {
-            let whole = score(cand, ctx);
-            match &free {
-                Some(free) if cand.beyond_fundamental() => {
-                    let beyond = score(cand, free);
+            let free = free.as_deref().filter(|_| cand.beyond_fundamental());
+            let (on_whole, on_free) = cand.evaluate_pair(ctx, free, folds);
+            let whole = score(cand, ctx, on_whole);
+            match free.zip(on_free) {
+                Some((free, on_free)) => {
+                    let beyond = score(cand, free, on_free);
                     // The significant score, and of two, the one that explains more.
                     if (beyond.significant && !whole.significant)
                         || (beyond.significant == whole.significant && beyond.explained_rms_um > whole.explained_rms_um)
@@ -537,7 +538,7 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
                         whole
                     }
                 }
-                _ => whole,
+                None => whole,
             }
         })
         .collect();

@@ -604,15 +604,14 @@ fn thermal(ctx: &[GroupCtx], folds: usize) -> Evaluated {
 /// same pitches, and each result is what a search of that set alone gives.
 fn ripple(whole: &[GroupCtx], free: Option<&[GroupCtx]>, folds: usize) -> (Evaluated, Option<Evaluated>) {
     let sets: Vec<&[GroupCtx]> = std::iter::once(whole).chain(free).collect();
-    let first = whole;
     // Pitch search on the unfiltered position sine over the slowest groups, where the servo
     // follows a position-periodic error without filtering (peak velocity at most 100 um/s, or
     // the slowest fifth). The sets share their groups, so they share which are slow.
     let vpeak = |c: &GroupCtx| 2.0 * PI * c.sample.info.freq_hz * cmd_amp(c);
-    let mut speeds: Vec<f64> = first.iter().map(vpeak).collect();
+    let mut speeds: Vec<f64> = whole.iter().map(vpeak).collect();
     speeds.sort_by(f64::total_cmp);
     let limit = speeds.get(speeds.len() / 5).copied().unwrap_or(0.0).max(100.0);
-    let slow: Vec<usize> = (0..first.len()).filter(|&g| vpeak(&first[g]) <= limit).collect();
+    let slow: Vec<usize> = (0..whole.len()).filter(|&g| vpeak(&whole[g]) <= limit).collect();
     // The best pitch of `pitches` and its coefficients, for each of the sets `which`.
     let search = |pitches: &[f64], which: &[usize]| -> Vec<(f64, Vec<f64>)> {
         // raw[p][g][k]: pitch p, slow group g, set which[k].
@@ -621,7 +620,7 @@ fn ripple(whole: &[GroupCtx], free: Option<&[GroupCtx]>, folds: usize) -> (Evalu
             .map(|p| {
                 slow.iter()
                     .map(|&g| {
-                        let c = &first[g];
+                        let c = &whole[g];
                         let (s, co) = position_sine(&c.data.z_enc_um[c.start..], *p);
                         let columns = [s, co];
                         which.iter().map(|&k| sets[k][g].stats(&columns)).collect()
@@ -669,7 +668,7 @@ fn ripple(whole: &[GroupCtx], free: Option<&[GroupCtx]>, folds: usize) -> (Evalu
             column_index.push(i);
         } else {
             column_index.push(columns_at.len());
-            let columns = first
+            let columns = whole
                 .par_iter()
                 .map(|c| {
                     let (s, co) = position_sine(&c.data.z_enc_um, *pitch);

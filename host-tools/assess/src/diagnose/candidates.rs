@@ -198,30 +198,18 @@ impl Candidate {
         )
     }
 
-    /// Cross-validated evaluation on the groups.
-    pub fn evaluate(self, ctx: &[GroupCtx], folds: usize) -> Evaluated {
-        match self {
-            Candidate::Friction => friction(ctx, &friction_columns(ctx), folds),
-            Candidate::Hysteresis => hysteresis(ctx, &hysteresis_columns(ctx), folds),
-            Candidate::Mode => mode(ctx, folds),
-            Candidate::Delay => loop_delay(ctx, folds),
-            Candidate::SetpointDelay => setpoint_delay(ctx, folds),
-            Candidate::Thermal => thermal(ctx, folds),
-            Candidate::Ripple => ripple(ctx, None, folds).0,
-            Candidate::Coupling => coupling(ctx, folds),
-            Candidate::Gain => gain(ctx, folds),
-        }
-    }
-
-    /// [`Candidate::evaluate`] on `whole` and, where given, on `free`, the same groups with
-    /// each one's fundamental taken out of the residual: the columns that read the data alone
-    /// are built once for both (the same results as two evaluations, in less time).
+    /// Cross-validated evaluation on the groups `whole` and, where given, on `free`, the same
+    /// groups with each one's fundamental taken out of the residual: the columns that read the
+    /// data alone are built once for both (the same results as two evaluations, in less time).
     pub fn evaluate_pair(
         self,
         whole: &[GroupCtx],
         free: Option<&[GroupCtx]>,
         folds: usize,
     ) -> (Evaluated, Option<Evaluated>) {
+        // The candidates whose columns read the residual: one evaluation per set.
+        let each =
+            |evaluate: fn(&[GroupCtx], usize) -> Evaluated| (evaluate(whole, folds), free.map(|f| evaluate(f, folds)));
         match self {
             Candidate::Friction => {
                 let columns = friction_columns(whole);
@@ -232,7 +220,12 @@ impl Candidate {
                 (hysteresis(whole, &columns, folds), free.map(|f| hysteresis(f, &columns, folds)))
             }
             Candidate::Ripple => ripple(whole, free, folds),
-            _ => (self.evaluate(whole, folds), free.map(|f| self.evaluate(f, folds))),
+            Candidate::Mode => each(mode),
+            Candidate::Delay => each(loop_delay),
+            Candidate::SetpointDelay => each(setpoint_delay),
+            Candidate::Thermal => each(thermal),
+            Candidate::Coupling => each(coupling),
+            Candidate::Gain => each(gain),
         }
     }
 }

@@ -1,5 +1,8 @@
 //! The co-processor's faults for people: every fault counter, every reason the inputs are
-//! not trusted now, a missing model and where the configuration came from, one line each.
+//! not trusted now, a missing model and where the configuration came from, one line each;
+//! and, apart from them, the supervisor's gate, which holds compensation off where the
+//! accelerometer sees mostly noise (at the centre of every bicuspid cut, where the stroke
+//! shrinks to nothing): the design working, not a fault.
 //!
 //! ```
 //! use sts_rig::fault_report;
@@ -28,12 +31,12 @@ use sts_twin_core::wire::{ConfigSource, Status};
 use super::{Coprocessor, RigError};
 
 /// Every fault `status` shows, one sentence each, most urgent first: why compensation is
-/// ramped out now (the degraded bits), a missing model, a configuration that fell back to
-/// defaults, then each non-zero fault counter with what it means. Empty when there is
-/// nothing to report.
+/// ramped out now (the degraded bits but the gate's, [`gate_report`]), a missing model, a
+/// configuration that fell back to defaults, then each non-zero fault counter with what it
+/// means. Empty when there is nothing to report.
 pub fn fault_report(status: &Status) -> Vec<String> {
     let mut lines = Vec::new();
-    let reasons = degraded_reasons(status.degraded);
+    let reasons = degraded_reasons(status.degraded & !DEGRADED_GATED);
     if !reasons.is_empty() {
         lines.push(format!("compensation is ramped out now: {}", reasons.join("; ")));
     }
@@ -57,14 +60,6 @@ pub fn fault_report(status: &Status) -> Vec<String> {
             100.0 * status.supervisor_params.new_point_freq_change
         ));
     }
-    if status.supervisor.gated {
-        lines.push(format!(
-            "compensation is faded out: the accelerometer sees mostly noise at {:.1} Hz (the commanded motion's \
-             acceleration holds {:.0}% of its power; the twin's features would be measured on noise)",
-            status.supervisor.last.freq_hz.abs(),
-            100.0 * status.supervisor.last.motion_share
-        ));
-    }
     if status.program_id.is_none() {
         lines.push(
             "no twin model is active: the prediction is zero and nothing is compensated (upload a model)".to_string(),
@@ -82,6 +77,22 @@ pub fn fault_report(status: &Status) -> Vec<String> {
     lines
 }
 
+/// The supervisor's gate, when it holds compensation off now: where the accelerometer sees
+/// mostly noise the twin's features would be measured on noise, so compensation fades out
+/// until the motion is back. Not a fault (no counter counts it; a cut reports the share of
+/// its ticks held off): `None` when the gate is open.
+pub fn gate_report(status: &Status) -> Option<String> {
+    status.supervisor.gated.then(|| {
+        format!(
+            "compensation is faded out by the supervisor's gate: the accelerometer sees mostly noise at {:.1} Hz \
+             (the commanded motion's acceleration holds {:.0}% of its power; the twin's features would be \
+             measured on noise); it fades back in when the motion is back",
+            status.supervisor.last.freq_hz.abs(),
+            100.0 * status.supervisor.last.motion_share
+        )
+    })
+}
+
 /// The `servo::DEGRADED_*` bits of `degraded` as phrases (unknown bits named by value).
 pub fn degraded_reasons(degraded: u16) -> Vec<String> {
     const KNOWN: [(u16, &str); 7] = [
@@ -91,7 +102,7 @@ pub fn degraded_reasons(degraded: u16) -> Vec<String> {
         (DEGRADED_MODEL, "the model's last evaluation failed"),
         (DEGRADED_RECOVERING, "inputs are healthy again, waiting for a clean feature window"),
         (DEGRADED_SUPERVISED, "the supervisor holds compensation off (see below)"),
-        (DEGRADED_GATED, "the supervisor's gate holds compensation off (see below)"),
+        (DEGRADED_GATED, "the supervisor's gate holds compensation off (the accelerometer sees mostly noise)"),
     ];
     let mut reasons: Vec<String> =
         KNOWN.iter().filter(|(bit, _)| degraded & bit != 0).map(|(_, text)| text.to_string()).collect();
@@ -144,7 +155,7 @@ fn counter_lines(c: &Counters) -> Vec<String> {
 }
 
 /// Asks `coprocessor` for its status and prints [`fault_report`] to stderr (stdout stays
-/// free for reports and JSON).
+/// free for reports and JSON), then the gate's state ([`gate_report`]) as the state it is.
 pub fn print_fault_report(coprocessor: &mut dyn Coprocessor) -> Result<(), RigError> {
     let status = crate::status(coprocessor)?;
     let lines = fault_report(&status);
@@ -155,6 +166,9 @@ pub fn print_fault_report(coprocessor: &mut dyn Coprocessor) -> Result<(), RigEr
         for line in &lines {
             eprintln!("  - {line}");
         }
+    }
+    if let Some(gate) = gate_report(&status) {
+        eprintln!("co-processor ({}) now: {gate}", coprocessor.kind());
     }
     Ok(())
 }
@@ -259,14 +273,38 @@ mod tests {
         };
         status.degraded = DEGRADED_SUPERVISED | DEGRADED_GATED;
         let lines = fault_report(&status);
-        // Why it is ramped out is said once: the degraded bits point to the lines below.
-        assert_eq!(lines.len(), 3, "{lines:?}");
-        assert_eq!(lines.iter().filter(|l| l.contains("mostly noise")).count(), 1, "{lines:?}");
+        // The trip is a fault, said once: the degraded bit points to the line below; the
+        // gate is not one, and is said apart.
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(lines.iter().all(|l| !l.contains("mostly noise")), "{lines:?}");
         assert!(lines[0].starts_with("compensation is ramped out now") && lines[0].contains("see below"), "{lines:?}");
-        let lines = &lines[1..];
-        assert!(lines[0].contains("150% of the stroke at 80.0 Hz") && lines[0].contains("(90%)"), "{}", lines[0]);
-        assert!(lines[0].contains("changed by more than 10%"), "{}", lines[0]);
-        assert!(lines[1].contains("mostly noise at 80.0 Hz") && lines[1].contains("30%"), "{}", lines[1]);
+        assert!(lines[1].contains("150% of the stroke at 80.0 Hz") && lines[1].contains("(90%)"), "{}", lines[1]);
+        assert!(lines[1].contains("changed by more than 10%"), "{}", lines[1]);
+        let gate = gate_report(&status).expect("the gate is closed");
+        assert!(gate.contains("mostly noise at 80.0 Hz") && gate.contains("30%"), "{gate}");
+    }
+
+    #[test]
+    fn the_gate_alone_is_no_fault() {
+        use sts_twin_core::supervisor::{MotionEstimate, SupervisorState};
+        let mut status = clean();
+        assert_eq!(gate_report(&status), None);
+        // The end of a bicuspid cut: at the centre the stroke, and the motion the
+        // accelerometer sees, shrink to nothing.
+        status.supervisor = SupervisorState {
+            gated: true,
+            last: MotionEstimate { freq_hz: 40.0, motion_share: 0.26, ..Default::default() },
+            ..Default::default()
+        };
+        status.degraded = DEGRADED_GATED;
+        assert_eq!(fault_report(&status), Vec::<String>::new());
+        let gate = gate_report(&status).expect("the gate is closed");
+        assert!(gate.contains("mostly noise at 40.0 Hz") && gate.contains("26%"), "{gate}");
+        // With a real fault beside it, the fault is reported and the gate is still not.
+        status.degraded |= DEGRADED_STUCK;
+        let lines = fault_report(&status);
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!(lines[0].contains("stuck") && !lines[0].contains("gate"), "{lines:?}");
     }
 
     #[test]

@@ -12,7 +12,7 @@ mod sim;
 mod trajectory;
 pub mod trial;
 
-pub use faults::{degraded_reasons, fault_report, print_fault_report};
+pub use faults::{degraded_reasons, fault_report, gate_report, print_fault_report};
 pub use hil::{request_on, HilCoprocessor, REQUEST_TIMEOUT};
 pub use lossy::LossyHilCoprocessor;
 pub use serial::SerialCoprocessor;

@@ -185,6 +185,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         print_report(&report);
+        if model.is_some() {
+            // Where the cut's ticks went: the gate holds compensation off at the centre.
+            println!("compensation over the cut's ticks: {}", report.compensation_summary());
+        }
     }
     if let Some(path) = &args.html {
         let title = format!(

@@ -30,11 +30,14 @@ pub(crate) fn print_status(status: &Status) {
         "supervisor: {}{}{}",
         if status.supervisor_params.active { "active" } else { "off" },
         s.tripped.map_or(String::new(), |trip| format!(", tripped ({trip:?})")),
-        if s.gated { ", gated (the accelerometer sees mostly noise)" } else { "" }
+        if s.gated { ", gated (below)" } else { "" }
     );
     println!("counters: {:?}", status.counters);
     for line in sts_rig::fault_report(status) {
         println!("  - {line}");
+    }
+    if let Some(gate) = sts_rig::gate_report(status) {
+        println!("now: {gate}");
     }
 }
 

@@ -16,7 +16,7 @@ use sts_fit::{fit, FitConfig, FitError};
 use sts_model::ModelFile;
 
 use crate::compare::{compare, Comparison};
-use crate::diagnose::{diagnose, Diagnosis};
+use crate::diagnose::{diagnose, groups_needed, Diagnosis};
 use crate::AssessError;
 
 /// Settings of the loop.
@@ -61,6 +61,14 @@ pub struct Step {
 pub enum Stop {
     /// `diagnose` named nothing: no candidate explains more than the data's floor.
     None,
+    /// `diagnose` named nothing, but on so few groups that no candidate could have been
+    /// significant ([`crate::diagnose::groups_needed`]): the residual may still hold an effect.
+    TooFewGroups {
+        /// The groups diagnosed.
+        groups: usize,
+        /// The fewest on which the test can name an effect.
+        needed: usize,
+    },
     /// The effect budget is spent while `diagnose` still names one.
     MaxEffects {
         /// The effect it named next.
@@ -92,6 +100,9 @@ impl Stop {
     pub fn describe(&self) -> String {
         match self {
             Stop::None => "none: no candidate explains more of the residual than the data's own floor".into(),
+            Stop::TooFewGroups { groups, needed } => format!(
+                "too few groups: on {groups} no candidate can be significant, so nothing was named and the residual may still hold an effect; measure at least {needed} groups"
+            ),
             Stop::MaxEffects { next } => format!("the effect budget is spent; diagnose names {next} next"),
             Stop::AlreadyCarried { effect } => {
                 format!(
@@ -110,6 +121,7 @@ impl Stop {
     pub fn verdict(&self) -> &'static str {
         match self {
             Stop::None => "none",
+            Stop::TooFewGroups { .. } => "too-few-groups",
             Stop::MaxEffects { .. } => "max-effects",
             Stop::AlreadyCarried { .. } => "already-carried",
             Stop::NoGain { .. } => "no-gain",
@@ -314,7 +326,9 @@ pub fn explain(
             .filter(|&i| d.ranking[i].significant && !names.contains(&d.ranking[i].effect))
             .take(MAX_TRIES)
             .collect();
-        let named_stop = if d.verdict == "none" {
+        let named_stop = if d.verdict == "none" && d.group_files.len() < groups_needed() {
+            Some(Stop::TooFewGroups { groups: d.group_files.len(), needed: groups_needed() })
+        } else if d.verdict == "none" {
             Some(Stop::None)
         } else if tries.is_empty() {
             Some(Stop::AlreadyCarried { effect: d.verdict.clone() })

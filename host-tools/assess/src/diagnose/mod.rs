@@ -277,6 +277,16 @@ pub fn significance_threshold() -> f64 {
     ALPHA / (scores_tested() * STATISTICS) as f64
 }
 
+/// The fewest groups on which a candidate can be significant at all: the sign-flip
+/// statistic `sum(d) / sqrt(sum(d^2))` is at most `sqrt(n)` (every group improved alike), so
+/// on fewer groups than this even a perfect candidate's p-value stays above
+/// [`significance_threshold`] (11 groups at the default threshold), and `none` says nothing
+/// of the residual.
+pub fn groups_needed() -> usize {
+    let threshold = significance_threshold();
+    (1..=100_000).find(|&n| sign_flip_p(&vec![1.0; n]) < threshold).unwrap_or(100_000)
+}
+
 /// The residual's sum of squares over `groups` and its number of samples.
 fn sums_of_squares(groups: &[GroupCtx]) -> (f64, usize) {
     let ss = groups.iter().map(|c| c.residual.iter().map(|r| r * r).sum::<f64>()).sum();
@@ -570,6 +580,16 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
             floor_um * 1e3,
             best.evidence
         ),
+        Some(best) if n < groups_needed() => format!(
+            "no candidate can be significant on {n} groups: the sign-flip test's p-value is at least {:.1e} there (every group improved alike), above the {:.1e} it asks; measure at least {} groups (the paper's grid has 99); the best, {}, explains {:.0}% of the residual (RMS {:.1} nm) on these (p = {:.1e})",
+            sign_flip_p(&vec![1.0; n]),
+            significance_threshold(),
+            groups_needed(),
+            best.effect,
+            best.explained_fraction * 100.0,
+            residual_rms_um * 1e3,
+            best.p_value
+        ),
         Some(best) => format!(
             "no candidate explains a significant part of the residual (RMS {:.1} nm; the data's floor, what does not repeat from period to period, is {:.1} nm); the best, {}, explains {:.0}% (p = {:.1e})",
             residual_rms_um * 1e3,
@@ -699,10 +719,16 @@ fn describe_unexplained(s: &structure::Structure, floor_um: f64, ctx: &[GroupCtx
     parts.sort_by(|a, b| b.0.total_cmp(&a.0));
     let shown: Vec<String> = parts.into_iter().filter(|(rms, _)| *rms > 0.5 * floor_um).map(|(_, text)| text).collect();
     // Almost all at the command frequency: what the amplitude and phase formulas are for.
-    let cause = if s.fundamental.rms_um.powi(2) >= 0.8 * residual_rms_um.powi(2) {
-        "the twin's amplitude and phase formulas do not reproduce those groups (a fit with more epochs or a larger complexity may), or an effect changes the response there in a way no candidate models"
+    let cause = if ctx.len() < groups_needed() {
+        format!(
+            "on {} groups no candidate can be significant (the test needs at least {}), so this does not tell which effect it is",
+            ctx.len(),
+            groups_needed()
+        )
+    } else if s.fundamental.rms_um.powi(2) >= 0.8 * residual_rms_um.powi(2) {
+        "the twin's amplitude and phase formulas do not reproduce those groups (a fit with more epochs or a larger complexity may), or an effect changes the response there in a way no candidate models".to_string()
     } else {
-        "an effect outside the library's candidates, or one of them in a form they do not model"
+        "an effect outside the library's candidates, or one of them in a form they do not model".to_string()
     };
     let over = match s.groups_left_out {
         0 => String::new(),
@@ -720,6 +746,19 @@ fn describe_unexplained(s: &structure::Structure, floor_um: f64, ctx: &[GroupCtx
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn too_few_groups_cannot_be_significant() {
+        let n = groups_needed();
+        // 0.02 over 28 scores and statistics: z above 3.19, so 11 groups.
+        assert_eq!(n, 11, "{}", significance_threshold());
+        assert!(sign_flip_p(&vec![1.0; n]) < significance_threshold());
+        assert!(sign_flip_p(&vec![1.0; n - 1]) >= significance_threshold());
+        // Unequal gains only lower the statistic.
+        let mut d = vec![1.0; n - 1];
+        d[0] = 5.0;
+        assert!(sign_flip_p(&d) > sign_flip_p(&vec![1.0; n - 1]));
+    }
 
     #[test]
     fn sign_test_probabilities() {

@@ -45,6 +45,8 @@ pub fn diagnosis(d: &Diagnosis, dataset: &Dataset) -> Value {
         .collect();
     json!({
         "verdict": d.verdict,
+        "groups": d.group_files.len(),
+        "groups_needed": crate::diagnose::groups_needed(),
         "ranking": ranking,
         "residual_rms_um": d.residual_rms_um,
         "model_cv_rms_um": d.model_cv_rms_um,

@@ -61,5 +61,8 @@ fn too_few_groups_stop_the_ladder_as_such_not_as_none() {
     assert!(e.last.summary.starts_with("no candidate can be significant on 8 groups"), "{}", e.last.summary);
     let text = e.last.unexplained.as_deref().unwrap_or_default();
     assert!(text.is_empty() || text.contains("does not tell which effect"), "{text}");
+    // A script reading `diagnose --json` sees it too.
+    let json = sts_assess::json::diagnosis(&e.last, &data);
+    assert_eq!((json["groups"].as_u64(), json["groups_needed"].as_u64()), (Some(8), Some(groups_needed() as u64)));
     println!("{}\n{}", e.stop.describe(), e.last.summary);
 }

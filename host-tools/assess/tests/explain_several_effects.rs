@@ -22,7 +22,8 @@
 //! ```
 //!
 //! `STS_SETS_FIRST_SEED` starts at another seed (to split a run); `STS_SETS_ONLY=a+b,c+d+e`
-//! runs only those sets, `STS_SETS_WITH=a,b` only the sets holding `a` or `b`.
+//! runs only those sets, `STS_SETS_WITH=a,b` only the sets holding `a` or `b`,
+//! `STS_SETS_WITHOUT=a,b` only those holding neither.
 
 use rand::seq::IndexedRandom;
 use rand::SeedableRng;
@@ -53,6 +54,11 @@ struct Sets {
 
 fn env_u64(name: &str, default: u64) -> u64 {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+/// The comma-separated list in the environment variable `name`, when it is set.
+fn env_list(name: &str) -> Option<Vec<String>> {
+    std::env::var(name).ok().map(|v| v.split(',').map(str::to_string).collect())
 }
 
 fn measure(paper_grid: bool, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
@@ -246,23 +252,19 @@ fn ci_sets() {
 #[test]
 #[ignore = "long: every pair and random triples, several seeds each (about 20 minutes per seed)"]
 fn full_sets() {
-    let all: Vec<(usize, Vec<&'static str>)> =
+    let mut sets: Vec<(usize, Vec<&'static str>)> =
         pairs_and_triples(env_u64("STS_SETS_TRIPLES", 10) as usize).into_iter().enumerate().collect();
-    let sets = match std::env::var("STS_SETS_ONLY") {
-        Ok(only) => {
-            let wanted: Vec<String> = only.split(',').map(str::to_string).collect();
-            all.into_iter().filter(|(_, s)| wanted.contains(&s.join("+"))).collect()
-        }
-        Err(_) => all,
-    };
-    // Only the sets that hold one of these effects (the rest unchanged by a change to them).
-    let sets = match std::env::var("STS_SETS_WITH") {
-        Ok(with) => {
-            let wanted: Vec<String> = with.split(',').map(str::to_string).collect();
-            sets.into_iter().filter(|(_, s)| s.iter().any(|e| wanted.iter().any(|w| w == e))).collect()
-        }
-        Err(_) => sets,
-    };
+    if let Some(only) = env_list("STS_SETS_ONLY") {
+        sets.retain(|(_, s)| only.contains(&s.join("+")));
+    }
+    // Only the sets that hold one of these effects (the rest unchanged by a change to them),
+    // and none of those (the sets such a change leaves alone, rerun on their own).
+    if let Some(with) = env_list("STS_SETS_WITH") {
+        sets.retain(|(_, s)| s.iter().any(|e| with.iter().any(|w| w == e)));
+    }
+    if let Some(without) = env_list("STS_SETS_WITHOUT") {
+        sets.retain(|(_, s)| !s.iter().any(|e| without.iter().any(|w| w == e)));
+    }
     run_sets(&Sets {
         sets,
         first_seed: env_u64("STS_SETS_FIRST_SEED", 0),

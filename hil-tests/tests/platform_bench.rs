@@ -1,7 +1,7 @@
 //! Platform benchmarks (ignored by default; they print figures for BENCHMARKS.md):
 //!
 //! ```text
-//! cargo test -p sts-hil-tests --release --test platform_bench -- --ignored --nocapture --test-threads=1
+//! cargo test -p sts-hil-tests --release --test hil platform_bench:: -- --ignored --nocapture --test-threads=1
 //! ```
 
 use sts_hil::{bench_instructions, bench_throughput, HilConfig};

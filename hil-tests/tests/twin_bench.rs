@@ -2,7 +2,7 @@
 //! updates in force (ignored by default; prints figures for BENCHMARKS.md):
 //!
 //! ```text
-//! cargo test -p sts-hil-tests --release --test twin_bench -- --ignored --nocapture --test-threads=1
+//! cargo test -p sts-hil-tests --release --test hil twin_bench:: -- --ignored --nocapture --test-threads=1
 //! ```
 //!
 //! Each case runs 20,000 lockstep ticks of `bench_inputs` under two feature windows: 2,000

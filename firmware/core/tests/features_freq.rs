@@ -15,8 +15,7 @@
 //! is too small to dither the quantiser: the ADC codes really contain harmonics, which pull
 //! the centroid up. f1 stays exact; f11 needs noise of about 0.5 LSB rms or more.
 
-#[path = "features_util.rs"]
-mod util;
+use crate::features_util as util;
 
 use sts_twin_core::features::{FeatureConfig, Features};
 use util::{run, Rng, Signal, Tone};

@@ -8,10 +8,8 @@
 //! - f1: 2e-3 bins (7e-5 bins), unless the reference spectrum has a near-tie: then the
 //!   fixed-point peak must lie on a bin whose reference power is within 0.1% of the peak.
 
-#[path = "support/reference.rs"]
-mod reference;
-#[path = "features_util.rs"]
-mod util;
+use crate::features_util as util;
+use crate::reference;
 
 use proptest::prelude::*;
 use reference::{features_f64_detail, ReferenceFeatures};

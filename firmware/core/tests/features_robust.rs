@@ -2,10 +2,8 @@
 //! golden values. Run in debug too: integer overflow then panics, so these tests also show
 //! that no arithmetic overflows.
 
-#[path = "support/reference.rs"]
-mod reference;
-#[path = "features_util.rs"]
-mod util;
+use crate::features_util as util;
+use crate::reference;
 
 use reference::features_f64_detail;
 use std::sync::{Arc, Mutex};

@@ -1,7 +1,6 @@
 //! Every feature against hand-computed values for simple signals.
 
-#[path = "features_util.rs"]
-mod util;
+use crate::features_util as util;
 
 use sts_twin_core::features::*;
 use util::{close, run, Signal, SmallExtractor};

@@ -18,7 +18,7 @@
 //!
 //! ```text
 //! STS_SUITE_SEEDS=20 STS_SUITE_FIT_SEEDS=3 STS_SUITE_GRID=paper \
-//!   cargo test --release -p sts-assess --test diagnose_hidden_effects -- --ignored --nocapture
+//!   cargo test --release -p sts-assess --test tests diagnose_hidden_effects:: -- --ignored --nocapture
 //! ```
 //!
 //! Each effect of the emulator is a case, and a structural mode inside the test band
@@ -39,8 +39,7 @@ use sts_fit::effects::prepare;
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
 
-mod support;
-use support::{step_dependence_nm, HUNTING_STEP_NM};
+use crate::support::{step_dependence_nm, HUNTING_STEP_NM};
 
 /// Which twin a case is diagnosed against.
 #[derive(Clone, Copy, PartialEq)]

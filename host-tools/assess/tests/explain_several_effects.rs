@@ -18,7 +18,7 @@
 //!
 //! ```text
 //! STS_SETS_SEEDS=5 STS_SETS_TRIPLES=10 STS_SETS_GRID=paper \
-//!   cargo test --release -p sts-assess --test explain_several_effects full_sets -- --ignored --nocapture
+//!   cargo test --release -p sts-assess --test tests explain_several_effects::full_sets -- --ignored --nocapture
 //! ```
 //!
 //! `STS_SETS_FIRST_SEED` starts at another seed (to split a run); `STS_SETS_ONLY=a+b,c+d+e`
@@ -35,8 +35,7 @@ use sts_emulator::{EffectSpec, MeasureConfig, EFFECT_NAMES};
 use sts_fit::{fit, FitConfig};
 use sts_model::Validation;
 
-mod support;
-use support::hunting_groups;
+use crate::support::hunting_groups;
 
 /// Effects a refitted formula can carry: a linear change of the response at the command
 /// frequency. `none` for them is right where the twin ends near the clean one's error.

@@ -6,9 +6,7 @@
 //!
 //! Prints the table recorded in BENCHMARKS.md ("The loop on a foreign machine").
 
-mod foreign;
-
-use foreign::{Foreign, Lugre, ToolMode};
+use crate::foreign::{self, Foreign, Lugre, ToolMode};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use sts_model::replay::turns_u32;

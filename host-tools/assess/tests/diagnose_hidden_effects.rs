@@ -27,19 +27,20 @@
 //!
 //! `STS_SUITE_EFFECTS=coulomb-friction,force-ripple` runs only those hidden effects (`none`
 //! for the clean cases), e.g. to refit many seeds of the slow ones; `STS_SUITE_FIRST_SEED=10`
-//! starts at seed 10 (to split a run over several processes).
+//! starts at seed 10 (to split a run over several processes); `STS_PLANT=FILE` measures
+//! another machine (a plant file as `sts-twin measure --plant` takes it) instead of the default.
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sts_assess::compare::compare;
 use sts_assess::diagnose::diagnose;
 use sts_dataset::Dataset;
-use sts_emulator::{EffectSpec, MeasureConfig, EFFECT_NAMES};
+use sts_emulator::{EffectSpec, MeasureConfig, PlantParams, EFFECT_NAMES};
 use sts_fit::effects::prepare;
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
 
-use crate::support::{step_dependence_nm, HUNTING_STEP_NM};
+use crate::support::{plant_from_env, step_dependence_nm, HUNTING_STEP_NM};
 
 /// Which twin a case is diagnosed against.
 #[derive(Clone, Copy, PartialEq)]
@@ -62,6 +63,8 @@ struct Suite {
     no_refit: &'static [&'static str],
     paper_grid: bool,
     epochs: usize,
+    /// The machine measured (the reference twin's clean data too).
+    plant: PlantParams,
 }
 
 fn env_u64(name: &str, default: u64) -> u64 {
@@ -69,7 +72,7 @@ fn env_u64(name: &str, default: u64) -> u64 {
 }
 
 fn measure(suite: &Suite, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
-    let mut config = MeasureConfig { effects, seed, ..MeasureConfig::default() };
+    let mut config = MeasureConfig { plant: suite.plant.clone(), effects, seed, ..MeasureConfig::default() };
     if !suite.paper_grid {
         // CI: the paper's 99 groups, each only as long as the feature window needs.
         config.duration_s = 5.5;
@@ -165,7 +168,7 @@ fn run_case(
     if let Some(text) = &d.unexplained {
         println!("    unexplained: {text}");
     }
-    let step_dependence_nm = if hunting { step_dependence_nm(&effects, 100 + seed) } else { 0.0 };
+    let step_dependence_nm = if hunting { step_dependence_nm(&suite.plant, &effects, 100 + seed) } else { 0.0 };
     Outcome {
         verdict: d.verdict,
         reference_rms_um: before_rms_um,
@@ -348,6 +351,7 @@ fn ci_suite() {
         no_refit: REFIT_BY_CI_SETS,
         paper_grid: false,
         epochs: 10,
+        plant: PlantParams::default(),
     });
 }
 
@@ -367,6 +371,7 @@ fn ci_suite_lab() {
         no_refit: &[],
         paper_grid: false,
         epochs: 10,
+        plant: PlantParams::default(),
     });
 }
 
@@ -385,6 +390,7 @@ fn ci_probe_gain_lab() {
         no_refit: &[],
         paper_grid: false,
         epochs: 10,
+        plant: PlantParams::default(),
     });
 }
 
@@ -405,5 +411,6 @@ fn full_suite() {
         no_refit: &[],
         paper_grid: std::env::var("STS_SUITE_GRID").map_or(true, |g| g == "paper"),
         epochs: env_u64("STS_SUITE_EPOCHS", 40) as usize,
+        plant: plant_from_env(),
     });
 }

@@ -23,7 +23,8 @@
 //!
 //! `STS_SETS_FIRST_SEED` starts at another seed (to split a run); `STS_SETS_ONLY=a+b,c+d+e`
 //! runs only those sets, `STS_SETS_WITH=a,b` only the sets holding `a` or `b`,
-//! `STS_SETS_WITHOUT=a,b` only those holding neither.
+//! `STS_SETS_WITHOUT=a,b` only those holding neither; `STS_PLANT=FILE` measures another machine
+//! (a plant file as `sts-twin measure --plant` takes it) instead of the default.
 
 use rand::seq::IndexedRandom;
 use rand::SeedableRng;
@@ -31,11 +32,11 @@ use rand_chacha::ChaCha8Rng;
 use sts_analysis::repeat::rms_without;
 use sts_assess::explain::{explain, ExplainConfig, Stop};
 use sts_dataset::Dataset;
-use sts_emulator::{EffectSpec, MeasureConfig, EFFECT_NAMES};
+use sts_emulator::{EffectSpec, MeasureConfig, PlantParams, EFFECT_NAMES};
 use sts_fit::{fit, FitConfig};
 use sts_model::Validation;
 
-use crate::support::hunting_groups;
+use crate::support::{hunting_groups, plant_from_env};
 
 /// Effects a refitted formula can carry: a linear change of the response at the command
 /// frequency. `none` for them is right where the twin ends near the clean one's error.
@@ -49,6 +50,8 @@ struct Sets {
     seeds: u64,
     paper_grid: bool,
     epochs: usize,
+    /// The machine measured (the clean twin's data too).
+    plant: PlantParams,
 }
 
 fn env_u64(name: &str, default: u64) -> u64 {
@@ -60,8 +63,8 @@ fn env_list(name: &str) -> Option<Vec<String>> {
     std::env::var(name).ok().map(|v| v.split(',').map(str::to_string).collect())
 }
 
-fn measure(paper_grid: bool, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
-    let mut config = MeasureConfig { effects, seed, ..MeasureConfig::default() };
+fn measure(paper_grid: bool, plant: &PlantParams, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
+    let mut config = MeasureConfig { plant: plant.clone(), effects, seed, ..MeasureConfig::default() };
     if !paper_grid {
         // CI: the paper's 99 groups, each only as long as the feature window needs.
         config.duration_s = 5.5;
@@ -117,8 +120,9 @@ fn rms_over_others(validation: &Validation, skip: &[String]) -> f64 {
 fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
     let mut rng = ChaCha8Rng::seed_from_u64(0x5e75_0000 + seed * 256 + set_index as u64);
     let effects: Vec<EffectSpec> = set.iter().map(|n| EffectSpec::random(n, &mut rng).expect("known effect")).collect();
-    let data = measure(s.paper_grid, effects.clone(), 500 + seed);
-    let hunting = if set.contains(&"coulomb-friction") { hunting_groups(&effects, 500 + seed) } else { Vec::new() };
+    let data = measure(s.paper_grid, &s.plant, effects.clone(), 500 + seed);
+    let hunting =
+        if set.contains(&"coulomb-friction") { hunting_groups(&s.plant, &effects, 500 + seed) } else { Vec::new() };
     let config = ExplainConfig { fit: FitConfig { max_epochs: s.epochs, ..FitConfig::default() }, max_effects: 4 };
     let e = explain(&data, "several effects", None, &config, &mut |_| {}).expect("explain");
     Outcome {
@@ -141,7 +145,7 @@ fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
 }
 
 fn run_sets(s: &Sets) {
-    let clean = measure(s.paper_grid, Vec::new(), 1);
+    let clean = measure(s.paper_grid, &s.plant, Vec::new(), 1);
     let config = FitConfig { max_epochs: s.epochs, ..FitConfig::default() };
     let clean_twin = fit(&clean, "clean machine", &config, &mut |_| {}).expect("clean fit");
     let clean_rms_um = clean_twin.validation.waveform_rms_um;
@@ -244,6 +248,7 @@ fn ci_sets() {
         seeds: 1,
         paper_grid: false,
         epochs: 10,
+        plant: PlantParams::default(),
     });
 }
 
@@ -270,5 +275,6 @@ fn full_sets() {
         seeds: env_u64("STS_SETS_SEEDS", 5),
         paper_grid: std::env::var("STS_SETS_GRID").map_or(true, |g| g == "paper"),
         epochs: env_u64("STS_SETS_EPOCHS", 40) as usize,
+        plant: plant_from_env(),
     });
 }

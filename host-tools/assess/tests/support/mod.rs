@@ -3,7 +3,7 @@
 // Each test binary compiles this module and uses a part of it.
 #![allow(dead_code)]
 
-use sts_emulator::{EffectSpec, MeasureConfig};
+use sts_emulator::{EffectSpec, MeasureConfig, PlantParams};
 
 /// The step dependence above which a machine hunts, nm: the probe's noise.
 pub const HUNTING_STEP_NM: f64 = 5.0;
@@ -14,8 +14,9 @@ pub const HUNTING_STEP_NM: f64 = 5.0;
 /// the machine hunts: where a friction's Stribeck zone takes more damping than the servo
 /// gives, the slide oscillates by itself, and the oscillation's phase depends on everything
 /// down to the integration step, so no twin driven by the command can predict it.
-fn step_dependence_per_group(effects: &[EffectSpec], seed: u64) -> Vec<(f64, f64, f64, usize)> {
+fn step_dependence_per_group(plant: &PlantParams, effects: &[EffectSpec], seed: u64) -> Vec<(f64, f64, f64, usize)> {
     let config = MeasureConfig {
+        plant: plant.clone(),
         effects: effects.to_vec(),
         seed,
         freqs_hz: vec![1.0, 5.0],
@@ -39,18 +40,31 @@ fn step_dependence_per_group(effects: &[EffectSpec], seed: u64) -> Vec<(f64, f64
 }
 
 /// [`step_dependence_per_group`] over all the slow groups, nm.
-pub fn step_dependence_nm(effects: &[EffectSpec], seed: u64) -> f64 {
-    let groups = step_dependence_per_group(effects, seed);
+pub fn step_dependence_nm(plant: &PlantParams, effects: &[EffectSpec], seed: u64) -> f64 {
+    let groups = step_dependence_per_group(plant, effects, seed);
     let (sum, n) = groups.iter().fold((0.0, 0usize), |(s, n), g| (s + g.2, n + g.3));
     (sum / n.max(1) as f64).sqrt() * 1e3
 }
 
 /// The slow groups where the machine hunts (their reading changes by more than
 /// [`HUNTING_STEP_NM`] with the integration step): frequency (Hz) and amplitude (um).
-pub fn hunting_groups(effects: &[EffectSpec], seed: u64) -> Vec<(f64, f64)> {
-    step_dependence_per_group(effects, seed)
+pub fn hunting_groups(plant: &PlantParams, effects: &[EffectSpec], seed: u64) -> Vec<(f64, f64)> {
+    step_dependence_per_group(plant, effects, seed)
         .into_iter()
         .filter(|g| (g.2 / g.3.max(1) as f64).sqrt() * 1e3 > HUNTING_STEP_NM)
         .map(|g| (g.0, g.1))
         .collect()
+}
+
+/// The machine of a full run: the plant file named by `STS_PLANT` (keys left out keep the
+/// default machine's values, as `sts-twin measure --plant` reads it), else the default
+/// machine. The CI shares always run on the default machine.
+pub fn plant_from_env() -> PlantParams {
+    match std::env::var_os("STS_PLANT") {
+        Some(path) => {
+            let path = std::path::PathBuf::from(path);
+            PlantParams::from_file(&path).unwrap_or_else(|e| panic!("STS_PLANT={}: {e}", path.display()))
+        }
+        None => PlantParams::default(),
+    }
 }

@@ -34,13 +34,12 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sts_assess::compare::compare;
 use sts_assess::diagnose::diagnose;
-use sts_dataset::Dataset;
 use sts_emulator::{EffectSpec, MeasureConfig, PlantParams, EFFECT_NAMES};
 use sts_fit::effects::prepare;
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
 
-use crate::support::{plant_from_env, step_dependence_nm, HUNTING_STEP_NM};
+use crate::support::{measure, plant_from_env, step_dependence_nm, HUNTING_STEP_NM};
 
 /// Which twin a case is diagnosed against.
 #[derive(Clone, Copy, PartialEq)]
@@ -69,15 +68,6 @@ struct Suite {
 
 fn env_u64(name: &str, default: u64) -> u64 {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
-}
-
-fn measure(suite: &Suite, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
-    let mut config = MeasureConfig { plant: suite.plant.clone(), effects, seed, ..MeasureConfig::default() };
-    if !suite.paper_grid {
-        // CI: the paper's 99 groups, each only as long as the feature window needs.
-        config.duration_s = 5.5;
-    }
-    sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
 }
 
 fn fit_config(suite: &Suite) -> FitConfig {
@@ -134,7 +124,7 @@ fn run_case(
     if let Some(spec) = effects.first() {
         println!("  hidden: {spec}");
     }
-    let data = measure(suite, effects.clone(), 100 + seed);
+    let data = measure(&suite.plant, suite.paper_grid, effects.clone(), 100 + seed);
     let (d, before_rms_um) = match suite.workflow {
         Workflow::Reference => {
             let (c, _) = compare(&data, reference).expect("compare");
@@ -179,7 +169,7 @@ fn run_case(
 }
 
 fn run_suite(suite: &Suite) {
-    let reference_data = measure(suite, Vec::new(), 1);
+    let reference_data = measure(&suite.plant, suite.paper_grid, Vec::new(), 1);
     let reference =
         fit(&reference_data, "reference (clean machine)", &fit_config(suite), &mut |_| {}).expect("reference fit");
     let clean_rms = reference.validation.waveform_rms_um;

@@ -31,12 +31,11 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sts_analysis::repeat::rms_without;
 use sts_assess::explain::{explain, ExplainConfig, Stop};
-use sts_dataset::Dataset;
-use sts_emulator::{EffectSpec, MeasureConfig, PlantParams, EFFECT_NAMES};
+use sts_emulator::{EffectSpec, PlantParams, EFFECT_NAMES};
 use sts_fit::{fit, FitConfig};
 use sts_model::Validation;
 
-use crate::support::{hunting_groups, plant_from_env};
+use crate::support::{hunting_groups, measure, plant_from_env};
 
 /// Effects a refitted formula can carry: a linear change of the response at the command
 /// frequency. `none` for them is right where the twin ends near the clean one's error.
@@ -61,15 +60,6 @@ fn env_u64(name: &str, default: u64) -> u64 {
 /// The comma-separated list in the environment variable `name`, when it is set.
 fn env_list(name: &str) -> Option<Vec<String>> {
     std::env::var(name).ok().map(|v| v.split(',').map(str::to_string).collect())
-}
-
-fn measure(paper_grid: bool, plant: &PlantParams, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
-    let mut config = MeasureConfig { plant: plant.clone(), effects, seed, ..MeasureConfig::default() };
-    if !paper_grid {
-        // CI: the paper's 99 groups, each only as long as the feature window needs.
-        config.duration_s = 5.5;
-    }
-    sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
 }
 
 /// Every pair of the effects, then `triples` distinct triples drawn with a fixed seed.
@@ -120,7 +110,7 @@ fn rms_over_others(validation: &Validation, skip: &[String]) -> f64 {
 fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
     let mut rng = ChaCha8Rng::seed_from_u64(0x5e75_0000 + seed * 256 + set_index as u64);
     let effects: Vec<EffectSpec> = set.iter().map(|n| EffectSpec::random(n, &mut rng).expect("known effect")).collect();
-    let data = measure(s.paper_grid, &s.plant, effects.clone(), 500 + seed);
+    let data = measure(&s.plant, s.paper_grid, effects.clone(), 500 + seed);
     let hunting =
         if set.contains(&"coulomb-friction") { hunting_groups(&s.plant, &effects, 500 + seed) } else { Vec::new() };
     let config = ExplainConfig { fit: FitConfig { max_epochs: s.epochs, ..FitConfig::default() }, max_effects: 4 };
@@ -145,7 +135,7 @@ fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
 }
 
 fn run_sets(s: &Sets) {
-    let clean = measure(s.paper_grid, &s.plant, Vec::new(), 1);
+    let clean = measure(&s.plant, s.paper_grid, Vec::new(), 1);
     let config = FitConfig { max_epochs: s.epochs, ..FitConfig::default() };
     let clean_twin = fit(&clean, "clean machine", &config, &mut |_| {}).expect("clean fit");
     let clean_rms_um = clean_twin.validation.waveform_rms_um;

@@ -3,6 +3,7 @@
 // Each test binary compiles this module and uses a part of it.
 #![allow(dead_code)]
 
+use sts_dataset::Dataset;
 use sts_emulator::{EffectSpec, MeasureConfig, PlantParams};
 
 /// The step dependence above which a machine hunts, nm: the probe's noise.
@@ -56,13 +57,26 @@ pub fn hunting_groups(plant: &PlantParams, effects: &[EffectSpec], seed: u64) ->
         .collect()
 }
 
+/// The measurement test on `plant` with `effects` (seed `seed`): the paper's grid, or with
+/// `paper_grid` false CI's (the same 99 groups, each only as long as the feature window needs).
+pub fn measure(plant: &PlantParams, paper_grid: bool, effects: Vec<EffectSpec>, seed: u64) -> Dataset {
+    let mut config = MeasureConfig { plant: plant.clone(), effects, seed, ..MeasureConfig::default() };
+    if !paper_grid {
+        config.duration_s = 5.5;
+    }
+    sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
+}
+
 /// The machine of a full run: the plant file named by `STS_PLANT` (keys left out keep the
 /// default machine's values, as `sts-twin measure --plant` reads it), else the default
-/// machine. The CI shares always run on the default machine.
+/// machine. The CI shares always run on the default machine. A relative path is taken from
+/// the workspace's root, where the suites' commands are typed (cargo runs a test binary in
+/// its crate's folder).
 pub fn plant_from_env() -> PlantParams {
     match std::env::var_os("STS_PLANT") {
         Some(path) => {
-            let path = std::path::PathBuf::from(path);
+            let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+            let path = root.join(path);
             PlantParams::from_file(&path).unwrap_or_else(|e| panic!("STS_PLANT={}: {e}", path.display()))
         }
         None => PlantParams::default(),

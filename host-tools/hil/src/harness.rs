@@ -536,11 +536,13 @@ fn check_alive(qemu: &mut QemuProcess, logs: &SharedLog, during: &str) -> Result
     }
 }
 
-/// Waiting for the firmware: spin briefly (a tick round trip is some 20 us), then yield,
-/// then sleep in short steps (QEMU needs both of a small machine's cores); check QEMU is
-/// alive and enforce the timeout.
-const SPIN_BEFORE_YIELD: u32 = 64;
-const YIELDS_BEFORE_SLEEP: u32 = 64;
+/// Waiting for the firmware: spin briefly (a tick round trip is some 20 us), then sleep in
+/// short steps (QEMU needs both of a small machine's cores); check QEMU is alive and enforce
+/// the timeout. No `sched_yield` between the two: beside any other runnable task, even one at
+/// idle priority, a yield hands it the core for a whole time slice (a HIL cut 6.7 -> 25 s
+/// beside two idle-priority loops), where a sleep's wake-up preempts it at once (8.7 s;
+/// alone 6.5 s, as with the yields).
+const SPIN_BEFORE_SLEEP: u32 = 64;
 /// A stream with at least this many ticks in flight (half the ring) sleeps [`STREAM_SLEEP`]
 /// at a time: at the guest's 20-40 thousand ticks a second the other half lasts 3-6 ms.
 const STREAM_SLEEP_IN_FLIGHT: u32 = (RING_SLOTS / 2) as u32;
@@ -591,7 +593,7 @@ impl Waiter {
         self.spins += 1;
         // Spinning longer than this only steals the core QEMU needs (measured: a 100k-spin
         // host halved the lockstep rate on the 2-core machine).
-        if self.spins < SPIN_BEFORE_YIELD {
+        if self.spins < SPIN_BEFORE_SLEEP {
             std::hint::spin_loop();
             return Ok(());
         }
@@ -602,14 +604,10 @@ impl Waiter {
                 return Err(HilError::Timeout { what: what.into(), seconds: waited.as_secs_f64() });
             }
         }
-        // Then yield a little (free on a quiet machine), then block in short sleeps: a host
-        // that stays runnable takes CPU share from QEMU's threads, which on a shared
-        // machine costs milliseconds per tick (measured, BENCHMARKS.md).
-        if self.spins < SPIN_BEFORE_YIELD + YIELDS_BEFORE_SLEEP {
-            std::thread::yield_now();
-        } else {
-            std::thread::sleep(Duration::from_micros(5));
-        }
+        // Then block in short sleeps: a host that stays runnable takes CPU share from QEMU's
+        // threads, which on a shared machine costs milliseconds per tick (measured,
+        // BENCHMARKS.md).
+        std::thread::sleep(Duration::from_micros(5));
         Ok(())
     }
 }

@@ -99,20 +99,15 @@ for package in json.load(sys.stdin)["packages"]:
         if "test" in target["kind"] and target["name"] not in skip:
             print(target["name"])
 ' "${qemu_tests[@]}" | sort -u)
-# One test at a time: the HIL tests take turns anyway (each binary's lock), and the HIL suite
-# took 199 s so against 223 s with the default threads. Except that the million ticks (QEMU
-# streaming on one core) run beside the tests of a board on a serial line (QEMU on one core
-# too): 77 -> 53 s, every one still passing (BENCHMARKS.md, "CI time").
-million_ticks=twin_hil::a_million_ticks_without_a_fault_or_a_missed_tick
-on_a_serial_line=(board_pty:: twin_faults::a_lossy_control_link_loses_no_request)
-step "tests that boot the firmware in QEMU (HIL, the CLI's boards), alone, one at a time but for the million ticks"
-background "HIL: a million ticks" \
-    cargo test --workspace --locked --release --test=hil -- --exact "$million_ticks"
-cargo test --workspace --locked --release --test=hil -- --test-threads=1 "${on_a_serial_line[@]}"
-cargo test --workspace --locked --release --test=board_cli -- --test-threads=1
-finish "HIL: a million ticks"
-cargo test --workspace --locked --release --test=hil -- --test-threads=1 \
-    --skip "$million_ticks" "${on_a_serial_line[@]/#/--skip=}"
+# One test at a time: the HIL tests and the CLI's board tests take turns anyway (each
+# binary's lock), and the HIL suite took 199 s so against 223 s with the default threads.
+# (The million ticks, QEMU streaming on one core, beside the tests of a board on a serial line,
+# QEMU on one core too, took 53-67 s against 77 s and passed 4 runs of 4; but the stream then
+# ran 37-52 s, not 31 s, sharing the cores with another QEMU, and a host late by half its ring
+# (3-6 ms) is an underrun that fails it. Its margin unmeasured, that is not done here:
+# BENCHMARKS.md, "CI time".)
+step "tests that boot the firmware in QEMU (HIL, the CLI's boards), alone, one at a time"
+cargo test --workspace --locked --release "${qemu_tests[@]/#/--test=}" -- --test-threads=1
 step "the other tests: core and host tools (unit, integration, doc), pytest beside them"
 background "Python package: pytest against the CLI, docs/python-loop.py" bash scripts/python-package.sh test
 cargo test --workspace --locked --release --lib --bins "${other_tests[@]/#/--test=}"

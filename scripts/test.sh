@@ -62,9 +62,9 @@ cargo --locked xtask layering >/dev/null
 # The firmware apps build and are linted in their own target directory (firmware/target),
 # beside the root's clippy and builds below.
 firmware_job() {
-    printf '== firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)\n'
+    step "firmware: QEMU mps2-an386 twin and bring-up, STM32H7 board (thumbv7em-none-eabihf)"
     cargo --locked xtask firmware --locked
-    printf '== clippy (the firmware apps, each a workspace of its own; the QEMU app also as bring-up)\n'
+    step "clippy (the firmware apps, each a workspace of its own; the QEMU app also as bring-up)"
     (cd firmware/qemu-app && cargo clippy --locked -- -D warnings && cargo clippy --locked --features bringup -- -D warnings)
     (cd firmware/stm32h7-app && cargo clippy --locked -- -D warnings)
 }

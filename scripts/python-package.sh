@@ -1,23 +1,25 @@
 #!/usr/bin/env bash
 # Builds the sts_twin Python package (host-tools/python) with maturin, installs it, and runs its
-# tests with pytest: every result against the CLI's (target/release/sts-twin, which
-# `cargo test --release` builds; built here when missing) and docs/python-loop.py end to end.
+# tests with pytest: every result against the CLI's (target/PROFILE/sts-twin, which
+# `cargo test` builds in that profile; built here when missing) and docs/python-loop.py end to
+# end. PROFILE: $STS_TWIN_CARGO_PROFILE, else release (scripts/test.sh sets `ci`).
 #
 #   scripts/python-package.sh [build|test|all] [PYTEST ARGS...]   (default: all)
 #
 # `build` alone makes the wheel in target/wheels; `test` installs it and runs pytest (scripts/
-# test.sh builds it after the release test build, whose crates it reuses: host-tools/python/
+# test.sh builds it after the test build, whose crates it reuses: host-tools/python/
 # Cargo.toml gives them the test build's features).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mode=all
+profile=${STS_TWIN_CARGO_PROFILE:-release}
 case "${1:-}" in
     build | test | all) mode=$1; shift ;;
 esac
 bash scripts/setup-python.sh
 if [ "$mode" != test ]; then
     rm -rf target/wheels
-    python3 -m maturin build --locked --release -m host-tools/python/Cargo.toml -o target/wheels
+    python3 -m maturin build --locked --profile "$profile" -m host-tools/python/Cargo.toml -o target/wheels
 fi
 if [ "$mode" != build ]; then
     wheels=(target/wheels/sts_twin-*.whl)
@@ -25,9 +27,9 @@ if [ "$mode" != build ]; then
         echo "error: no wheel in target/wheels: run scripts/python-package.sh build first" >&2
         exit 1
     fi
-    cli=${STS_TWIN_CLI:-$PWD/target/release/sts-twin}
+    cli=${STS_TWIN_CLI:-$PWD/target/$profile/sts-twin}
     if [ ! -x "$cli" ]; then
-        cargo build --locked --release -p sts-twin
+        cargo build --locked --profile "$profile" -p sts-twin
     fi
     python3 -m pip install --quiet --root-user-action=ignore --force-reinstall --no-deps "${wheels[0]}"
     STS_TWIN_CLI=$cli python3 -m pytest -q -p no:cacheprovider host-tools/python/tests "$@"

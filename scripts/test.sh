@@ -14,6 +14,10 @@ cd "$(dirname "$0")/.."
 STS_TWIN_PYTHON_LATER=1 bash scripts/setup.sh
 
 export CARGO_TERM_COLOR=${CARGO_TERM_COLOR:-never}
+# The root workspace builds and tests in the `ci` profile (Cargo.toml): the release profile with
+# the crates no test runs in a hot loop unoptimised. scripts/python-package.sh builds the wheel
+# and finds the CLI in the same.
+export STS_TWIN_CARGO_PROFILE=ci
 step() { printf '\n== %s (%s)\n' "$*" "$(date -u +%H:%M:%S)"; }
 
 # Background steps: each writes a log, printed when `finish` waits for it; a failure ends the
@@ -70,14 +74,14 @@ firmware_job() {
 }
 background "the firmware images and the firmware apps' clippy" firmware_job
 step "clippy (root workspace)"
-# In the release profile, so that the build scripts and proc macros it compiles are the ones
-# the release test build below uses (no code here depends on debug_assertions): the two
-# steps 244 -> 237 s from scratch (BENCHMARKS.md, "CI time").
-cargo clippy --workspace --all-targets --locked --release -- -D warnings
+# In the test build's profile, so that the build scripts and proc macros it compiles are the
+# ones the test build below uses (no code here depends on debug_assertions): the two steps
+# 244 -> 237 s from scratch (BENCHMARKS.md, "CI time").
+cargo clippy --workspace --all-targets --locked --profile ci -- -D warnings
 step "core library for RISC-V (riscv32imac-unknown-none-elf)"
 cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
-step "the release test build"
-cargo test --workspace --locked --release --no-run
+step "the test build (the ci profile)"
+cargo test --workspace --locked --profile ci --no-run
 finish "the firmware images and the firmware apps' clippy"
 finish "Python packages for the tests"
 # The wheel's crates have the test build's features (host-tools/python/Cargo.toml unifies
@@ -107,9 +111,9 @@ for package in json.load(sys.stdin)["packages"]:
 # (3-6 ms) is an underrun that fails it. Its margin unmeasured, that is not done here:
 # BENCHMARKS.md, "CI time".)
 step "tests that boot the firmware in QEMU (HIL, the CLI's boards), alone, one at a time"
-cargo test --workspace --locked --release "${qemu_tests[@]/#/--test=}" -- --test-threads=1
+cargo test --workspace --locked --profile ci "${qemu_tests[@]/#/--test=}" -- --test-threads=1
 step "the other tests: core and host tools (unit, integration, doc), pytest beside them"
 background "Python package: pytest against the CLI, docs/python-loop.py" bash scripts/python-package.sh test
-cargo test --workspace --locked --release --lib --bins "${other_tests[@]/#/--test=}"
-cargo test --workspace --locked --release --doc
+cargo test --workspace --locked --profile ci --lib --bins "${other_tests[@]/#/--test=}"
+cargo test --workspace --locked --profile ci --doc
 finish "Python package: pytest against the CLI, docs/python-loop.py"

@@ -39,7 +39,7 @@ use sts_fit::effects::prepare;
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
 
-use crate::support::{measure, plant_from_env, step_dependence_nm, HUNTING_STEP_NM};
+use crate::support::{clean_twin, measure, plant_from_env, step_dependence_nm, HUNTING_STEP_NM};
 
 /// Which twin a case is diagnosed against.
 #[derive(Clone, Copy, PartialEq)]
@@ -169,9 +169,7 @@ fn run_case(
 }
 
 fn run_suite(suite: &Suite) {
-    let reference_data = measure(&suite.plant, suite.paper_grid, Vec::new(), 1);
-    let reference =
-        fit(&reference_data, "reference (clean machine)", &fit_config(suite), &mut |_| {}).expect("reference fit");
+    let reference = clean_twin(&suite.plant, suite.paper_grid, suite.epochs);
     let clean_rms = reference.validation.waveform_rms_um;
     println!("reference model: held-out waveform RMS on clean data {:.2} nm", clean_rms * 1e3);
     println!(

@@ -32,10 +32,10 @@ use rand_chacha::ChaCha8Rng;
 use sts_analysis::repeat::rms_without;
 use sts_assess::explain::{explain, ExplainConfig, Stop};
 use sts_emulator::{EffectSpec, PlantParams, EFFECT_NAMES};
-use sts_fit::{fit, FitConfig};
+use sts_fit::FitConfig;
 use sts_model::Validation;
 
-use crate::support::{hunting_groups, measure, plant_from_env};
+use crate::support::{clean_twin, hunting_groups, measure, plant_from_env};
 
 /// Effects a refitted formula can carry: a linear change of the response at the command
 /// frequency. `none` for them is right where the twin ends near the clean one's error.
@@ -135,9 +135,7 @@ fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
 }
 
 fn run_sets(s: &Sets) {
-    let clean = measure(&s.plant, s.paper_grid, Vec::new(), 1);
-    let config = FitConfig { max_epochs: s.epochs, ..FitConfig::default() };
-    let clean_twin = fit(&clean, "clean machine", &config, &mut |_| {}).expect("clean fit");
+    let clean_twin = clean_twin(&s.plant, s.paper_grid, s.epochs);
     let clean_rms_um = clean_twin.validation.waveform_rms_um;
     println!("clean twin: held-out waveform RMS {:.2} nm", clean_rms_um * 1e3);
 

@@ -3,8 +3,12 @@
 // Each test binary compiles this module and uses a part of it.
 #![allow(dead_code)]
 
+use std::sync::{Arc, Mutex};
+
 use sts_dataset::Dataset;
 use sts_emulator::{EffectSpec, MeasureConfig, PlantParams};
+use sts_fit::{fit, FitConfig};
+use sts_model::ModelFile;
 
 /// The step dependence above which a machine hunts, nm: the probe's noise.
 pub const HUNTING_STEP_NM: f64 = 5.0;
@@ -65,6 +69,25 @@ pub fn measure(plant: &PlantParams, paper_grid: bool, effects: Vec<EffectSpec>, 
         config.duration_s = 5.5;
     }
     sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
+}
+
+/// The twin of `plant` without hidden effects, fitted with `epochs` epochs on its measurement
+/// (seed 1; the paper's grid, or with `paper_grid` false CI's): the hidden-effect suites'
+/// reference and the several-effects sets' clean twin. The fit is deterministic, so the tests
+/// of this binary that ask for the same one share a single fit (the others wait for it).
+pub fn clean_twin(plant: &PlantParams, paper_grid: bool, epochs: usize) -> Arc<ModelFile> {
+    type Key = (String, bool, usize);
+    static TWINS: Mutex<Vec<(Key, Arc<ModelFile>)>> = Mutex::new(Vec::new());
+    let key = (format!("{plant:?}"), paper_grid, epochs);
+    let mut twins = TWINS.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, twin)) = twins.iter().find(|(k, _)| *k == key) {
+        return Arc::clone(twin);
+    }
+    let data = measure(plant, paper_grid, Vec::new(), 1);
+    let config = FitConfig { max_epochs: epochs, ..FitConfig::default() };
+    let twin = Arc::new(fit(&data, "clean machine", &config, &mut |_| {}).expect("the clean machine's fit"));
+    twins.push((key, Arc::clone(&twin)));
+    twin
 }
 
 /// The machine of a full run: the plant file named by `STS_PLANT` (keys left out keep the

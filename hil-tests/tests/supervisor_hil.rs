@@ -3,8 +3,9 @@
 //! or three times too large, or one the DAC cannot carry) never makes the cut more than 10%
 //! worse than the bare machine's, never steps the output beyond the slew limit, raises the
 //! flag and counts the trip; and compensation comes back once conditions are sound. Each case
-//! runs in QEMU and on the host, the same cut number for number, with the analogue path
-//! measured on the host.
+//! runs in QEMU and on the host, the same cut number for number: the faulty cut on a freshly
+//! booted co-processor with the analogue path measured on the host, the sound one after a
+//! recalibration through the co-processor itself.
 
 use std::path::Path;
 

@@ -27,6 +27,13 @@ if ! command -v rustup >/dev/null; then
     echo "error: rustup not found; install Rust from https://rustup.rs first" >&2
     exit 1
 fi
+# clippy-driver lints the root workspace as scripts/test.sh builds it; rustfmt checks the format.
+for component in clippy rustfmt; do
+    if ! rustup component list --installed | grep -q "^$component"; then
+        echo "setup: rustup component add $component"
+        rustup component add "$component"
+    fi
+done
 installed=$(rustup target list --installed)
 for target in thumbv7em-none-eabihf riscv32imac-unknown-none-elf; do
     if ! grep -qx "$target" <<<"$installed"; then

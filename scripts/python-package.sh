@@ -19,7 +19,9 @@ esac
 bash scripts/setup-python.sh
 if [ "$mode" != test ]; then
     rm -rf target/wheels
-    python3 -m maturin build --locked --profile "$profile" -m host-tools/python/Cargo.toml -o target/wheels
+    # For $PYO3_PYTHON where set (scripts/test.sh sets it for its builds), else python3.
+    python3 -m maturin build --locked --profile "$profile" -i "${PYO3_PYTHON:-python3}" \
+        -m host-tools/python/Cargo.toml -o target/wheels
 fi
 if [ "$mode" != build ]; then
     wheels=(target/wheels/sts_twin-*.whl)

@@ -71,7 +71,7 @@ firmware_job() {
     step "clippy (the firmware apps, each a workspace of its own; the QEMU app also as bring-up)"
     # In the images' profile, so that the build scripts and proc macros just built serve the
     # lints too (no `#[cfg(debug_assertions)]` in the apps; `debug_assert!` is checked either
-    # way): 52 -> 27 s, 86 -> 35 CPU-s (BENCHMARKS.md, "CI time").
+    # way): 55 -> 27 s, 90 -> 35 CPU-s (BENCHMARKS.md, "CI time").
     (cd firmware/qemu-app && cargo clippy --locked --profile firmware -- -D warnings \
         && cargo clippy --locked --profile firmware --features bringup -- -D warnings)
     (cd firmware/stm32h7-app && cargo clippy --locked --profile firmware -- -D warnings)
@@ -79,12 +79,12 @@ firmware_job() {
 background "the firmware images and the firmware apps' clippy" firmware_job
 # The root workspace is linted as it is built: clippy-driver is its crates' compiler
 # (RUSTC_WORKSPACE_WRAPPER, cargo's hook for it) and every warning an error. `cargo clippy`
-# would check every dependency once more, only to throw that away: the two steps took 204 s
-# and 399 CPU-s from scratch, the one 168 s and 327 CPU-s (BENCHMARKS.md, "CI time"). The
-# dependencies are built by rustc as before and the workspace's code is the same (clippy only
-# turns MIR optimisations off; LLVM optimises as before: the same bits, the same speed). Set
-# after the firmware started: the images are built by rustc alone. Every cargo command below
-# has the same flags, so none builds anything again.
+# would check every dependency once more, only to throw that away: the two steps took 183 s
+# and 355 CPU-s from scratch, the one 157 s and 306 CPU-s (BENCHMARKS.md, "CI time"). The
+# dependencies are built by rustc as before; the workspace's crates with MIR optimisations off
+# (clippy's setting) and LLVM's as before: every test and golden file passes, a fit is as fast.
+# Set after the firmware started, whose images (their instructions per tick budgeted) rustc
+# builds alone. Every cargo command below has the same flags, so none builds anything again.
 export RUSTC_WORKSPACE_WRAPPER RUSTFLAGS="-D warnings"
 RUSTC_WORKSPACE_WRAPPER=$(rustup which clippy-driver)
 # pyo3's build script reads these, and maturin sets them for the interpreter it builds for

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Installs what sts-twin needs and a fresh machine lacks: QEMU for the HIL rig and the
-# Rust targets of the firmware. Idempotent: does nothing when everything is present.
+# Installs what sts-twin needs and a fresh machine lacks: QEMU for the HIL rig, the Rust
+# targets of the firmware, and rustup's clippy and rustfmt. Idempotent: does nothing when
+# everything is present.
 set -euo pipefail
 
 as_root() {
@@ -28,8 +29,9 @@ if ! command -v rustup >/dev/null; then
     exit 1
 fi
 # clippy-driver lints the root workspace as scripts/test.sh builds it; rustfmt checks the format.
+components=$(rustup component list --installed)
 for component in clippy rustfmt; do
-    if ! rustup component list --installed | grep -q "^$component"; then
+    if ! grep -q "^$component-" <<<"$components"; then
         echo "setup: rustup component add $component"
         rustup component add "$component"
     fi

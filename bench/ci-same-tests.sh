@@ -17,6 +17,11 @@ git -C "$repo" rev-parse --verify --quiet "$rev^{commit}" >/dev/null || {
     echo "error: $rev is not a commit of $repo" >&2
     exit 2
 }
+# Only a clone this script made is replaced (it holds the list of skipped tests).
+if [ -e "$dir" ] && [ ! -f "$dir/scripts/tests-added-since.txt" ]; then
+    echo "error: $dir exists and is not a clone made by this script: remove it or name another" >&2
+    exit 2
+fi
 rm -rf "$dir"
 git clone -q "$repo" "$dir"
 cd "$dir"

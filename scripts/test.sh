@@ -130,7 +130,7 @@ for package in json.load(sys.stdin)["packages"]:
 step "tests that boot the firmware in QEMU (HIL, the CLI's boards), alone, one at a time"
 cargo test --workspace --locked --profile ci "${qemu_tests[@]/#/--test=}" -- --test-threads=1
 # In two lanes, pytest beside them: cargo runs one test binary after the other, and the last
-# long tests of each leave a core idle. sts-assess's suites (a third of this phase's CPU) run
+# long tests of each leave a core idle. sts-assess's suites (220 of this phase's 504 CPU-s) run
 # by their module paths in one lane and every other test, the same paths skipped, in the other:
 # the tests run are the same, the phase 271 -> 258 s (BENCHMARKS.md, "CI time").
 assess_suites=(diagnose_hidden_effects:: explain_several_effects:: unexplained_structure::)

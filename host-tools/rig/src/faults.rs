@@ -85,7 +85,7 @@ pub fn gate_report(status: &Status) -> Option<String> {
     status.supervisor.gated.then(|| {
         format!(
             "compensation is faded out by the supervisor's gate: the accelerometer sees mostly noise at {:.1} Hz \
-             (the commanded motion's acceleration holds {:.0}% of its power; the twin's features would be \
+             (what repeats with the command holds {:.0}% of its power; the twin's features would be \
              measured on noise); it fades back in when the motion is back",
             status.supervisor.last.freq_hz.abs(),
             100.0 * status.supervisor.last.motion_share
@@ -268,6 +268,7 @@ mod tests {
                 motion_share: 0.3,
                 motion_power_m2ps4: 0.03,
                 other_power_m2ps4: 0.07,
+                harmonic_power_m2ps4: 0.0,
             },
             ..Default::default()
         };

@@ -26,9 +26,10 @@
 //!   structure at its mode.
 //! - **Trip: saturation.** More than `max_clamped_ticks` DAC targets clamped at full scale
 //!   per 800 ticks, beyond a burst of as many (a leaky bucket).
-//! - **Gate.** Where the commanded motion's acceleration holds less than `min_motion_share`
-//!   of its power plus the accelerometer's power at other frequencies, the features are
-//!   measured on noise and compensation fades out (not a fault; it fades back in when the
+//! - **Gate.** Where what repeats with the command (the commanded motion's acceleration and
+//!   the power that repeats at its harmonics: friction's, hysteresis' and ripple's motion)
+//!   holds less than `min_motion_share` of the commanded motion's power plus the
+//!   accelerometer's power at other frequencies, the features are measured on noise and compensation fades out (not a fault; it fades back in when the
 //!   share is 1.25 times the threshold again). The share is the command's, which
 //!   compensation does not move: the motion the accelerometer sees passes through zero
 //!   while a correction ramps in above the axis's resonance (at 100 Hz on the default
@@ -65,8 +66,9 @@ pub struct SupervisorParams {
     pub other_power_ratio: f32,
     /// Clamped DAC ticks per 800 ticks allowed, and the burst beyond it that trips.
     pub max_clamped_ticks: u32,
-    /// The share of the accelerometer's power the commanded motion must hold for
-    /// compensation (`0..=1`; 0 switches the gate off).
+    /// The share of the accelerometer's power that must repeat with the command (the
+    /// commanded motion and its harmonics) for compensation (`0..=1`; 0 switches the gate
+    /// off).
     pub min_motion_share: f32,
     /// Relative change of the command frequency that makes a new operating point (`(0, 1]`).
     pub new_point_freq_change: f32,
@@ -465,6 +467,7 @@ mod tests {
                 motion_share: 0.9,
                 motion_power_m2ps4: 9e-3,
                 other_power_m2ps4: 1e-3,
+                harmonic_power_m2ps4: 0.0,
             }),
             program_id: Some(1),
         }

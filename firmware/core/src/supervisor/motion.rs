@@ -17,6 +17,14 @@
 //! The accelerometer's own gain and phase (its filters) are not known here: they bias the
 //! error by a few per cent of the stroke, the same with and without compensation, which
 //! is what the supervisor's stroke tolerance is for.
+//!
+//! What the fundamental leaves is split into what repeats from period to period and what
+//! does not: the residual block sums, averaged in [`PHASE_BINS`] bins of the command phase,
+//! give the power at the command's harmonics (a synchronous average: friction's,
+//! hysteresis' and ripple's error repeats with the command), and their scatter within the
+//! bins the noise, whose share of the bin means is taken out (it adds `bins - 3` times the
+//! noise variance to their sum of squares). The gate counts the harmonics with the
+//! command's motion; the shaking trip still weighs everything at other frequencies.
 
 use serde::{Deserialize, Serialize};
 
@@ -33,10 +41,10 @@ pub struct MotionEstimate {
     /// Amplitude of the command minus the tool's motion at the command frequency, over
     /// `cmd_amp_nm`.
     pub error_ratio: f32,
-    /// The power of the commanded motion's acceleration over itself plus the
-    /// accelerometer's power at other frequencies: near 1 where the accelerometer can see
-    /// the motion, near 0 where it sees mostly noise (on which the twin's features are then
-    /// measured).
+    /// The power of the commanded motion's acceleration plus `harmonic_power_m2ps4`, over the
+    /// former plus the accelerometer's power at other frequencies: near 1 where the
+    /// accelerometer sees what repeats with the command, near 0 where it sees mostly noise
+    /// (on which the twin's features are then measured).
     pub motion_share: f32,
     /// The accelerometer's power at the command frequency, (m/s^2)^2.
     pub motion_power_m2ps4: f32,
@@ -44,6 +52,9 @@ pub struct MotionEstimate {
     /// the command frequency), (m/s^2)^2: noise, harmonics, and the structure shaken by a
     /// correction.
     pub other_power_m2ps4: f32,
+    /// The part of `other_power_m2ps4` at the command's harmonics that repeats from period
+    /// to period (friction's, hysteresis' and ripple's motion), (m/s^2)^2: signal, not noise.
+    pub harmonic_power_m2ps4: f32,
 }
 
 /// Fewest command periods the window must hold for an estimate.
@@ -53,6 +64,10 @@ const MIN_PERIODS: f32 = 1.0;
 const MAX_FREQ_OF_BLOCK_RATE: f32 = 0.4;
 /// Smallest command amplitude judged, nm: below it there is no motion to compensate.
 const MIN_CMD_AMP_NM: f32 = 10.0;
+/// Bins of the command phase over which the harmonics are averaged (a power of two: the
+/// top bits of the phase in turns pick the bin). 32 resolve the harmonics up to about the
+/// tenth, where friction's and ripple's error lies.
+pub const PHASE_BINS: usize = 64;
 
 /// Sums for a least-squares fit of samples `y` by a mean, `sin` and `cos` of the command
 /// phase.
@@ -67,11 +82,13 @@ struct SineSums {
     y: f32,
     ys: f32,
     yc: f32,
+    yy: f32,
 }
 
 impl SineSums {
     fn add(&mut self, y: f32, s: f32, c: f32) {
         self.n += 1.0;
+        self.yy += y * y;
         self.s += s;
         self.c += c;
         self.ss += s * s;
@@ -94,6 +111,47 @@ impl SineSums {
             return None;
         }
         Some(((cys * ccc - cyc * csc) / det, (cyc * css - cys * csc) / det))
+    }
+}
+
+/// Sums per bin of the command phase: blocks, block sums, and the fundamental's `sin` and
+/// `cos` at them (so that the fundamental's fit can be taken out of the bin means after it).
+#[derive(Clone, Copy, Default)]
+struct PhaseBin {
+    n: f32,
+    y: f32,
+    s: f32,
+    c: f32,
+}
+
+/// The block sums' residual power at the command's harmonics that repeats from period to
+/// period, per block, from `bins` and the fit `y ~ mean + p sin + q cos` of `sums`; zero
+/// where it cannot be told from the noise.
+fn repeating_residual_power(bins: &[PhaseBin; PHASE_BINS], sums: &SineSums, p: f32, q: f32) -> f32 {
+    let n = sums.n;
+    let (s_mean, c_mean) = (sums.s / n, sums.c / n);
+    let intercept = sums.y / n - p * s_mean - q * c_mean;
+    // Residual sum of squares of the fit (the fitted part of the centred sum taken out).
+    let centred_yy = sums.yy - sums.y * sums.y / n;
+    let centred_ys = sums.ys - sums.y * s_mean;
+    let centred_yc = sums.yc - sums.y * c_mean;
+    let residual_ss = centred_yy - p * centred_ys - q * centred_yc;
+    let (mut between_ss, mut filled) = (0.0f32, 0.0f32);
+    for bin in bins.iter().filter(|b| b.n > 0.0) {
+        let residual = bin.y - bin.n * intercept - p * bin.s - q * bin.c;
+        between_ss += residual * residual / bin.n;
+        filled += 1.0;
+    }
+    let within_dof = n - filled;
+    if within_dof < 1.0 || !(residual_ss > 0.0) {
+        return 0.0;
+    }
+    let noise_variance = (residual_ss - between_ss).max(0.0) / within_dof;
+    let harmonic_ss = between_ss - (filled - 3.0).max(0.0) * noise_variance;
+    if harmonic_ss.is_finite() {
+        harmonic_ss.max(0.0) / n
+    } else {
+        0.0
     }
 }
 
@@ -142,11 +200,17 @@ pub fn estimate<const RING_BLOCKS: usize>(
     let (mut acc, mut cmd) = (SineSums::default(), SineSums::default());
     // Relative to the first block, so that f32 keeps the cross terms exact enough.
     let mut first: Option<(i32, i32)> = None;
+    let mut bins = [PhaseBin::default(); PHASE_BINS];
+    let (mut block_phase, block_step) = (first_phase, step.wrapping_mul(BLOCK_SAMPLES as u32));
     let read = rings.visit_window(capture, |_, block_sum, _, cmd_nm| {
         let (sum0, cmd0) = *first.get_or_insert((block_sum, cmd_nm));
-        acc.add((block_sum - sum0) as f32, s, c);
+        let y = (block_sum - sum0) as f32;
+        acc.add(y, s, c);
         cmd.add(cmd_nm.wrapping_sub(cmd0) as f32, s * cmd_c + c * cmd_s, c * cmd_c - s * cmd_s);
+        let bin = &mut bins[(block_phase >> (32 - PHASE_BINS.trailing_zeros())) as usize];
+        (bin.n, bin.y, bin.s, bin.c) = (bin.n + 1.0, bin.y + y, bin.s + s, bin.c + c);
         (s, c) = (s * dc + c * ds, c * dc - s * ds);
+        block_phase = block_phase.wrapping_add(block_step);
     });
     if read.ok()? != nd {
         return None;
@@ -168,12 +232,19 @@ pub fn estimate<const RING_BLOCKS: usize>(
     let error_ratio = libm::sqrtf(error_sin_nm * error_sin_nm + error_cos_nm * error_cos_nm) / cmd_amp_nm;
     let motion_power_m2ps4 = 0.5 * (p_codes * p_codes + q_codes * q_codes) * (acc_mps2 * acc_mps2);
     let other_power_m2ps4 = (variance_m2ps4 - motion_power_m2ps4).max(0.0);
+    // A block sum is 16 samples' sum: at the harmonics that matter (well below the block
+    // rate) 16 times their mean.
+    let sample_mps2 = capture.cfg.acc_mps2_per_lsb / BLOCK_SAMPLES as f32;
+    let harmonic_power_m2ps4 =
+        (repeating_residual_power(&bins, &acc, p_codes, q_codes) * (sample_mps2 * sample_mps2)).min(other_power_m2ps4);
     // The share is the commanded motion's, not the motion seen: compensation moves the
     // tool towards the command, and above the axis's resonance (the tool then moving
-    // against its command) the motion seen passes through zero while it ramps in.
+    // against its command) the motion seen passes through zero while it ramps in. What
+    // repeats with the command at its harmonics is motion too.
     let command_acc_mps2 = w_rad_per_s * w_rad_per_s * cmd_amp_nm * 1e-9;
     let command_power_m2ps4 = 0.5 * command_acc_mps2 * command_acc_mps2;
-    let motion_share = command_power_m2ps4 / (command_power_m2ps4 + other_power_m2ps4);
+    let motion_share =
+        (command_power_m2ps4 + harmonic_power_m2ps4) / (command_power_m2ps4 + other_power_m2ps4);
     (error_ratio.is_finite() && motion_share.is_finite()).then_some(MotionEstimate {
         freq_hz,
         cmd_amp_nm,
@@ -181,6 +252,7 @@ pub fn estimate<const RING_BLOCKS: usize>(
         motion_share,
         motion_power_m2ps4,
         other_power_m2ps4,
+        harmonic_power_m2ps4,
     })
 }
 
@@ -227,6 +299,65 @@ mod tests {
             assert!((est.freq_hz - freq_hz as f32).abs() < 1e-3);
             assert!((est.motion_share - 1.0).abs() < 0.01, "{est:?}");
         }
+    }
+
+    /// A 10 Hz, 3 um command followed exactly, plus `harmonic_mps2` of a square wave at the
+    /// command's phase (friction's force reversing with the velocity) and white noise of
+    /// `noise_mps2` RMS, over a window of `window_samples`.
+    fn with_harmonics(harmonic_mps2: f64, noise_mps2: f64, window_samples: u32) -> MotionEstimate {
+        let cfg = FeatureConfig { window_samples, ..FeatureConfig::DEFAULT };
+        let mut state = std::boxed::Box::new(FeatureState::<200>::new(cfg).unwrap());
+        let rings = std::boxed::Box::new(SpectralRings::<512>::new());
+        let freq_hz = 10.0;
+        let step = (freq_hz / 8000.0 * 4_294_967_296.0f64).round() as i64 as i32;
+        let w = std::f64::consts::TAU * freq_hz;
+        let ticks = window_samples + 160;
+        // A deterministic noise: a linear congruential generator's uniform draws.
+        let mut lcg = 12345u64;
+        let mut uniform = move || {
+            lcg = lcg.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (lcg >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let (mut sum, mut sum2) = (0.0, 0.0);
+        for k in 0..ticks {
+            let theta = w * f64::from(k) / 8000.0;
+            let square = if theta.cos() >= 0.0 { 1.0 } else { -1.0 };
+            let acc = -w * w * 3e-6 * theta.sin() + harmonic_mps2 * square + noise_mps2 * 12f64.sqrt() * uniform();
+            let cmd = (3000.0 * (theta + w / 8000.0).sin()).round() as i32;
+            let code = (acc / 1e-4).round() as i16;
+            state.push_with_command(&*rings, code, cmd);
+            if k >= ticks - window_samples {
+                (sum, sum2) = (sum + f64::from(code) * 1e-4, sum2 + (f64::from(code) * 1e-4).powi(2));
+            }
+        }
+        let n = f64::from(window_samples);
+        let variance = sum2 / n - (sum / n).powi(2);
+        let phase = (step as u32).wrapping_mul(ticks);
+        let capture = state.capture(&*rings);
+        estimate(&*rings, &capture, variance as f32, step, phase).expect("an estimate")
+    }
+
+    #[test]
+    fn what_repeats_with_the_command_is_not_noise() {
+        // The command's acceleration: 0.0118 m/s^2 at 10 Hz (power 7e-5 (m/s^2)^2).
+        let noise_only = with_harmonics(0.0, 0.02, 3200);
+        assert!(noise_only.motion_share < 0.3, "{noise_only:?}");
+        assert!(
+            noise_only.harmonic_power_m2ps4 < 0.1 * noise_only.other_power_m2ps4,
+            "noise is not repeating: {noise_only:?}"
+        );
+        // A square wave of 0.02 m/s^2 (power 4e-4, of which the fundamental's 81%) with
+        // little noise: its harmonics repeat.
+        let friction = with_harmonics(0.02, 0.001, 3200);
+        assert!(friction.motion_share > 0.8, "{friction:?}");
+        let harmonics_m2ps4 = 4e-4 * (1.0 - 8.0 / std::f64::consts::PI.powi(2));
+        assert!(
+            (f64::from(friction.harmonic_power_m2ps4) / harmonics_m2ps4 - 1.0).abs() < 0.2,
+            "{friction:?} against {harmonics_m2ps4}"
+        );
+        // Both: the noise still counts as noise.
+        let both = with_harmonics(0.02, 0.02, 3200);
+        assert!(both.motion_share < 0.3, "{both:?}");
     }
 
     #[test]

@@ -29,7 +29,7 @@ mod message;
 
 /// The control protocol's version (docs/wire-spec.md). A host refuses to talk to a firmware
 /// whose [`Response::Pong`] carries another.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 
 pub use frame::{encode_frame, frame_crc32, FrameDecoder, FrameError, MAX_ENCODED_FRAME, MAX_FRAME_PAYLOAD};
 pub use message::{ConfigSource, Envelope, Rejection, Request, Response, Status};

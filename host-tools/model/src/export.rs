@@ -65,6 +65,9 @@ fn term_in_words(term: &TickTerm) -> String {
         TickTerm::Resonance { freq_hz, damping, .. } => {
             format!("a resonance at {freq_hz:.2} Hz, damping {damping:.3} (an in-band structural-mode)")
         }
+        TickTerm::AxisHarmonic { order } => {
+            format!("the servo-axis twin's correction at harmonic {order} of the command phase")
+        }
     }
 }
 

@@ -265,6 +265,7 @@ mod tests {
                 freq_hz: 80.0,
                 cmd_amp_nm: 3000.0,
                 error_ratio: 1.5,
+                error_ratio_sd: 0.01,
                 motion_share: 0.3,
                 motion_power_m2ps4: 0.03,
                 other_power_m2ps4: 0.07,

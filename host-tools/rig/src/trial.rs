@@ -247,8 +247,10 @@ pub fn run_trial(
         feed_um_per_rev: config.feed_um_per_rev,
         sample_rate_hz: SERVO_RATE_HZ,
     };
-    // The air cut: the feature window, the enable ramp and a settling second.
-    let air_s = if model.is_some() { window_s + 1.5 } else { 1.0 };
+    // The air cut: the feature window, the enable ramp and a settling second; at low
+    // speed, where the window is long, the supervisor's baseline (two bare windows a window
+    // apart, after the first) before the ramp, so that the cut starts compensated.
+    let air_s = if model.is_some() { (window_s + 1.5).max(3.0 * window_s + 1.0) } else { 1.0 };
     let trajectory = WithAirCut { cut, air_s };
     let ticks = (trajectory.duration_s() * SERVO_RATE_HZ).round() as u64;
     let mut deviations = Vec::new();

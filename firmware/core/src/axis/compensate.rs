@@ -7,9 +7,13 @@
 //! prediction was made for. The compensator therefore runs the twin on the command *plus its
 //! own correction*, added after the controller's command delay as the controller adds its
 //! analogue input, and adjusts the correction until the simulated error vanishes at the
-//! harmonics it carries ([`ORDERS`]: the fundamental and the third, where friction and
-//! hysteresis put most of their error). Per batch of ticks (harmonic iterative learning
-//! control):
+//! harmonics it carries: the fundamental and the third always ([`BASE_ORDERS`]), and the
+//! higher orders the program gives slots for ([`TickTerm::AxisHarmonic`]) where they lie
+//! below [`MAX_HARMONIC_HZ`]. Friction and hysteresis put their error at the odd harmonics,
+//! and at low speed far up them: the stick after each reversal is a short pulse, of which
+//! the first and third harmonics leave most (at 5 Hz, 760 of 1,190 nm PV in the simulated
+//! axis of the tests; the odd ones to the 15th, 81 nm). Per batch of ticks (harmonic
+//! iterative learning control):
 //!
 //! `U_h <- U_h - 2 mu sum_k e_k (sin(h theta_k) + i cos(h theta_k)) / G(h f)`
 //!
@@ -39,10 +43,21 @@
 
 use super::{AxisError, AxisModel, AxisParams, AxisState};
 use crate::math::sin_turns;
+#[cfg(doc)]
+use crate::program::TickTerm;
 
-/// Harmonic orders of the correction, of the command frequency (the fundamental first).
-pub const ORDERS: [u32; 2] = [1, 3];
-const _: () = assert!(ORDERS[0] == 1, "the command's fundamental is tracked with the first order's phase");
+/// Harmonic orders every compensator learns, of the command frequency (the fundamental
+/// first; the third is synthesised in the axis term's own slot).
+pub const BASE_ORDERS: [u32; 2] = [1, 3];
+const _: () = assert!(BASE_ORDERS[0] == 1, "the command's fundamental is tracked with the first order's phase");
+/// Most higher orders a program gives slots for ([`TickTerm::AxisHarmonic`]).
+pub const MAX_HIGHER_ORDERS: usize = 6;
+/// Most orders a compensator learns.
+pub const MAX_ORDERS: usize = BASE_ORDERS.len() + MAX_HIGHER_ORDERS;
+/// Highest frequency a higher order is learned at, Hz: the band in which a twin identified
+/// on a measurement's encoder and probe readings follows the machine (the base orders are
+/// learned at any frequency, as the third always was).
+pub const MAX_HARMONIC_HZ: f32 = 160.0;
 
 /// Fraction of the simulated error's harmonics removed per command period (swept on three
 /// emulated machines in BENCHMARKS.md: faster follows a cut's changing amplitude better, 1.0
@@ -130,9 +145,15 @@ pub struct Compensator {
     state: AxisState,
     /// Command phase step per tick the gains are for, u32 turns (0: none measured yet).
     step_turns: u32,
+    /// The orders learned (the first `order_count`; [`BASE_ORDERS`] first).
+    orders: [u32; MAX_ORDERS],
+    order_count: usize,
+    /// Orders learned at the current frequency: the base orders, and the higher ones below
+    /// [`MAX_HARMONIC_HZ`] (the others' correction is zero).
+    learned: usize,
     /// `G(h f)` and `1 / G(h f)` per order.
-    response: [Phasor; ORDERS.len()],
-    inverse_response: [Phasor; ORDERS.len()],
+    response: [Phasor; MAX_ORDERS],
+    inverse_response: [Phasor; MAX_ORDERS],
     /// Whether the responses were measured in the last [`Compensator::learn`].
     remeasured: bool,
     /// The axis has no effects: its response does not depend on the amplitude.
@@ -140,13 +161,13 @@ pub struct Compensator {
     /// `G(h f)` per order as the analogue path is calibrated (see
     /// [`Compensator::path_responses`]; zero until simulated), the phase step and amplitude
     /// (nm) it is for, and the next order to simulate.
-    path_response: [Phasor; ORDERS.len()],
+    path_response: [Phasor; MAX_ORDERS],
     path_response_for: (u32, i32),
     path_pending: usize,
     /// `U_h` per order, nm.
-    correction_nm: [Phasor; ORDERS.len()],
+    correction_nm: [Phasor; MAX_ORDERS],
     /// `sum e_k (sin + i cos)(h theta_k)` since the last [`Compensator::learn`], nm.
-    sums: [Phasor; ORDERS.len()],
+    sums: [Phasor; MAX_ORDERS],
     /// Ticks until the simulation has settled from its start at rest.
     settling_ticks: u32,
     /// Ticks in `sums`.
@@ -157,7 +178,7 @@ pub struct Compensator {
     /// `U_h` over the command's fundamental amplitude when it was learned: the correction
     /// follows the command's amplitude as a linear axis's would, and learning corrects the
     /// rest.
-    relative: [Phasor; ORDERS.len()],
+    relative: [Phasor; MAX_ORDERS],
     /// Ticks simulated since the start (wrapping): the clock of `amplitudes`.
     ticks: u32,
     /// The command's amplitude at the last learnings, nm, and the `ticks` of each (a ring,
@@ -184,24 +205,40 @@ const MIN_COMMAND_NM: f32 = 20.0;
 const COMMAND_TRACKING_PER_PERIOD: f32 = 1.0;
 
 impl Compensator {
-    /// A compensator for the axis `params`, at rest, with no correction.
-    pub fn new(params: &AxisParams) -> Result<Self, AxisError> {
+    /// A compensator for the axis `params`, at rest, with no correction, learning the
+    /// [`BASE_ORDERS`] and `higher_orders` (at most [`MAX_HIGHER_ORDERS`] of them; orders
+    /// already learned, and those beyond, are left out).
+    pub fn new(params: &AxisParams, higher_orders: &[u32]) -> Result<Self, AxisError> {
         let model = AxisModel::new(params)?;
         let linear = AxisModel::new(&AxisParams { friction: None, hysteresis: None, ripple: None, ..*params })?;
+        let mut orders = [0; MAX_ORDERS];
+        orders[..BASE_ORDERS.len()].copy_from_slice(&BASE_ORDERS);
+        let mut order_count = BASE_ORDERS.len();
+        for &order in higher_orders {
+            if order_count < MAX_ORDERS && order > 0 && !orders[..order_count].contains(&order) {
+                orders[order_count] = order;
+                order_count += 1;
+            }
+        }
+        // Ascending, so that the orders learned at a frequency are the first ones.
+        orders[BASE_ORDERS.len()..order_count].sort_unstable();
         Ok(Self {
             model,
             linear,
             state: AxisState::INITIAL,
+            orders,
+            order_count,
+            learned: BASE_ORDERS.len(),
             step_turns: 0,
-            response: [Phasor::ZERO; ORDERS.len()],
-            inverse_response: [Phasor::ZERO; ORDERS.len()],
+            response: [Phasor::ZERO; MAX_ORDERS],
+            inverse_response: [Phasor::ZERO; MAX_ORDERS],
             remeasured: false,
             linear_only: params.friction.is_none() && params.hysteresis.is_none() && params.ripple.is_none(),
-            path_response: [Phasor::ZERO; ORDERS.len()],
+            path_response: [Phasor::ZERO; MAX_ORDERS],
             path_response_for: (0, 0),
             path_pending: 0,
-            correction_nm: [Phasor::ZERO; ORDERS.len()],
-            sums: [Phasor::ZERO; ORDERS.len()],
+            correction_nm: [Phasor::ZERO; MAX_ORDERS],
+            sums: [Phasor::ZERO; MAX_ORDERS],
             settling_ticks: SETTLE_TICKS,
             summed_ticks: 0,
             ticks: 0,
@@ -210,7 +247,7 @@ impl Compensator {
             amplitude_slope_nm_per_tick: 0.0,
             command_nm: Phasor::ZERO,
             command_mean_nm: 0.0,
-            relative: [Phasor::ZERO; ORDERS.len()],
+            relative: [Phasor::ZERO; MAX_ORDERS],
         })
     }
 
@@ -218,9 +255,14 @@ impl Compensator {
     /// tick and the command phase the correction is for. Returns the simulated error (TCP
     /// minus command), picometres.
     pub fn tick(&mut self, cmd_pos_nm: i32, cmd_phase_turns: u32) -> i32 {
-        // `sin` and `cos` of each order's phase, for the correction, the command's
+        // `sin` and `cos` of each learned order's phase, for the correction, the command's
         // fundamental (order 1 comes first) and the error's harmonics alike.
-        let trig = ORDERS.map(|order| sin_cos(cmd_phase_turns.wrapping_mul(order)));
+        let learned = self.learned.min(MAX_ORDERS);
+        let mut trig = [(0.0, 0.0); MAX_ORDERS];
+        for (t, &order) in trig.iter_mut().zip(&self.orders).take(learned) {
+            *t = sin_cos(cmd_phase_turns.wrapping_mul(order));
+        }
+        let trig = &trig[..learned];
         let u_nm: f32 = trig.iter().zip(&self.correction_nm).map(|(&(s, co), c)| c.re * s + c.im * co).sum();
         let error_pm = self.model.step_added(&mut self.state, cmd_pos_nm, to_nm(u_nm));
         self.ticks = self.ticks.wrapping_add(1);
@@ -250,7 +292,7 @@ impl Compensator {
     /// running backwards teaches nothing). Measures the responses first when the frequency
     /// moved by more than 1/64.
     pub fn learn(&mut self, step_turns: i32) {
-        let sums = core::mem::replace(&mut self.sums, [Phasor::ZERO; ORDERS.len()]);
+        let sums = core::mem::replace(&mut self.sums, [Phasor::ZERO; MAX_ORDERS]);
         let summed_ticks = core::mem::replace(&mut self.summed_ticks, 0);
         self.remeasured = false;
         if step_turns <= 0 {
@@ -262,9 +304,22 @@ impl Compensator {
             self.remeasured = true;
             // Amplitudes at another frequency say nothing of this one's trend.
             self.amplitudes = [(0.0, 0); AMPLITUDE_HISTORY];
-            for (i, &order) in ORDERS.iter().enumerate() {
-                self.response[i] = self.response(step.wrapping_mul(order));
-                self.inverse_response[i] = self.response[i].inverse();
+            let freq_hz = periods_per_tick(step) * crate::SERVO_RATE_HZ as f32;
+            self.learned = BASE_ORDERS.len()
+                + self.orders[BASE_ORDERS.len()..self.order_count]
+                    .iter()
+                    .take_while(|&&order| order as f32 * freq_hz <= MAX_HARMONIC_HZ)
+                    .count();
+            for i in 0..MAX_ORDERS {
+                (self.response[i], self.inverse_response[i]) = if i < self.learned {
+                    let response = self.response(step.wrapping_mul(self.orders[i]));
+                    (response, response.inverse())
+                } else {
+                    (Phasor::ZERO, Phasor::ZERO)
+                };
+                if i >= self.learned {
+                    self.relative[i] = Phasor::ZERO;
+                }
             }
         }
         // mu per tick: the fraction per period over the ticks of a period.
@@ -298,12 +353,12 @@ impl Compensator {
             }
         }
         if !(self.relative.iter().all(|c| c.re.is_finite() && c.im.is_finite())) {
-            self.relative = [Phasor::ZERO; ORDERS.len()];
+            self.relative = [Phasor::ZERO; MAX_ORDERS];
         }
         // A correction beyond any axis's error (a twin whose simulation and response disagree
         // so that learning runs away) is dropped and counted, never output.
         if self.relative.iter().any(|c| c.amplitude() > MAX_RELATIVE_CORRECTION) {
-            self.relative = [Phasor::ZERO; ORDERS.len()];
+            self.relative = [Phasor::ZERO; MAX_ORDERS];
             self.state.resets = self.state.resets.wrapping_add(1);
         }
         for (c, r) in self.correction_nm.iter_mut().zip(self.relative) {
@@ -318,7 +373,7 @@ impl Compensator {
         response_of(&self.linear, step_turns, RESPONSE_AMP_NM)
     }
 
-    /// `G(h f)` per order of [`ORDERS`] at the frequency of the last learning, simulated as
+    /// `G(h f)` per order of [`Compensator::orders`] at the frequency of the last learning, simulated as
     /// the analogue path is calibrated: the command at rest, a sine of `amp_nm` added (0: the
     /// responses' own amplitude), the twin's effects included (see
     /// [`crate::analogue_path`]); zero before any learning. Returns the phase step per tick
@@ -329,9 +384,9 @@ impl Compensator {
     /// whose [`Compensator::learn`] measured the responses, so that no model update carries
     /// more than one simulated response (the update must be done by its due tick); an order
     /// not simulated yet is zero (no correction for the path).
-    pub fn path_responses(&mut self, amp_nm: f32) -> (u32, [Phasor; ORDERS.len()]) {
+    pub fn path_responses(&mut self, amp_nm: f32) -> (u32, [Phasor; MAX_ORDERS]) {
         if self.step_turns == 0 {
-            return (0, [Phasor::ZERO; ORDERS.len()]);
+            return (0, [Phasor::ZERO; MAX_ORDERS]);
         }
         if self.linear_only {
             return (self.step_turns, self.response);
@@ -340,11 +395,11 @@ impl Compensator {
         let key = (self.step_turns, to_nm(amp_nm));
         if key != self.path_response_for {
             (self.path_response_for, self.path_pending) = (key, 0);
-            self.path_response = [Phasor::ZERO; ORDERS.len()];
+            self.path_response = [Phasor::ZERO; MAX_ORDERS];
         }
-        if self.path_pending < ORDERS.len() && !self.remeasured {
+        if self.path_pending < self.learned && !self.remeasured {
             let i = self.path_pending;
-            self.path_response[i] = response_of(&self.model, self.step_turns.wrapping_mul(ORDERS[i]), amp_nm);
+            self.path_response[i] = response_of(&self.model, self.step_turns.wrapping_mul(self.orders[i]), amp_nm);
             self.path_pending += 1;
         }
         (self.step_turns, self.path_response)
@@ -360,8 +415,15 @@ impl Compensator {
         self.amplitude_slope_nm_per_tick = 0.0;
     }
 
-    /// `U_h` per order of [`ORDERS`], nm: the correction the simulation runs with.
-    pub fn correction_nm(&self) -> [Phasor; ORDERS.len()] {
+    /// The orders learned, [`BASE_ORDERS`] first; the arrays of phasors this compensator
+    /// hands out hold them at the same indices (zero beyond).
+    pub fn orders(&self) -> &[u32] {
+        &self.orders[..self.order_count.min(MAX_ORDERS)]
+    }
+
+    /// `U_h` per order of [`Compensator::orders`], nm: the correction the simulation runs
+    /// with.
+    pub fn correction_nm(&self) -> [Phasor; MAX_ORDERS] {
         self.correction_nm
     }
 
@@ -373,7 +435,7 @@ impl Compensator {
     /// linear axis only: friction's error hardly scales with the stroke, and leading its whole
     /// correction made the friction cut of `hil-tests` worse (0.237 -> 0.415 um PV, +0.82 ->
     /// +1.04 deg at 40 Hz).
-    pub fn output_correction_nm(&self, lead_ticks: u32) -> [Phasor; ORDERS.len()] {
+    pub fn output_correction_nm(&self, lead_ticks: u32) -> [Phasor; MAX_ORDERS] {
         let amplitude_nm = self.command_nm.amplitude();
         if !self.linear_only || amplitude_nm < MIN_COMMAND_NM {
             return self.correction_nm;
@@ -463,7 +525,7 @@ mod tests {
 
     #[test]
     fn the_linear_response_matches_the_default_machines_measured_path() {
-        let comp = Compensator::new(&machine()).unwrap();
+        let comp = Compensator::new(&machine(), &[]).unwrap();
         // `calibrate-offset` measures |H| 1.940 at -5.90 deg at 40 Hz (DAC -> TCP, the bus's
         // tick included, which the compensator's correction also passes).
         let g = comp.response(STEP_40_HZ);
@@ -475,7 +537,7 @@ mod tests {
     /// Learning every `batch` ticks cancels the friction axis's simulated error to a few per
     /// cent, with a correction of the size of the error and no reset.
     fn cancels_friction_learning_every(batch: u32) {
-        let mut comp = Compensator::new(&friction_axis()).unwrap();
+        let mut comp = Compensator::new(&friction_axis(), &[]).unwrap();
         let before = run(&mut comp, 0, 8000, 0);
         run(&mut comp, 8000, 16_000, batch);
         let after = run(&mut comp, 24_000, 8000, batch);
@@ -502,18 +564,18 @@ mod tests {
 
     #[test]
     fn a_runaway_correction_is_dropped_and_counted() {
-        let mut comp = Compensator::new(&friction_axis()).unwrap();
+        let mut comp = Compensator::new(&friction_axis(), &[]).unwrap();
         run(&mut comp, 0, 8000, 64);
         assert_eq!(comp.resets(), 0);
         comp.relative[1] = Phasor { re: 3.0, im: 3.0 };
         run(&mut comp, 8000, 64, 64);
         assert_eq!(comp.resets(), 1);
-        assert_eq!(comp.correction_nm(), [Phasor::ZERO; ORDERS.len()]);
+        assert_eq!(comp.correction_nm(), [Phasor::ZERO; MAX_ORDERS]);
     }
 
     #[test]
     fn the_correction_follows_the_commands_amplitude() {
-        let mut comp = Compensator::new(&machine()).unwrap();
+        let mut comp = Compensator::new(&machine(), &[]).unwrap();
         run(&mut comp, 0, 16_000, 64);
         let learned = comp.correction_nm()[0].amplitude();
         // Half the command: the correction follows it down (a linear axis's is exactly
@@ -539,7 +601,7 @@ mod tests {
     /// command) and no lead it is the learned one.
     #[test]
     fn the_output_correction_leads_the_commands_amplitude_trend() {
-        let mut comp = Compensator::new(&machine()).unwrap();
+        let mut comp = Compensator::new(&machine(), &[]).unwrap();
         run(&mut comp, 0, 16_000, 64);
         let steady = comp.output_correction_nm(96)[0].amplitude() / comp.correction_nm()[0].amplitude();
         assert!((steady - 1.0).abs() < 1e-4, "a steady command has no trend: {steady}");
@@ -570,18 +632,63 @@ mod tests {
 
     #[test]
     fn no_response_beyond_the_tick_rates_half_or_below_half_a_hertz() {
-        let comp = Compensator::new(&machine()).unwrap();
+        let comp = Compensator::new(&machine(), &[]).unwrap();
         assert_eq!(comp.response(1 << 31), Phasor::ZERO);
         assert_eq!(comp.response((4_294_967_296u64 / 8000 / 4) as u32), Phasor::ZERO, "0.25 Hz");
         assert!(comp.response((4_294_967_296u64 / 8000) as u32).amplitude() > 0.9, "1 Hz");
     }
 
+    /// PV of the simulated error over the last period of 40 at `freq_hz` (a 3 um command),
+    /// learning every 64 ticks with `higher_orders`.
+    fn friction_pv_nm(freq_hz: f64, higher_orders: &[u32]) -> f64 {
+        let step = (freq_hz / 8000.0 * 4_294_967_296.0) as u32;
+        let mut comp = Compensator::new(&friction_axis(), higher_orders).unwrap();
+        let period = (8000.0 / freq_hz) as u32;
+        let (mut lo, mut hi) = (i32::MAX, i32::MIN);
+        for k in 0..40 * period {
+            let cmd_nm = (3000.0 * libm::sin(2.0 * core::f64::consts::PI * freq_hz * f64::from(k) / 8000.0)) as i32;
+            let error_pm = comp.tick(cmd_nm, step.wrapping_mul(k));
+            if k >= 39 * period {
+                (lo, hi) = (lo.min(error_pm), hi.max(error_pm));
+            }
+            if (k + 1) % 64 == 0 {
+                comp.learn(step as i32);
+            }
+        }
+        assert_eq!(comp.resets(), 0);
+        f64::from(hi - lo) * 1e-3
+    }
+
+    #[test]
+    fn higher_orders_cancel_frictions_pulse_at_low_speed() {
+        let higher = [5, 7, 9, 11, 13, 15];
+        for (freq_hz, base_nm, all_nm) in [(5.0, 700.0, 120.0), (10.0, 1300.0, 60.0)] {
+            let base = friction_pv_nm(freq_hz, &[]);
+            let all = friction_pv_nm(freq_hz, &higher);
+            assert!(base > base_nm, "{freq_hz} Hz: the base orders leave {base} nm");
+            assert!(all < all_nm, "{freq_hz} Hz: up to the 15th leave {all} nm");
+        }
+    }
+
+    #[test]
+    fn higher_orders_are_learned_only_below_their_frequency_limit() {
+        let mut comp = Compensator::new(&friction_axis(), &[5, 5, 7, 1, 9, 11, 13, 15, 17, 19]).unwrap();
+        assert_eq!(comp.orders(), &[1, 3, 5, 7, 9, 11, 13, 15], "duplicates dropped, at most the maximum");
+        let unsorted = Compensator::new(&friction_axis(), &[9, 5, 7]).unwrap();
+        assert_eq!(unsorted.orders(), &[1, 3, 5, 7, 9]);
+        run(&mut comp, 0, 16_000, 64);
+        // At 40 Hz only the base orders are below 160 Hz.
+        let correction = comp.correction_nm();
+        assert!(correction[1].amplitude() > 0.0);
+        assert!(correction[2..].iter().all(|c| *c == Phasor::ZERO), "{correction:?}");
+    }
+
     #[test]
     fn a_command_without_a_frequency_teaches_nothing() {
-        let mut comp = Compensator::new(&friction_axis()).unwrap();
+        let mut comp = Compensator::new(&friction_axis(), &[]).unwrap();
         run(&mut comp, 0, 800, 0);
         comp.learn(0);
         comp.learn(-(STEP_40_HZ as i32));
-        assert_eq!(comp.correction_nm(), [Phasor::ZERO; ORDERS.len()]);
+        assert_eq!(comp.correction_nm(), [Phasor::ZERO; MAX_ORDERS]);
     }
 }

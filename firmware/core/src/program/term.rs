@@ -117,6 +117,15 @@ pub enum TickTerm {
         /// Tool motion per unit of the high-passed command.
         gain: f32,
     },
+    /// A slot in which the servo synthesises a higher harmonic of the [`TickTerm::Axis`]
+    /// twin's correction (`order` times the command frequency; its compensator learns it
+    /// where that lies below [`crate::axis::compensate::MAX_HARMONIC_HZ`], and it is silent
+    /// elsewhere). Valid only beside an axis term, with an order of its own, 2 to
+    /// [`MAX_HARMONIC_ORDER`] and not the third (the axis term's own slot carries that).
+    AxisHarmonic {
+        /// The harmonic order.
+        order: u8,
+    },
 }
 
 /// Stages of a [`TickTerm::Laguerre`] filter bank.
@@ -159,6 +168,10 @@ impl TickTerm {
             Self::Drift { tau_ticks, .. } => tau_ticks >= 256,
             Self::AxisCoupling { .. } => true,
             Self::Axis(params) => params.check().is_ok(),
+            Self::AxisHarmonic { order } => {
+                (2..=MAX_HARMONIC_ORDER).contains(&order)
+                    && !crate::axis::compensate::BASE_ORDERS.contains(&u32::from(order))
+            }
             Self::Resonance { freq_hz, damping, gain } => resonance_params_ok(freq_hz, damping, gain),
             Self::Laguerre { input, pole_q30, .. } => {
                 let input_ok = match input {
@@ -267,8 +280,8 @@ impl TickTerm {
         match *self {
             // The servo synthesises the axis twin's correction as a harmonic in its slot (its
             // simulation runs at low priority, see `Models::compute`).
-            Self::Harmonic { .. } if with_kernels => HARMONIC_BESIDE_KERNELS,
-            Self::Harmonic { .. } => HARMONIC,
+            Self::Harmonic { .. } | Self::AxisHarmonic { .. } if with_kernels => HARMONIC_BESIDE_KERNELS,
+            Self::Harmonic { .. } | Self::AxisHarmonic { .. } => HARMONIC,
             Self::Axis(_) if with_kernels => HARMONIC_BESIDE_KERNELS + AXIS_COMMANDS,
             Self::Axis(_) => HARMONIC + AXIS_COMMANDS,
             Self::Drift { .. } => DRIFT,
@@ -297,7 +310,7 @@ impl TickTerm {
     /// Whether the servo tick runs the term as a kernel: anything but a harmonic and the
     /// axis twin, whose correction the servo synthesises as harmonics.
     pub fn is_kernel(&self) -> bool {
-        !matches!(self, Self::Harmonic { .. } | Self::Axis(_))
+        !matches!(self, Self::Harmonic { .. } | Self::Axis(_) | Self::AxisHarmonic { .. })
     }
 }
 

@@ -156,8 +156,20 @@ impl Program {
                 return Err(ProgramError::MissingOutput { register });
             }
         }
+        let has_axis = self.terms.iter().any(|t| matches!(t, TickTerm::Axis(_)));
+        let mut axis_orders = 0u32;
         for (index, term) in self.terms.iter().enumerate() {
-            if !term.is_valid(written) {
+            // An axis twin's harmonic needs the twin, and a slot to itself.
+            let axis_harmonic_ok = match *term {
+                TickTerm::AxisHarmonic { order } => {
+                    let bit = 1u32 << (order & 31);
+                    let fresh = axis_orders & bit == 0;
+                    axis_orders |= bit;
+                    has_axis && fresh && axis_orders.count_ones() as usize <= crate::axis::compensate::MAX_HIGHER_ORDERS
+                }
+                _ => true,
+            };
+            if !(axis_harmonic_ok && term.is_valid(written)) {
                 return Err(ProgramError::BadTerm { index: index as u8 });
             }
         }
@@ -385,6 +397,31 @@ mod tests {
         assert!(matches!(slow_pole.validate(), Err(ProgramError::TickBudget { .. })));
         // The paper program alone costs the fixed part.
         assert_eq!(crate::program::paper_program().tick_cost(), tick_cost::FIXED);
+    }
+
+    #[test]
+    fn an_axis_harmonic_needs_the_axis_twin_and_an_order_of_its_own() {
+        let axis = TickTerm::Axis(crate::axis::default_machine());
+        let harmonic = |order| TickTerm::AxisHarmonic { order };
+        let with = |terms: &[TickTerm]| {
+            let mut b = minimal();
+            for t in terms {
+                b.term(*t);
+            }
+            b.finish().map(|_| ())
+        };
+        assert_eq!(with(&[axis, harmonic(5), harmonic(7), harmonic(2)]), Ok(()));
+        // Six higher orders beside the twin fit the budget (534 + 46 + 6 x 26 = 736).
+        let six: Vec<TickTerm> = core::iter::once(axis).chain([5, 7, 9, 11, 13, 15].map(harmonic)).collect();
+        assert_eq!(with(&six), Ok(()));
+        assert_eq!(with(&[harmonic(5), axis]), Ok(()), "before the twin in the program");
+        assert_eq!(with(&[harmonic(5)]), Err(ProgramError::BadTerm { index: 0 }), "no axis twin");
+        assert_eq!(with(&[axis, harmonic(5), harmonic(5)]), Err(ProgramError::BadTerm { index: 2 }), "twice");
+        assert_eq!(with(&[axis, harmonic(3)]), Err(ProgramError::BadTerm { index: 1 }), "the twin's own slot's");
+        assert_eq!(with(&[axis, harmonic(1)]), Err(ProgramError::BadTerm { index: 1 }), "the fundamental");
+        assert_eq!(with(&[axis, harmonic(16)]), Err(ProgramError::BadTerm { index: 1 }), "beyond the highest order");
+        let seven: Vec<TickTerm> = core::iter::once(axis).chain([2, 4, 5, 6, 7, 8, 9].map(harmonic)).collect();
+        assert_eq!(with(&seven), Err(ProgramError::BadTerm { index: 7 }), "more than the compensator learns");
     }
 
     #[test]

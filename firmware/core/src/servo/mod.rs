@@ -563,25 +563,35 @@ impl Servo {
             Err(ModelFault::NoProgram) => PendingEffect::NoProgram,
             Err(_) => PendingEffect::Fault,
         };
-        self.last_outputs[slot] = match &result.outcome {
-            Ok((output, terms, _)) => {
-                self.pending_push_commands = terms.iter().any(|t| matches!(t, TickTerm::Axis(_)));
-                self.synth.prepare(&result.targets, terms, ticks_ahead);
-                *output
-            }
-            Err(_) => {
-                self.synth.prepare(&SynthTargets::SILENT, &[], ticks_ahead);
-                self.last_outputs[applied]
-            }
-        };
-        // The supervisor's verdict, in force with the result: its degraded bits.
+        // The supervisor's verdict, in force with the result: its degraded bits. Where the
+        // gate holds the formulas off, an axis twin's correction (from the command) stays on.
         self.supervisor.judge(&result.observation);
-        let bits = if self.supervisor.allows() {
+        let command_driven = result.command_driven.filter(|_| self.supervisor.allows_command_driven());
+        let bits = if self.supervisor.allows() || command_driven.is_some() {
             0
         } else if self.supervisor.state().tripped.is_some() {
             DEGRADED_SUPERVISED
         } else {
             DEGRADED_GATED
+        };
+        self.last_outputs[slot] = match &result.outcome {
+            Ok((output, terms, _)) => {
+                self.pending_push_commands = terms.iter().any(|t| matches!(t, TickTerm::Axis(_)));
+                match command_driven.filter(|_| !self.supervisor.allows()) {
+                    Some((command_output, command_targets)) => {
+                        self.synth.prepare(&command_targets, terms, ticks_ahead);
+                        command_output
+                    }
+                    None => {
+                        self.synth.prepare(&result.targets, terms, ticks_ahead);
+                        *output
+                    }
+                }
+            }
+            Err(_) => {
+                self.synth.prepare(&SynthTargets::SILENT, &[], ticks_ahead);
+                self.last_outputs[applied]
+            }
         };
         self.pending_supervision = (bits, self.supervisor.take_trips());
         self.pending_due_tick = result.due_tick;

@@ -6,7 +6,7 @@
 use heapless::Vec;
 
 use crate::analogue_path::AnaloguePath;
-use crate::axis::compensate::{Compensator, Phasor, ORDERS};
+use crate::axis::compensate::{Compensator, Phasor, MAX_HIGHER_ORDERS, MAX_ORDERS};
 use crate::commands::DefaultCommandRing;
 use crate::features::{DefaultScratch, DefaultSpectralRings, FeatureConfig, FeatureError, FeatureSnapshot, Features};
 use crate::math::{deg_to_turns, um_to_pm};
@@ -91,6 +91,10 @@ pub struct ModelResult {
     /// The outcome's output converted for the synthesiser (silent without one), so that
     /// the servo tick applying it need not convert.
     pub targets: SynthTargets,
+    /// For a program whose axis twin compensates: the output and its targets without the
+    /// formulas' part, the twin's correction alone. It comes from the command, not from the
+    /// accelerometer's features, so it is what the supervisor's gate leaves on.
+    pub command_driven: Option<(ModelOutput, SynthTargets)>,
     /// Times the axis twin's compensator diverged and was reset since the last result.
     pub new_axis_resets: u32,
     /// The update as the supervisor judges it.
@@ -138,8 +142,16 @@ impl Models {
         let axis = self.active.as_ref().and_then(|p| {
             p.terms.iter().find_map(|t| if let TickTerm::Axis(params) = t { Some(*params) } else { None })
         });
+        // The higher orders the program gives slots for, in slot order.
+        let mut higher_orders = Vec::<u32, MAX_HIGHER_ORDERS>::new();
+        for term in self.active.iter().flat_map(|p| p.terms.iter()) {
+            if let TickTerm::AxisHarmonic { order } = *term {
+                // The validator allows no more than fit here.
+                let _ = higher_orders.push(u32::from(order));
+            }
+        }
         // Parameters the validator let through always give a model.
-        self.compensator = axis.and_then(|params| Compensator::new(&params).ok());
+        self.compensator = axis.and_then(|params| Compensator::new(&params, &higher_orders).ok());
         self.next_command_tick = None;
         self.compensator_resets_seen = 0;
     }
@@ -211,6 +223,7 @@ impl Models {
             features: [0.0; 12],
             outcome: Err(ModelFault::NoProgram),
             targets: SynthTargets::SILENT,
+            command_driven: None,
             new_axis_resets: 0,
             observation: Observation {
                 tick: request.tick,
@@ -258,6 +271,16 @@ impl Models {
                             // The output reaches this result a ramp after its due tick.
                             let lead_ticks = (request.due_tick.saturating_sub(request.tick) as u32)
                                 .saturating_add(request.output_ramp_ticks);
+                            let mut command_output = output;
+                            command_output.registers[REG_AMP_UM as usize] = 0.0;
+                            let command_targets = compensated_targets(
+                                &mut command_output,
+                                &program.terms,
+                                compensator,
+                                ratios,
+                                lead_ticks,
+                            );
+                            result.command_driven = Some((command_output, command_targets));
                             result.targets =
                                 compensated_targets(&mut output, &program.terms, compensator, ratios, lead_ticks)
                         }
@@ -311,16 +334,18 @@ impl Models {
 /// `G(h f) / H(h f)` per order of the compensator: its simulated path, as the table was
 /// measured, over the measured one (see [`crate::analogue_path`]), 1 where the table does not
 /// reach or the twin has no response yet. An unmeasured gain takes the twin's, so that the phase alone is corrected.
-fn path_ratios(compensator: &mut Compensator, path: &AnaloguePath, sample_rate_hz: f32) -> [Phasor; ORDERS.len()] {
+fn path_ratios(compensator: &mut Compensator, path: &AnaloguePath, sample_rate_hz: f32) -> [Phasor; MAX_ORDERS] {
     if path.count == 0 {
-        return [Phasor::ONE; ORDERS.len()];
+        return [Phasor::ONE; MAX_ORDERS];
     }
     let (step_turns, responses) = compensator.path_responses(path.amp_um * 1e3);
     let freq_hz = step_turns as f32 * (sample_rate_hz / 4_294_967_296.0);
+    let orders = compensator.orders();
     core::array::from_fn(|i| {
         let twin = responses[i];
         let twin_gain = twin.amplitude();
-        match path.response_at(freq_hz * ORDERS[i] as f32) {
+        let order = orders.get(i).copied().unwrap_or(0);
+        match path.response_at(freq_hz * order as f32) {
             Some((gain, phase_deg)) if twin_gain > 0.0 => {
                 let gain = gain.unwrap_or(twin_gain);
                 let phase_rad = phase_deg * (core::f32::consts::PI / 180.0);
@@ -333,14 +358,14 @@ fn path_ratios(compensator: &mut Compensator, path: &AnaloguePath, sample_rate_h
 
 /// The synthesiser's targets of a program whose axis twin compensates: its fundamental plus
 /// the compensator's (a correction `u` cancels the error `-u`), each harmonic of which is
-/// taken through `ratios` (its simulated path over the measured one), and the axis term's
-/// slot a harmonic of the compensator's higher order. The output's fundamental registers are
-/// updated to the sum.
+/// taken through `ratios` (its simulated path over the measured one), the axis term's slot
+/// the compensator's third harmonic and each [`TickTerm::AxisHarmonic`] slot its order. The
+/// output's fundamental registers are updated to the sum.
 fn compensated_targets(
     output: &mut ModelOutput,
     terms: &[TickTerm],
     compensator: &Compensator,
-    ratios: [Phasor; ORDERS.len()],
+    ratios: [Phasor; MAX_ORDERS],
     lead_ticks: u32,
 ) -> SynthTargets {
     let mut correction_nm = compensator.output_correction_nm(lead_ticks);
@@ -356,9 +381,17 @@ fn compensated_targets(
     output.registers[REG_AMP_UM as usize] = amp_um;
     output.registers[REG_PHASE_DEG as usize] = phase_deg;
     let mut targets = SynthTargets::new(output, terms);
-    if let Some(slot) = terms.iter().position(|t| matches!(t, TickTerm::Axis(_))) {
-        let (amp_um, phase_deg) = amp_phase_deg(-correction_nm[1].re * 1e-3, -correction_nm[1].im * 1e-3);
-        targets.set_harmonic(slot, ORDERS[1], um_to_pm(amp_um), deg_to_turns(phase_deg));
+    let orders = compensator.orders();
+    for (slot, term) in terms.iter().enumerate() {
+        let order = match *term {
+            TickTerm::Axis(_) => orders[1],
+            TickTerm::AxisHarmonic { order } => u32::from(order),
+            _ => continue,
+        };
+        if let Some(i) = orders.iter().position(|&o| o == order) {
+            let (amp_um, phase_deg) = amp_phase_deg(-correction_nm[i].re * 1e-3, -correction_nm[i].im * 1e-3);
+            targets.set_harmonic(slot, order, um_to_pm(amp_um), deg_to_turns(phase_deg));
+        }
     }
     targets
 }
@@ -440,11 +473,11 @@ mod tests {
 
     #[test]
     fn the_axis_correction_is_taken_through_the_twins_path_over_the_measured_one() {
-        let mut compensator = Compensator::new(&crate::axis::default_machine()).unwrap();
+        let mut compensator = Compensator::new(&crate::axis::default_machine(), &[]).unwrap();
         let unit = Phasor::ONE;
         // Nothing measured by the twin yet: no change.
         let path = AnaloguePath::from_responses(8.0, &[(40.0, 2.0, -6.0), (100.0, 5.0, -170.0)]).unwrap();
-        assert_eq!(path_ratios(&mut compensator, &path, 8000.0), [unit; ORDERS.len()]);
+        assert_eq!(path_ratios(&mut compensator, &path, 8000.0), [unit; MAX_ORDERS]);
         compensator.learn(STEP_40HZ);
         let (_, twin) = compensator.path_responses(8000.0);
         let ratios = path_ratios(&mut compensator, &path, 8000.0);
@@ -462,7 +495,7 @@ mod tests {
         let ratio = path_ratios(&mut compensator, &phases, 8000.0)[0];
         assert!((ratio.amplitude() - 1.0).abs() < 1e-5, "{ratio:?}");
         assert!((libm::atan2f(ratio.im, ratio.re).to_degrees() - 2.0).abs() < 1e-3, "{ratio:?}");
-        assert_eq!(path_ratios(&mut compensator, &AnaloguePath::NONE, 8000.0), [unit; ORDERS.len()]);
+        assert_eq!(path_ratios(&mut compensator, &AnaloguePath::NONE, 8000.0), [unit; MAX_ORDERS]);
     }
 
     /// With friction the response to a sine at rest depends on its amplitude; the twin's is
@@ -476,10 +509,10 @@ mod tests {
             smooth_mps: 1e-5,
         };
         let params = crate::axis::AxisParams { friction: Some(friction), ..crate::axis::default_machine() };
-        let mut compensator = Compensator::new(&params).unwrap();
+        let mut compensator = Compensator::new(&params, &[]).unwrap();
         compensator.learn(STEP_40HZ);
         // Not in the update that measured the learning's responses: none yet.
-        assert_eq!(compensator.path_responses(8000.0).1, [Phasor::ZERO; ORDERS.len()]);
+        assert_eq!(compensator.path_responses(8000.0).1, [Phasor::ZERO; MAX_ORDERS]);
         compensator.learn(STEP_40HZ);
         let phase_at = |c: &mut Compensator, amp_nm: f32| {
             let g = c.path_responses(amp_nm).1[0];
@@ -488,7 +521,7 @@ mod tests {
         let (small, large) = (phase_at(&mut compensator, 1000.0), phase_at(&mut compensator, 8000.0));
         // Friction lags a small sine at rest more than a large one.
         assert!(small < large - 5.0, "1 um {small} deg, 8 um {large} deg");
-        let linear = phase_at(&mut Compensator::new(&crate::axis::default_machine()).unwrap(), 8000.0);
+        let linear = phase_at(&mut Compensator::new(&crate::axis::default_machine(), &[]).unwrap(), 8000.0);
         assert_eq!(linear, 0.0, "no learning yet: no response");
     }
 }

@@ -16,8 +16,9 @@
 //! - **Trip: worse than bare.** A compensated window whose error ratio exceeds `worse_ratio`
 //!   times the baseline's plus `stroke_tolerance` (the accelerometer's own gain and phase
 //!   errors, and its place beside the tool, bias the ratio by a few per cent of the stroke,
-//!   the same with and without compensation) plus `floor_nm` over the stroke (its noise),
-//!   three updates in a row. A correction of the wrong sign or a twin of another machine
+//!   the same with and without compensation) plus `floor_nm` over the stroke plus three
+//!   standard errors of the window's estimate (its noise, measured in the window), three
+//!   updates in a row. A correction of the wrong sign or a twin of another machine
 //!   show here.
 //! - **Trip: shaking.** The accelerometer's power at other frequencies than the command's
 //!   above `other_power_ratio` times the bare machine's (or a hundredth of the bare motion's
@@ -165,6 +166,11 @@ const CLAMP_PERIOD_TICKS: u32 = 800;
 const OVER_LIMIT_TRIP: u32 = 3;
 /// The gate opens again at this multiple of its threshold (hysteresis).
 const GATE_REOPEN: f32 = 1.25;
+/// Standard errors of a window's error ratio (its noise) by which it may exceed the
+/// worse-than-bare limit: consecutive windows overlap, so three in a row over the limit are
+/// one excursion of the noise, not three; at three standard errors one in several thousand
+/// windows of a compensation that does not change the error.
+const NOISE_SIGMAS: f32 = 3.0;
 
 /// Why the supervisor switched compensation off.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -294,7 +300,13 @@ impl Supervisor {
 
     /// Whether compensation may be on.
     pub fn allows(&self) -> bool {
-        !self.params.active || self.state.tripped.is_none() && !self.state.gated && self.state.bare_freq_hz != 0.0
+        self.allows_command_driven() && (!self.params.active || !self.state.gated)
+    }
+
+    /// Whether compensation that comes from the command alone (an axis twin's correction,
+    /// which reads no feature) may be on: as [`Supervisor::allows`], whatever the gate says.
+    pub fn allows_command_driven(&self) -> bool {
+        !self.params.active || self.state.tripped.is_none() && self.state.bare_freq_hz != 0.0
     }
 
     /// Trips since the last call (for the counters).
@@ -391,7 +403,10 @@ impl Supervisor {
                 SupervisorState { tripped: self.state.tripped, gated: self.state.gated, last, ..Default::default() };
         } else if !bare && !obs.gain_zero {
             let s = &self.state;
-            let limit = p.worse_ratio * s.bare_error_ratio + p.stroke_tolerance + p.floor_nm / est.cmd_amp_nm;
+            let limit = p.worse_ratio * s.bare_error_ratio
+                + p.stroke_tolerance
+                + p.floor_nm / est.cmd_amp_nm
+                + NOISE_SIGMAS * est.error_ratio_sd;
             let other_limit = p.other_power_ratio * s.bare_other_power_m2ps4.max(0.01 * s.bare_motion_power_m2ps4);
             let worse = est.error_ratio > limit;
             let shaking = est.other_power_m2ps4 > other_limit;
@@ -464,6 +479,7 @@ mod tests {
                 freq_hz,
                 cmd_amp_nm: 3000.0,
                 error_ratio,
+                error_ratio_sd: 0.0,
                 motion_share: 0.9,
                 motion_power_m2ps4: 9e-3,
                 other_power_m2ps4: 1e-3,

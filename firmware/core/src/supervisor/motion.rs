@@ -41,6 +41,11 @@ pub struct MotionEstimate {
     /// Amplitude of the command minus the tool's motion at the command frequency, over
     /// `cmd_amp_nm`.
     pub error_ratio: f32,
+    /// The noise in `error_ratio`: the standard error of the fitted motion at the command
+    /// frequency (both its components), from the scatter of what does not repeat, over
+    /// `cmd_amp_nm`. At low speed, where the accelerometer barely sees the motion, it is
+    /// several per cent of the stroke.
+    pub error_ratio_sd: f32,
     /// The power of the commanded motion's acceleration plus `harmonic_power_m2ps4`, over the
     /// former plus the accelerometer's power at other frequencies: near 1 where the
     /// accelerometer sees what repeats with the command, near 0 where it sees mostly noise
@@ -99,6 +104,16 @@ impl SineSums {
         self.yc += y * c;
     }
 
+    /// The variances of the `sin` and `cos` coefficients per unit variance of the samples'
+    /// noise (the diagonal of the inverse normal matrix, the mean taken out).
+    fn coefficient_variances(&self) -> (f32, f32) {
+        let n = self.n;
+        let (css, csc, ccc) =
+            (self.ss - self.s * self.s / n, self.sc - self.s * self.c / n, self.cc - self.c * self.c / n);
+        let det = css * ccc - csc * csc;
+        (ccc / det, css / det)
+    }
+
     /// The `sin` and `cos` coefficients, the mean taken out; `None` unless well posed (at
     /// least a period gives a determinant near `(n / 2)^2`).
     fn fit(&self) -> Option<(f32, f32)> {
@@ -125,9 +140,10 @@ struct PhaseBin {
 }
 
 /// The block sums' residual power at the command's harmonics that repeats from period to
-/// period, per block, from `bins` and the fit `y ~ mean + p sin + q cos` of `sums`; zero
-/// where it cannot be told from the noise.
-fn repeating_residual_power(bins: &[PhaseBin; PHASE_BINS], sums: &SineSums, p: f32, q: f32) -> f32 {
+/// period, per block, from `bins` and the fit `y ~ mean + p sin + q cos` of `sums` (zero
+/// where it cannot be told from the noise), and the variance of what does not repeat (the
+/// noise), per block.
+fn repeating_residual_power(bins: &[PhaseBin; PHASE_BINS], sums: &SineSums, p: f32, q: f32) -> (f32, f32) {
     let n = sums.n;
     let (s_mean, c_mean) = (sums.s / n, sums.c / n);
     let intercept = sums.y / n - p * s_mean - q * c_mean;
@@ -144,14 +160,15 @@ fn repeating_residual_power(bins: &[PhaseBin; PHASE_BINS], sums: &SineSums, p: f
     }
     let within_dof = n - filled;
     if within_dof < 1.0 || !(residual_ss > 0.0) {
-        return 0.0;
+        // Too few blocks to tell: all of it counts as noise.
+        return (0.0, residual_ss.max(0.0) / (n - 3.0).max(1.0));
     }
     let noise_variance = (residual_ss - between_ss).max(0.0) / within_dof;
     let harmonic_ss = between_ss - (filled - 3.0).max(0.0) * noise_variance;
     if harmonic_ss.is_finite() {
-        harmonic_ss.max(0.0) / n
+        (harmonic_ss.max(0.0) / n, noise_variance)
     } else {
-        0.0
+        (0.0, noise_variance)
     }
 }
 
@@ -235,20 +252,22 @@ pub fn estimate<const RING_BLOCKS: usize>(
     // A block sum is 16 samples' sum: at the harmonics that matter (well below the block
     // rate) 16 times their mean.
     let sample_mps2 = capture.cfg.acc_mps2_per_lsb / BLOCK_SAMPLES as f32;
-    let harmonic_power_m2ps4 =
-        (repeating_residual_power(&bins, &acc, p_codes, q_codes) * (sample_mps2 * sample_mps2)).min(other_power_m2ps4);
+    let (harmonic_power_codes, noise_variance_codes) = repeating_residual_power(&bins, &acc, p_codes, q_codes);
+    let harmonic_power_m2ps4 = (harmonic_power_codes * (sample_mps2 * sample_mps2)).min(other_power_m2ps4);
+    let (var_p, var_q) = acc.coefficient_variances();
+    let error_ratio_sd = libm::sqrtf(noise_variance_codes * (var_p + var_q)) * libm::fabsf(to_nm) / cmd_amp_nm;
     // The share is the commanded motion's, not the motion seen: compensation moves the
     // tool towards the command, and above the axis's resonance (the tool then moving
     // against its command) the motion seen passes through zero while it ramps in. What
     // repeats with the command at its harmonics is motion too.
     let command_acc_mps2 = w_rad_per_s * w_rad_per_s * cmd_amp_nm * 1e-9;
     let command_power_m2ps4 = 0.5 * command_acc_mps2 * command_acc_mps2;
-    let motion_share =
-        (command_power_m2ps4 + harmonic_power_m2ps4) / (command_power_m2ps4 + other_power_m2ps4);
-    (error_ratio.is_finite() && motion_share.is_finite()).then_some(MotionEstimate {
+    let motion_share = (command_power_m2ps4 + harmonic_power_m2ps4) / (command_power_m2ps4 + other_power_m2ps4);
+    (error_ratio.is_finite() && motion_share.is_finite() && error_ratio_sd.is_finite()).then_some(MotionEstimate {
         freq_hz,
         cmd_amp_nm,
         error_ratio,
+        error_ratio_sd,
         motion_share,
         motion_power_m2ps4,
         other_power_m2ps4,

@@ -43,13 +43,16 @@ impl SynthTargets {
         let mut targets =
             Self { amp_pm: um_to_pm(output.amp_um()), phase_turns: deg_to_turns(output.phase_deg()), ..Self::SILENT };
         for (i, term) in terms.iter().take(MAX_TERMS).enumerate() {
-            if let TickTerm::Harmonic { order, amp_reg, phase_reg } = *term {
-                let register = |r: u8| output.registers.get(r as usize).copied().unwrap_or(0.0);
-                targets.term_amp_pm[i] = um_to_pm(register(amp_reg));
-                targets.term_phase_turns[i] = deg_to_turns(register(phase_reg));
-                targets.term_orders[i] = u32::from(order);
-            } else {
-                targets.kernel_mask |= 1 << i;
+            match *term {
+                TickTerm::Harmonic { order, amp_reg, phase_reg } => {
+                    let register = |r: u8| output.registers.get(r as usize).copied().unwrap_or(0.0);
+                    targets.term_amp_pm[i] = um_to_pm(register(amp_reg));
+                    targets.term_phase_turns[i] = deg_to_turns(register(phase_reg));
+                    targets.term_orders[i] = u32::from(order);
+                }
+                // Silent until the axis twin's compensator sets it (`set_harmonic`).
+                TickTerm::AxisHarmonic { order } => targets.term_orders[i] = u32::from(order),
+                _ => targets.kernel_mask |= 1 << i,
             }
         }
         targets

@@ -244,7 +244,7 @@ fn dahl_step_wide(dx: i64, u: i32, inv_x0_q30: i32) -> i32 {
 #[inline(always)]
 pub(super) fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput, ticks: u64) -> i64 {
     match term {
-        TickTerm::Harmonic { .. } => 0,
+        TickTerm::Harmonic { .. } | TickTerm::AxisHarmonic { .. } => 0,
         TickTerm::Drift { offset_pm, .. } => {
             if ticks % u64::from(DRIFT_STEP_TICKS) == 0 && ticks != 0 {
                 st.drift_q8 = (st.drift_q8 * st.scale) >> 23;

@@ -39,7 +39,8 @@ use std::path::Path;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sts_dataset::{Dataset, GroupData};
-use sts_twin_core::program::{terms_tick_cost, TermInput, TickTerm, TICK_BUDGET_INSTRUCTIONS};
+use sts_twin_core::axis::compensate::{BASE_ORDERS, MAX_HARMONIC_HZ, MAX_HIGHER_ORDERS};
+use sts_twin_core::program::{terms_tick_cost, TermInput, TickTerm, MAX_HARMONIC_ORDER, TICK_BUDGET_INSTRUCTIONS};
 
 use sts_analysis::lsq::{solve, Projection, Stats};
 use sts_analysis::targets;
@@ -424,8 +425,19 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
             let reduced_inputs = all_group_inputs(&reduced)?;
             (&reduced, reduced_inputs)
         };
-        let (term, axis_records) = fit_axis(axis_data, &axis_inputs, &axis_names)?;
+        let (term, mut axis_records) = fit_axis(axis_data, &axis_inputs, &axis_names)?;
         terms.push(term);
+        if axis_names.iter().any(|n| AXIS_EFFECTS.contains(&n.as_str())) {
+            let orders = higher_orders(axis_data, &axis_inputs, &terms);
+            if let (false, Some(record)) = (orders.is_empty(), axis_records.first_mut()) {
+                let listed: Vec<String> = orders.iter().map(u8::to_string).collect();
+                record.note.push_str(&format!(
+                    "; its correction's harmonics {} too (slots of their own, where the tick's budget leaves room)",
+                    listed.join(", ")
+                ));
+            }
+            terms.extend(orders.into_iter().map(|order| TickTerm::AxisHarmonic { order }));
+        }
         records.extend(axis_records);
     }
     if terms.len() > sts_twin_core::program::MAX_TERMS {
@@ -439,6 +451,63 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         return Err(FitError::AxisDiverges { file: dataset.manifest.groups[i].file.clone(), axis });
     }
     Ok(Prepared { dataset: reduced, terms, records, probe_gain: None })
+}
+
+/// The higher harmonics of the axis twin's correction the program gives slots to
+/// ([`TickTerm::AxisHarmonic`]), ascending: those in which the twin's simulated error is
+/// strongest on the groups slow enough for the compensator to learn them (below
+/// [`MAX_HARMONIC_HZ`]), as many as fit the tick's budget beside `terms` (which hold the
+/// axis term) and the program's slots. Friction and hysteresis put their error at the odd
+/// harmonics, a ripple at even ones too.
+fn higher_orders(dataset: &Dataset, inputs: &[GroupInputs], terms: &[TickTerm]) -> Vec<u8> {
+    let fs = dataset.manifest.sample_rate_hz;
+    let Some(axis) = terms.iter().find(|t| matches!(t, TickTerm::Axis(_))) else {
+        return Vec::new();
+    };
+    let candidates: Vec<u8> = (2..=MAX_HARMONIC_ORDER).filter(|&o| !BASE_ORDERS.contains(&u32::from(o))).collect();
+    // Each candidate's power in the twin's error, summed over the slow groups.
+    let power: Vec<f64> = dataset
+        .manifest
+        .groups
+        .par_iter()
+        .zip(dataset.groups.par_iter())
+        .zip(inputs.par_iter())
+        .map(|((info, group), input)| {
+            let mut power = vec![0.0; candidates.len()];
+            if info.freq_hz * f64::from(candidates[0]) > f64::from(MAX_HARMONIC_HZ) {
+                return power;
+            }
+            let out = terms_output(std::slice::from_ref(axis), group, info.start_s, fs);
+            let window = &out[input.start..];
+            let theta = &input.theta[input.start..];
+            for (p, &order) in power.iter_mut().zip(&candidates) {
+                if info.freq_hz * f64::from(order) > f64::from(MAX_HARMONIC_HZ) {
+                    continue;
+                }
+                let h = f64::from(order);
+                let (s, c) = window
+                    .iter()
+                    .zip(theta)
+                    .fold((0.0, 0.0), |(s, c), (e, t)| (s + e * (h * t).sin(), c + e * (h * t).cos()));
+                let n = window.len().max(1) as f64;
+                *p = (s * s + c * c) * 4.0 / (n * n);
+            }
+            power
+        })
+        .reduce(|| vec![0.0; candidates.len()], |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect());
+    let mut ranked: Vec<usize> = (0..candidates.len()).filter(|&i| power[i] > 0.0).collect();
+    ranked.sort_by(|&a, &b| power[b].total_cmp(&power[a]).then(a.cmp(&b)));
+    let mut chosen = Vec::new();
+    let mut with = terms.to_vec();
+    for i in ranked.into_iter().take(MAX_HIGHER_ORDERS) {
+        with.push(TickTerm::AxisHarmonic { order: candidates[i] });
+        if with.len() > sts_twin_core::program::MAX_TERMS || terms_tick_cost(&with) > TICK_BUDGET_INSTRUCTIONS {
+            break;
+        }
+        chosen.push(candidates[i]);
+    }
+    chosen.sort_unstable();
+    chosen
 }
 
 /// The dataset with `z_tcp_um` reduced by the terms' output (through the firmware's own

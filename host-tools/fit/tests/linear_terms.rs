@@ -124,7 +124,11 @@ fn a_mode_beside_friction_is_the_axis_twins_second_mode() {
     ]);
     let names = ["coulomb-friction".to_string(), "structural-mode".to_string()];
     let prepared = prepare(&data, &names).expect("prepare");
-    let [TickTerm::Axis(axis)] = prepared.terms.as_slice() else { panic!("one axis twin: {:?}", prepared.terms) };
+    let [TickTerm::Axis(axis), higher @ ..] = prepared.terms.as_slice() else {
+        panic!("one axis twin: {:?}", prepared.terms)
+    };
+    // The rest are slots for its correction's higher harmonics.
+    assert!(higher.iter().all(|t| matches!(t, TickTerm::AxisHarmonic { .. })), "{higher:?}");
     let mode = axis.second_mode.expect("a second mode");
     println!(
         "identified: {:.2} Hz, damping {:.4}, modal gain {:.4} (true 210, 0.03, 0.9); first mode {:.1} Hz",

@@ -77,14 +77,21 @@ pub fn fault_report(status: &Status) -> Vec<String> {
     lines
 }
 
-/// The supervisor's gate, when it holds compensation off now: where the accelerometer sees
-/// mostly noise the twin's features would be measured on noise, so compensation fades out
-/// until the motion is back. Not a fault (no counter counts it; a cut reports the share of
-/// its ticks held off): `None` when the gate is open.
+/// The supervisor's gate, when it is closed now: where the accelerometer sees mostly noise
+/// the twin's features would be measured on noise, so compensation fades out until the
+/// motion is back (all of it, or only the formulas' part where a servo-axis twin's
+/// correction, which reads no feature, stays on). Not a fault (no counter counts it; a cut
+/// reports the share of its ticks held off): `None` when the gate is open.
 pub fn gate_report(status: &Status) -> Option<String> {
     status.supervisor.gated.then(|| {
+        let what = if status.degraded & DEGRADED_GATED != 0 {
+            "compensation is faded out"
+        } else {
+            "the formulas' part of compensation is faded out (a servo-axis twin's correction, which comes from \
+             the command, stays on)"
+        };
         format!(
-            "compensation is faded out by the supervisor's gate: the accelerometer sees mostly noise at {:.1} Hz \
+            "{what} by the supervisor's gate: the accelerometer sees mostly noise at {:.1} Hz \
              (what repeats with the command holds {:.0}% of its power; the twin's features would be \
              measured on noise); it fades back in when the motion is back",
             status.supervisor.last.freq_hz.abs(),
@@ -302,6 +309,12 @@ mod tests {
         assert_eq!(fault_report(&status), Vec::<String>::new());
         let gate = gate_report(&status).expect("the gate is closed");
         assert!(gate.contains("mostly noise at 40.0 Hz") && gate.contains("26%"), "{gate}");
+        assert!(gate.starts_with("compensation is faded out"), "{gate}");
+        // An axis twin's correction stays on: only the formulas fade out.
+        status.degraded = 0;
+        let gate = gate_report(&status).expect("the gate is closed");
+        assert!(gate.starts_with("the formulas' part") && gate.contains("stays on"), "{gate}");
+        status.degraded = DEGRADED_GATED;
         // With a real fault beside it, the fault is reported and the gate is still not.
         status.degraded |= DEGRADED_STUCK;
         let lines = fault_report(&status);

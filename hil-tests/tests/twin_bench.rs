@@ -95,6 +95,14 @@ fn axis_with_modes(friction: bool, hysteresis: bool, ripple: bool, second_mode: 
     })
 }
 
+/// The axis twin with friction and `count` slots for its correction's higher harmonics (the
+/// odd orders from the fifth).
+fn axis_with_higher_harmonics(count: u8) -> Vec<TickTerm> {
+    core::iter::once(axis(true, false, false))
+        .chain((0..count).map(|k| TickTerm::AxisHarmonic { order: 5 + 2 * k }))
+        .collect()
+}
+
 fn harmonics(count: u8) -> Vec<TickTerm> {
     (2..).take(count as usize).map(|order| TickTerm::Harmonic { order, amp_reg: 0, phase_reg: 1 }).collect()
 }
@@ -345,6 +353,9 @@ fn bench_twin_tick_axis() {
         // low priority): all three effects cost the tick what one does.
         bench("+ axis twin with all three", &[axis(true, true, true)]),
         bench("+ axis twin with all three and a second mode", &[axis_with_modes(true, true, true, true)]),
+        // Its correction's higher harmonics, each synthesised in a slot of its own (the
+        // bench's command runs at 10 Hz, where all six are learned).
+        bench("+ axis twin with friction and 6 higher harmonics", &axis_with_higher_harmonics(6)),
     ];
     within_models(&cases);
 }

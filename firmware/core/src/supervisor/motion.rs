@@ -159,7 +159,7 @@ fn repeating_residual_power(bins: &[PhaseBin; PHASE_BINS], sums: &SineSums, p: f
         filled += 1.0;
     }
     let within_dof = n - filled;
-    if within_dof < 1.0 || !(residual_ss > 0.0) {
+    if within_dof < 1.0 || residual_ss.is_nan() || residual_ss <= 0.0 {
         // Too few blocks to tell: all of it counts as noise.
         return (0.0, residual_ss.max(0.0) / (n - 3.0).max(1.0));
     }

@@ -5,7 +5,9 @@ use std::path::PathBuf;
 
 use serde::Serialize;
 
+use sts_assess::explain::{explain, Base, ExplainConfig};
 use sts_emulator::{EffectSpec, MeasureConfig, PlantParams};
+use sts_fit::effects::{fit_with, write_records, AXIS_EFFECTS, SERVO_AXIS};
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
 use sts_rig::machine_params;
@@ -21,7 +23,8 @@ pub struct Args {
     pub freqs: Vec<f64>,
     /// Model file of the twin; without it the machine is measured over its whole range
     /// (1, 5, 10, ..., 100 Hz x 1..11 um), a servo-axis twin fitted (`fit --effect
-    /// servo-axis`) and written to `--out`.
+    /// servo-axis`), the effects the data shows added as `explain` adds them (friction,
+    /// hysteresis, a ripple, ...), and the twin written to `--out`.
     #[arg(long)]
     pub twin: Option<PathBuf>,
     /// Where a fitted model is written.
@@ -60,8 +63,9 @@ fn range_freqs_hz() -> Vec<f64> {
     std::iter::once(1.0).chain((1..=20).map(|k| 5.0 * f64::from(k))).collect()
 }
 
-/// Measures `plant` with `effects` over [`range_freqs_hz`] and fits the servo-axis twin with
-/// formulas on what it leaves; writes it to `out`.
+/// Measures `plant` with `effects` over [`range_freqs_hz`], fits the servo-axis twin with
+/// formulas on what it leaves, and from it lets `explain` add the effects the data shows
+/// (the machine's own, which the tool is not told); writes the twin to `out`.
 fn measure_and_fit_range(
     plant: &PlantParams,
     effects: &[EffectSpec],
@@ -82,18 +86,54 @@ fn measure_and_fit_range(
     );
     let dataset = sts_emulator::measure::run(&measure, &|_| {})?;
     eprintln!("fitting the servo-axis twin and the formulas on what it leaves ...");
-    let prepared = sts_fit::effects::prepare(&dataset, &[sts_fit::effects::SERVO_AXIS.to_string()])?;
+    let prepared = sts_fit::effects::prepare(&dataset, &[SERVO_AXIS.to_string()])?;
     let description = "trial-table: servo-axis twin over 1-100 Hz";
-    let model = fit(&prepared.dataset, description, &FitConfig { seed, ..FitConfig::default() }, &mut |_| {})?;
+    let fit_config = FitConfig { seed, ..FitConfig::default() };
+    let model = fit(&prepared.dataset, description, &fit_config, &mut |_| {})?;
     let model = prepared.attach(model)?;
+    eprintln!("{}", axis_summary(&prepared.records));
+    eprintln!("diagnosing it and adding the effects the data shows, as `explain` does ...");
+    let base = Base { model, effects: prepared.records };
+    let config = ExplainConfig { fit: fit_config.clone(), max_effects: EXPLAIN_MAX_EFFECTS };
+    let explanation = explain(&dataset, description, Some(base), &config, &mut |_| {})?;
+    for step in &explanation.steps {
+        eprintln!(
+            "added {}: {:.1} -> {:.1} nm on the measurement",
+            step.effect,
+            step.waveform_rms_um_before * 1e3,
+            step.waveform_rms_um_after * 1e3
+        );
+    }
+    let named: Vec<String> = explanation.effects.iter().map(|r| r.effect.clone()).collect();
+    let (mut model, records) = if named.iter().any(|n| AXIS_EFFECTS.contains(&n.as_str())) {
+        // Friction, hysteresis and a ripple share the one axis twin, and on a measurement of
+        // the whole range the diagnosis tells them apart less surely than it tells them from
+        // nothing: where the data shows one, the twin carries all three.
+        let names: Vec<String> = named
+            .iter()
+            .filter(|n| **n != SERVO_AXIS && !AXIS_EFFECTS.contains(&n.as_str()))
+            .cloned()
+            .chain(AXIS_EFFECTS.iter().map(|n| n.to_string()))
+            .collect();
+        eprintln!("fitting the axis twin with {} ...", names.join(", "));
+        fit_with(&dataset, &names, description, &fit_config, &mut |_| {})?
+    } else {
+        (explanation.model, explanation.effects)
+    };
+    let carried: Vec<&str> = records.iter().map(|r| r.effect.as_str()).filter(|n| *n != SERVO_AXIS).collect();
+    if !carried.is_empty() {
+        model.description = format!("{description}, with {}", carried.join(", "));
+    }
     if let Some(dir) = out.parent() {
         std::fs::create_dir_all(dir)?;
     }
     model.write(out)?;
-    prepared.write_record(out)?;
-    eprintln!("{}", axis_summary(&prepared.records));
+    write_records(out, &records)?;
     Ok(model)
 }
+
+/// Effects `trial-table` lets `explain` add at most (as `explain --max-effects` does).
+const EXPLAIN_MAX_EFFECTS: usize = 4;
 
 /// The identified servo axis in a line for people.
 fn axis_summary(records: &[sts_fit::effects::EffectRecord]) -> String {

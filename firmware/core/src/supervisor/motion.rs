@@ -70,8 +70,10 @@ const MAX_FREQ_OF_BLOCK_RATE: f32 = 0.4;
 /// Smallest command amplitude judged, nm: below it there is no motion to compensate.
 const MIN_CMD_AMP_NM: f32 = 10.0;
 /// Bins of the command phase over which the harmonics are averaged (a power of two: the
-/// top bits of the phase in turns pick the bin). 32 resolve the harmonics up to about the
-/// tenth, where friction's and ripple's error lies.
+/// top bits of the phase in turns pick the bin). 64 resolve the harmonics up to about the
+/// twentieth, where friction's pulse after a reversal lies at low speed (with 32, a square
+/// wave's harmonics showed 72% of their power, with 64, 80%: the 16-sample blocks smooth
+/// the rest).
 pub const PHASE_BINS: usize = 64;
 
 /// Sums for a least-squares fit of samples `y` by a mean, `sin` and `cos` of the command

@@ -39,7 +39,7 @@ use std::path::Path;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sts_dataset::{Dataset, GroupData};
-use sts_twin_core::axis::compensate::{BASE_ORDERS, MAX_HARMONIC_HZ, MAX_HIGHER_ORDERS};
+use sts_twin_core::axis::compensate::{BASE_ORDERS, MAX_HIGHER_ORDERS};
 use sts_twin_core::program::{terms_tick_cost, TermInput, TickTerm, MAX_HARMONIC_ORDER, TICK_BUDGET_INSTRUCTIONS};
 
 use sts_analysis::lsq::{solve, Projection, Stats};
@@ -428,7 +428,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         let (term, mut axis_records) = fit_axis(axis_data, &axis_inputs, &axis_names)?;
         terms.push(term);
         if axis_names.iter().any(|n| AXIS_EFFECTS.contains(&n.as_str())) {
-            let orders = higher_orders(axis_data, &axis_inputs, &terms);
+            let orders = higher_orders(&terms);
             if let (false, Some(record)) = (orders.is_empty(), axis_records.first_mut()) {
                 let listed: Vec<String> = orders.iter().map(u8::to_string).collect();
                 record.note.push_str(&format!(
@@ -454,45 +454,51 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
 }
 
 /// The higher harmonics of the axis twin's correction the program gives slots to
-/// ([`TickTerm::AxisHarmonic`]), ascending: those in which the twin's simulated error is
-/// strongest on the groups slow enough for the compensator to learn them (below
-/// [`MAX_HARMONIC_HZ`]), as many as fit the tick's budget beside `terms` (which hold the
-/// axis term) and the program's slots. Friction and hysteresis put their error at the odd
-/// harmonics, a ripple at even ones too.
-fn higher_orders(dataset: &Dataset, inputs: &[GroupInputs], terms: &[TickTerm]) -> Vec<u8> {
-    let fs = dataset.manifest.sample_rate_hz;
-    let Some(axis) = terms.iter().find(|t| matches!(t, TickTerm::Axis(_))) else {
+/// ([`TickTerm::AxisHarmonic`]), ascending: those in which the twin's own error is largest
+/// on slow, cut-like motions ([`ORDER_CHOICE_STROKES_UM`] at [`ORDER_CHOICE_FREQ_HZ`], each
+/// at [`ORDER_CHOICE_OFFSETS_UM`]), as many as fit the tick's budget beside `terms` (which
+/// hold the axis term) and the program's slots. Friction and hysteresis put their error at
+/// the odd harmonics; a ripple's depends on where in its pitch the motion lies, odd and
+/// even alike, which a measurement's strokes, all centred on one position, do not show.
+fn higher_orders(terms: &[TickTerm]) -> Vec<u8> {
+    let Some(TickTerm::Axis(params)) = terms.iter().find(|t| matches!(t, TickTerm::Axis(_))) else {
+        return Vec::new();
+    };
+    let Ok(model) = sts_twin_core::axis::AxisModel::new(params) else {
         return Vec::new();
     };
     let candidates: Vec<u8> = (2..=MAX_HARMONIC_ORDER).filter(|&o| !BASE_ORDERS.contains(&u32::from(o))).collect();
-    // Each candidate's power in the twin's error, summed over the slow groups.
-    let power: Vec<f64> = dataset
-        .manifest
-        .groups
+    let fs = f64::from(sts_twin_core::SERVO_RATE_HZ);
+    let ticks_per_period = (fs / ORDER_CHOICE_FREQ_HZ).round() as usize;
+    let motions: Vec<(f64, f64)> = ORDER_CHOICE_STROKES_UM
+        .iter()
+        .flat_map(|&amp| ORDER_CHOICE_OFFSETS_UM.iter().map(move |&offset| (amp, offset)))
+        .collect();
+    let power: Vec<f64> = motions
         .par_iter()
-        .zip(dataset.groups.par_iter())
-        .zip(inputs.par_iter())
-        .map(|((info, group), input)| {
-            let mut power = vec![0.0; candidates.len()];
-            if info.freq_hz * f64::from(candidates[0]) > f64::from(MAX_HARMONIC_HZ) {
-                return power;
-            }
-            let out = terms_output(std::slice::from_ref(axis), group, info.start_s, fs);
-            let window = &out[input.start..];
-            let theta = &input.theta[input.start..];
-            for (p, &order) in power.iter_mut().zip(&candidates) {
-                if info.freq_hz * f64::from(order) > f64::from(MAX_HARMONIC_HZ) {
-                    continue;
+        .map(|&(amp_um, offset_um)| {
+            // Settled for two periods, then five measured.
+            let mut state = sts_twin_core::axis::AxisState::INITIAL;
+            let mut error_um = Vec::with_capacity(5 * ticks_per_period);
+            for k in 0..7 * ticks_per_period {
+                let theta = 2.0 * PI * k as f64 / ticks_per_period as f64;
+                let cmd_nm = ((offset_um + amp_um * theta.sin()) * 1e3).round() as i32;
+                let error_pm = model.step(&mut state, cmd_nm);
+                if k >= 2 * ticks_per_period {
+                    error_um.push(f64::from(error_pm) * 1e-6);
                 }
-                let h = f64::from(order);
-                let (s, c) = window
-                    .iter()
-                    .zip(theta)
-                    .fold((0.0, 0.0), |(s, c), (e, t)| (s + e * (h * t).sin(), c + e * (h * t).cos()));
-                let n = window.len().max(1) as f64;
-                *p = (s * s + c * c) * 4.0 / (n * n);
             }
-            power
+            candidates
+                .iter()
+                .map(|&order| {
+                    let (s, c) = error_um.iter().enumerate().fold((0.0, 0.0), |(s, c), (i, e)| {
+                        let phase =
+                            2.0 * PI * f64::from(order) * (i + 2 * ticks_per_period) as f64 / ticks_per_period as f64;
+                        (s + e * phase.sin(), c + e * phase.cos())
+                    });
+                    s * s + c * c
+                })
+                .collect::<Vec<f64>>()
         })
         .reduce(|| vec![0.0; candidates.len()], |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect());
     let mut ranked: Vec<usize> = (0..candidates.len()).filter(|&i| power[i] > 0.0).collect();
@@ -509,6 +515,16 @@ fn higher_orders(dataset: &Dataset, inputs: &[GroupInputs], terms: &[TickTerm]) 
     chosen.sort_unstable();
     chosen
 }
+
+/// The command frequency of the motions [`higher_orders`] are chosen on, Hz: slow, where
+/// the compensator learns them all (15 times it is below
+/// [`MAX_HARMONIC_HZ`](sts_twin_core::axis::compensate::MAX_HARMONIC_HZ)).
+const ORDER_CHOICE_FREQ_HZ: f64 = 5.0;
+/// Their strokes, um: a cut's, which shrink toward its centre.
+const ORDER_CHOICE_STROKES_UM: [f64; 3] = [1.0, 2.0, 3.0];
+/// Their centres, um: spread over a few um, so that a position-periodic error is met at
+/// every point of its pitch (the emulator's ripple pitch is 5.3 um).
+const ORDER_CHOICE_OFFSETS_UM: [f64; 4] = [0.0, 1.3, 2.7, 4.0];
 
 /// The dataset with `z_tcp_um` reduced by the terms' output (through the firmware's own
 /// synthesiser), and each group's count of axis-twin resets.

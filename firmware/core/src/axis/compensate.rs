@@ -8,7 +8,7 @@
 //! own correction*, added after the controller's command delay as the controller adds its
 //! analogue input, and adjusts the correction until the simulated error vanishes at the
 //! harmonics it carries: the fundamental and the third always ([`BASE_ORDERS`]), and the
-//! higher orders the program gives slots for ([`TickTerm::AxisHarmonic`]) where they lie
+//! higher orders the program gives slots for (its `TickTerm::AxisHarmonic` terms) where they lie
 //! below [`MAX_HARMONIC_HZ`]. Friction and hysteresis put their error at the odd harmonics,
 //! and at low speed far up them: the stick after each reversal is a short pulse, of which
 //! the first and third harmonics leave most (at 5 Hz, 760 of 1,190 nm PV in the simulated
@@ -43,14 +43,12 @@
 
 use super::{AxisError, AxisModel, AxisParams, AxisState};
 use crate::math::sin_turns;
-#[cfg(doc)]
-use crate::program::TickTerm;
 
 /// Harmonic orders every compensator learns, of the command frequency (the fundamental
 /// first; the third is synthesised in the axis term's own slot).
 pub const BASE_ORDERS: [u32; 2] = [1, 3];
 const _: () = assert!(BASE_ORDERS[0] == 1, "the command's fundamental is tracked with the first order's phase");
-/// Most higher orders a program gives slots for ([`TickTerm::AxisHarmonic`]).
+/// Most higher orders a program gives slots for (its `TickTerm::AxisHarmonic` terms).
 pub const MAX_HIGHER_ORDERS: usize = 6;
 /// Most orders a compensator learns.
 pub const MAX_ORDERS: usize = BASE_ORDERS.len() + MAX_HIGHER_ORDERS;

@@ -7,7 +7,7 @@
 //!
 //! | effect | term(s) |
 //! |---|---|
-//! | `coulomb-friction`, `presliding-hysteresis`, `force-ripple` | one servo-axis twin ([`axis`], [`sts_twin_core::axis`]): the controller, slide, mode and the effects simulated from the command, identified on the encoder and probe readings |
+//! | `coulomb-friction`, `presliding-hysteresis`, `force-ripple` | one servo-axis twin ([`axis`], [`sts_twin_core::axis`]): the controller, slide, mode and the effects simulated from the command, identified on the encoder and probe readings; and up to six slots for its correction's higher harmonics ([`TickTerm::AxisHarmonic`], as the tick's budget allows) |
 //! | `thermal-drift` | `offset + decay exp(-t / tau)` over machine time |
 //! | `axis-coupling` | X acceleration gain and the spindle's once-per-revolution sine |
 //! | `setpoint-delay` | a Laguerre bank on the command velocity: the axis's linear response to the command (the delay and the servo's own lag) ([`linear`]) |

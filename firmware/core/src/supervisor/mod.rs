@@ -593,6 +593,39 @@ mod tests {
     }
 
     #[test]
+    fn a_window_as_noisy_as_its_excess_does_not_trip() {
+        // The limit at 3000 nm: 1.1 x 0.9 + 0.05 + 50 / 3000 = 1.0567; 1.2 is over it by
+        // 0.14, which three standard errors of 0.05 cover and of 0.04 do not.
+        for (sd, trips) in [(0.05, false), (0.04, true)] {
+            let mut sup = with_baseline();
+            for k in 0..4 {
+                let mut o = obs(1650 + 50 * k, false, 0, 40.0, 1.2);
+                o.estimate.as_mut().unwrap().error_ratio_sd = sd;
+                sup.judge(&o);
+            }
+            assert_eq!(sup.state().tripped.is_some(), trips, "sd {sd}");
+        }
+    }
+
+    #[test]
+    fn the_gate_leaves_command_driven_compensation_on_a_trip_does_not() {
+        let mut sup = with_baseline();
+        let mut o = obs(1650, false, 0, 40.0, 0.5);
+        o.estimate.as_mut().unwrap().motion_share = 0.2;
+        sup.judge(&o);
+        assert!(!sup.allows(), "gated");
+        assert!(sup.allows_command_driven(), "an axis twin's correction reads no feature");
+        for tick in [1700, 1750, 1800] {
+            sup.judge(&obs(tick, false, 0, 40.0, 1.5));
+        }
+        assert_eq!(sup.state().tripped, Some(Trip::WorseThanBare));
+        assert!(!sup.allows_command_driven(), "a trip holds everything off");
+        // Without a baseline nothing is allowed either.
+        let (fresh, _) = Supervisor::new(SupervisorParams::default(), 0);
+        assert!(!fresh.allows_command_driven());
+    }
+
+    #[test]
     fn switched_off_it_allows_everything_and_trips_nothing() {
         let mut sup = with_baseline();
         sup.set_params(SupervisorParams { active: false, ..Default::default() }, 1650).unwrap();

@@ -379,6 +379,14 @@ mod tests {
         // Both: the noise still counts as noise.
         let both = with_harmonics(0.02, 0.02, 3200);
         assert!(both.motion_share < 0.3, "{both:?}");
+        // The error ratio's noise: the white noise's through the fit of 200 blocks, 16
+        // samples each (per component 0.02 / sqrt(16 x 100) m/s^2 over the motion's 0.0118),
+        // whatever repeats beside it.
+        let expected_sd = 2f64.sqrt() * 0.02 / (16.0f64 * 100.0).sqrt() / 0.0118;
+        for est in [noise_only, both] {
+            assert!((f64::from(est.error_ratio_sd) / expected_sd - 1.0).abs() < 0.25, "{est:?} against {expected_sd}");
+        }
+        assert!(friction.error_ratio_sd < 0.1 * noise_only.error_ratio_sd, "{friction:?}");
     }
 
     #[test]

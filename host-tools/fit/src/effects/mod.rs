@@ -455,7 +455,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
 
 /// The higher harmonics of the axis twin's correction the program gives slots to
 /// ([`TickTerm::AxisHarmonic`]), ascending: those in which the twin's own error is largest
-/// on slow, cut-like motions ([`ORDER_CHOICE_STROKES_UM`] at [`ORDER_CHOICE_FREQ_HZ`], each
+/// on slow, cut-like motions ([`ORDER_CHOICE_STROKES_UM`] at [`ORDER_CHOICE_FREQS_HZ`], each
 /// at [`ORDER_CHOICE_OFFSETS_UM`]), as many as fit the tick's budget beside `terms` (which
 /// hold the axis term) and the program's slots. Friction and hysteresis put their error at
 /// the odd harmonics; a ripple's depends on where in its pitch the motion lies, odd and
@@ -469,14 +469,18 @@ fn higher_orders(terms: &[TickTerm]) -> Vec<u8> {
     };
     let candidates: Vec<u8> = (2..=MAX_HARMONIC_ORDER).filter(|&o| !BASE_ORDERS.contains(&u32::from(o))).collect();
     let fs = f64::from(sts_twin_core::SERVO_RATE_HZ);
-    let ticks_per_period = (fs / ORDER_CHOICE_FREQ_HZ).round() as usize;
-    let motions: Vec<(f64, f64)> = ORDER_CHOICE_STROKES_UM
+    let motions: Vec<(f64, f64, f64)> = ORDER_CHOICE_FREQS_HZ
         .iter()
-        .flat_map(|&amp| ORDER_CHOICE_OFFSETS_UM.iter().map(move |&offset| (amp, offset)))
+        .flat_map(|&freq| {
+            ORDER_CHOICE_STROKES_UM
+                .iter()
+                .flat_map(move |&amp| ORDER_CHOICE_OFFSETS_UM.iter().map(move |&offset| (freq, amp, offset)))
+        })
         .collect();
     let power: Vec<f64> = motions
         .par_iter()
-        .map(|&(amp_um, offset_um)| {
+        .map(|&(freq_hz, amp_um, offset_um)| {
+            let ticks_per_period = (fs / freq_hz).round() as usize;
             // Settled for two periods, then five measured.
             let mut state = sts_twin_core::axis::AxisState::INITIAL;
             let mut error_um = Vec::with_capacity(5 * ticks_per_period);
@@ -516,10 +520,13 @@ fn higher_orders(terms: &[TickTerm]) -> Vec<u8> {
     chosen
 }
 
-/// The command frequency of the motions [`higher_orders`] are chosen on, Hz: slow, where
-/// the compensator learns them all (15 times it is below
+/// The command frequencies of the motions [`higher_orders`] are chosen on, Hz: slow, where
+/// the compensator learns them all (15 times each is below
 /// [`MAX_HARMONIC_HZ`](sts_twin_core::axis::compensate::MAX_HARMONIC_HZ)).
-const ORDER_CHOICE_FREQ_HZ: f64 = 5.0;
+/// Two, so that a structural mode's ringing after each reversal, which falls at other orders
+/// at each, does not rank the orders near it first (at 5 Hz alone, with two slots left beside
+/// a drift, friction's were 5 and 15: the default machine's mode is at 17.9 times 5 Hz).
+const ORDER_CHOICE_FREQS_HZ: [f64; 2] = [5.0, 10.0];
 /// Their strokes, um: a cut's, which shrink toward its centre.
 const ORDER_CHOICE_STROKES_UM: [f64; 3] = [1.0, 2.0, 3.0];
 /// Their centres, um: spread over a few um, so that a position-periodic error is met at

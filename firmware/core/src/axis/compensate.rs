@@ -313,11 +313,9 @@ impl Compensator {
                     let response = self.response(step.wrapping_mul(self.orders[i]));
                     (response, response.inverse())
                 } else {
+                    self.relative[i] = Phasor::ZERO;
                     (Phasor::ZERO, Phasor::ZERO)
                 };
-                if i >= self.learned {
-                    self.relative[i] = Phasor::ZERO;
-                }
             }
         }
         // mu per tick: the fraction per period over the ticks of a period.

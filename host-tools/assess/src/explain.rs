@@ -1,7 +1,8 @@
 //! `explain`: the lab's loop run by itself. Fit a twin (or start from a given one), diagnose
 //! its residual on the same data, give the twin the named effect, refit, diagnose again;
 //! until `diagnose` names nothing (the residual is at the data's floor), the named effect
-//! does not lower the error, it cannot be added, or the effect budget is spent.
+//! does not lower the error by [`NAMED_MIN_GAIN`], it cannot be added, or the effect budget is
+//! spent. No effect is kept whose own term does not lower the error.
 //!
 //! Each step's "before" is the twin's error on the data (a twin fitted on it: its own
 //! 5-fold held-out waveform RMS; a given base twin: its waveform RMS on the data, every group
@@ -79,7 +80,8 @@ pub enum Stop {
         /// The effect.
         effect: String,
     },
-    /// Adding the named effect did not lower the held-out error; the twin before it is kept.
+    /// Adding the named effect did not lower the held-out error by [`NAMED_MIN_GAIN`]; the twin
+    /// before it is kept.
     NoGain {
         /// The effect.
         effect: String,
@@ -110,7 +112,8 @@ impl Stop {
                 )
             }
             Stop::NoGain { effect, waveform_rms_um } => format!(
-                "adding {effect} did not lower the held-out error ({:.1} nm with it); the twin before it is kept",
+                "adding {effect} did not lower the held-out error by {:.0}% ({:.1} nm with it); the twin before it is kept",
+                NAMED_MIN_GAIN * 100.0,
                 waveform_rms_um * 1e3
             ),
             Stop::CannotAdd { effect, reason } => format!("{effect} cannot be added: {reason}"),
@@ -210,6 +213,11 @@ impl Standing {
 
 /// Significant candidates a rung tries, strongest first, before it stops.
 const MAX_TRIES: usize = 3;
+
+/// Least relative fall of the held-out error that keeps a named effect: a term of its own
+/// lets any refit bend a little closer to the data, and a name is a claim about the machine
+/// (the suites count an effect whose refit gains less as absorbed by the twin).
+pub const NAMED_MIN_GAIN: f64 = 0.1;
 
 /// Least relative fall of the held-out error that keeps the axis twin's second mode when
 /// `diagnose` did not name it: an axis with one mode gains a little from a second one too.
@@ -363,6 +371,8 @@ pub fn explain(
         }
         let mut first_failure: Option<Stop> = None;
         let mut added = None;
+        // The named effect whose partner is added alone (it brought nothing beside it).
+        let mut partner_of: Option<usize> = None;
         for &i in &tries {
             let named = &d.ranking[i];
             let mut with: Vec<String> = names.clone();
@@ -374,7 +384,8 @@ pub fn explain(
                 Ok((m, _))
                     if m.validation.waveform_rms_um.is_nan()
                         || Standing::of_fit(&m).repeating_rms_um(&skip)
-                            >= if Some(i) == unnamed_try { (1.0 - SECOND_MODE_MIN_GAIN) * now_um } else { now_um } =>
+                            >= (1.0 - if Some(i) == unnamed_try { SECOND_MODE_MIN_GAIN } else { NAMED_MIN_GAIN })
+                                * now_um =>
                 {
                     Stop::NoGain { effect: named.effect.clone(), waveform_rms_um: m.validation.waveform_rms_um }
                 }
@@ -397,7 +408,22 @@ pub fn explain(
             } else {
                 None
             };
-            if let Some((j, (m, r))) = pair {
+            // The named effect is kept beside its partner only where it adds to the partner
+            // alone (a partner tried above brought no gain by itself); otherwise the partner
+            // alone is the step, as if named.
+            let partner_alone = pair.as_ref().filter(|(j, _)| !tries.contains(j)).and_then(|(j, (pair_model, _))| {
+                let mut with = names.clone();
+                with.push(d.ranking[*j].effect.clone());
+                progress(ExplainProgress::Refitting { effects: &with });
+                let (m, r) = fit_with(dataset, &with, description, &config.fit, &mut |_| {}).ok()?;
+                let pair_um = Standing::of_fit(pair_model).repeating_rms_um(&skip);
+                (pair_um >= (1.0 - NAMED_MIN_GAIN) * Standing::of_fit(&m).repeating_rms_um(&skip))
+                    .then_some((*j, (m, r)))
+            });
+            if let Some((j, (m, r))) = partner_alone {
+                added = Some((j, (m, r)));
+                partner_of = Some(first);
+            } else if let Some((j, (m, r))) = pair {
                 let (a, b) = (&d.ranking[first], &d.ranking[j]);
                 let after_um = m.validation.waveform_rms_um;
                 let params_of =
@@ -407,7 +433,7 @@ pub fn explain(
                     explained_fraction: a.explained_fraction,
                     p_value: a.p_value,
                     evidence: format!(
-                        "{}; refitted alone it raised the held-out error to {:.1} nm, kept with the next step",
+                        "{}; refitted alone it left the held-out error at {:.1} nm, kept with the next step, which needs it",
                         a.evidence,
                         alone_um * 1e3
                     ),
@@ -447,7 +473,17 @@ pub fn explain(
             effect: named.effect.clone(),
             explained_fraction: named.explained_fraction,
             p_value: named.p_value,
-            evidence: if Some(i) == unnamed_try {
+            evidence: if let Some(a) = partner_of {
+                format!(
+                    "{}; {} alone, tried beside {}, which diagnose named but whose refit brought no gain: {} alone lowered the held-out error by {:.0}% and {} added nothing to it{over}",
+                    named.evidence,
+                    if named.significant { "significant" } else { "not significant" },
+                    d.ranking[a].effect,
+                    named.effect,
+                    gain_pct(&next_model),
+                    d.ranking[a].effect
+                )
+            } else if Some(i) == unnamed_try {
                 format!(
                     "{}: a mode the servo-axis twin lacks rings where its effects act; the twin's second mode was tried and lowered the held-out error by {:.0}%{over}",
                     if d.verdict == "none" {

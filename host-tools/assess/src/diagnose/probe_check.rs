@@ -21,7 +21,7 @@ pub fn probe_scale_error(ctx: &[GroupCtx]) -> Option<Ranked> {
     let k = split.constant;
     // What it explains of the slowest groups' measured error (second halves, as read).
     let (mut total_ss, mut left_ss) = (0.0, 0.0);
-    for g in &scale.groups {
+    for g in scale.slowest_groups() {
         let data = ctx[g.index].data;
         let half = data.len() / 2;
         let cmd = &data.z_cmd_um[half..];
@@ -49,21 +49,23 @@ pub fn probe_scale_error(ctx: &[GroupCtx]) -> Option<Ranked> {
     }
     let t = k / split.constant_se;
     let (lo, hi) = scale
-        .groups
-        .iter()
+        .slowest_groups()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), g| (lo.min(g.ratio - 1.0), hi.max(g.ratio - 1.0)));
-    let amps = scale.groups.iter().map(|g| g.amp_um);
+    let amps = scale.slowest_groups().map(|g| g.amp_um);
     let (amp_lo, amp_hi) = amps.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), a| (lo.min(a), hi.max(a)));
     Some(Ranked {
         effect: "sensor-gain".to_string(),
         explained_fraction,
         p_value: libm::erfc(t.abs() / std::f64::consts::SQRT_2),
-        groups_improved: scale.groups.iter().filter(|g| (g.ratio - 1.0) * k > 0.0).count(),
+        groups_improved: scale.slowest_groups().filter(|g| (g.ratio - 1.0) * k > 0.0).count(),
         params: vec![("probe_gain".into(), 1.0 + k)],
         evidence: format!(
-            "at the slowest groups ({} Hz, {} strokes of {amp_lo}-{amp_hi} um), where the servo follows the command, the measured error is in phase with the motion and {:+.2}% of it at every stroke ({:+.2}% to {:+.2}% per group; {:.0}% of the error there; {:.0} standard errors from zero; the part that falls with the stroke, the machine's own, {:.1} nm): the capacitance probe reads {:.1}% {} (scale error); a twin fitted on these readings learns it as dynamics, so it comes before every other candidate (which are scored on readings it distorts)",
+            "at the slowest groups ({} Hz, {} strokes of {amp_lo}-{amp_hi} um{}), where the servo follows the command, the measured error is in phase with the motion and {:+.2}% of it at every stroke ({:+.2}% to {:+.2}% per group; {:.0}% of the error there; {:.0} standard errors from zero; the part that falls with the stroke, the machine's own, {:.1} nm): the capacitance probe reads {:.1}% {} (scale error); a twin fitted on these readings learns it as dynamics, so it comes before every other candidate (which are scored on readings it distorts)",
             scale.slowest_freq_hz,
-            scale.groups.len(),
+            scale.slowest_groups().count(),
+            scale.next_freq_hz.map_or(String::new(), |f| format!(
+                "; beside those at {f} Hz, the machine's own in-phase error taken out as it grows with the frequency squared"
+            )),
             k * 100.0,
             lo * 100.0,
             hi * 100.0,

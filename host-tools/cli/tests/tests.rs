@@ -7,6 +7,7 @@ mod compare_model;
 mod explain_ladder;
 mod export;
 mod foreign;
+mod foreign_ball_screw;
 mod foreign_machine;
 mod import;
 mod machine_report;

@@ -10,6 +10,8 @@ use std::f64::consts::PI;
 use std::fmt::Write as _;
 use std::path::Path;
 
+pub mod ball_screw;
+
 /// Servo rate, Hz (the firmware's, so that the twin can run on the board).
 pub const RATE_HZ: f64 = 8000.0;
 /// Integration steps per servo tick (a 160 kHz grid, on which 8, 10, 16 and 20 kHz recorders
@@ -243,40 +245,48 @@ impl Foreign {
         out
     }
 
-    /// Measures the grid into `dir` as a lab would export it (see the module docs).
+    /// Measures the grid into `dir` as a lab would export it ([`write_dataset`]).
     pub fn measure(&self, dir: &Path, freqs_hz: &[f64], amps_um: &[f64], duration_s: f64, seed: u64) {
-        std::fs::create_dir_all(dir).unwrap();
-        let mut groups = Vec::new();
-        for (i, (&f, &a)) in freqs_hz.iter().flat_map(|f| amps_um.iter().map(move |a| (f, a))).enumerate() {
-            let [cmd, enc, tcp, acc] = self.run(f, a, duration_s, seed * 1000 + i as u64);
-            let mut csv = String::from("t_s,acc_mps2,z_cmd_um,z_tcp_um,z_enc_um\r\n");
-            for k in 0..cmd.len() {
-                writeln!(
-                    csv,
-                    "{:.8},{:.6},{:.6},{:.6},{:.4}\r",
-                    k as f64 / self.record_hz,
-                    acc[k],
-                    cmd[k],
-                    tcp[k],
-                    enc[k]
-                )
-                .unwrap();
-            }
-            let file = format!("run-{f}hz-{a}um.csv");
-            std::fs::write(dir.join(&file), csv).unwrap();
-            // Groups 1.5 s apart on machine time (the operator's pauses).
-            groups.push(
-                serde_json::json!({"file": file, "freq_hz": f, "amp_um": a, "start_s": i as f64 * (duration_s + 1.5)}),
-            );
-        }
-        let manifest = serde_json::json!({
-            "format": "sts-twin-dataset/1",
-            "sample_rate_hz": self.record_hz,
-            "description": "foreign two-mass slide, cascaded servo (test)",
-            "groups": groups,
+        let groups = freqs_hz.iter().flat_map(|f| amps_um.iter().map(move |a| (*f, *a)));
+        write_dataset(dir, self.record_hz, "foreign two-mass slide, cascaded servo (test)", groups, |i, f, a| {
+            self.run(f, a, duration_s, seed * 1000 + i as u64)
         });
-        std::fs::write(dir.join("manifest.json"), serde_json::to_string_pretty(&manifest).unwrap()).unwrap();
     }
+}
+
+/// Writes groups as a lab would export them: one CSV file per group by hand (columns in
+/// another order than the tools', CRLF line ends, other decimals), groups 1.5 s apart on
+/// machine time (the operator's pauses), no ADC scale in the manifest. `run(i, freq_hz,
+/// amp_um)` records group `i`: command, encoder, probe and accelerometer at `record_hz`.
+pub fn write_dataset(
+    dir: &Path,
+    record_hz: f64,
+    description: &str,
+    groups: impl Iterator<Item = (f64, f64)>,
+    run: impl Fn(usize, f64, f64) -> [Vec<f64>; 4],
+) {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut manifest_groups = Vec::new();
+    let mut start_s = 0.0;
+    for (i, (f, a)) in groups.enumerate() {
+        let [cmd, enc, tcp, acc] = run(i, f, a);
+        let mut csv = String::from("t_s,acc_mps2,z_cmd_um,z_tcp_um,z_enc_um\r\n");
+        for k in 0..cmd.len() {
+            writeln!(csv, "{:.8},{:.6},{:.6},{:.6},{:.4}\r", k as f64 / record_hz, acc[k], cmd[k], tcp[k], enc[k])
+                .unwrap();
+        }
+        let file = format!("run-{f}hz-{a}um.csv");
+        std::fs::write(dir.join(&file), csv).unwrap();
+        manifest_groups.push(serde_json::json!({"file": file, "freq_hz": f, "amp_um": a, "start_s": start_s}));
+        start_s += cmd.len() as f64 / record_hz + 1.5;
+    }
+    let manifest = serde_json::json!({
+        "format": "sts-twin-dataset/1",
+        "sample_rate_hz": record_hz,
+        "description": description,
+        "groups": manifest_groups,
+    });
+    std::fs::write(dir.join("manifest.json"), serde_json::to_string_pretty(&manifest).unwrap()).unwrap();
 }
 
 /// Gaussian noise (xorshift64* and Box-Muller): the foreign machine owes nothing to the

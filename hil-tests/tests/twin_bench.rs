@@ -1,5 +1,7 @@
 //! Instructions per servo tick of the twin firmware with a program, per-tick terms and model
-//! updates in force (ignored by default; prints figures for BENCHMARKS.md):
+//! updates in force. CI checks the costliest accepted programs against their cost models
+//! (`the_costliest_programs_...`, 3,000 ticks each); the benchmarks (ignored by default) print
+//! the figures for BENCHMARKS.md:
 //!
 //! ```text
 //! cargo test -p sts-hil-tests --release --test hil twin_bench:: -- --ignored --nocapture --test-threads=1
@@ -21,7 +23,8 @@
 
 use std::time::{Duration, Instant};
 
-use sts_hil::{bench_inputs, Hil, HilError, INSTRUCTION_BENCH_SHIFT};
+use sts_hil::board::qemu::Mps2Image;
+use sts_hil::{bench_inputs, Hil, HilConfig, HilError, INSTRUCTION_BENCH_SHIFT};
 use sts_rig::request_on;
 use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple, StructuralMode};
 use sts_twin_core::features::{FeatureConfig, BLOCK_SAMPLES};
@@ -206,17 +209,22 @@ impl Run {
     }
 }
 
-/// Runs `program` under `window_samples` and reads every tick's count.
+/// Runs `program` under `window_samples` for [`TICKS`] on the Cortex-M4F and reads every
+/// tick's count.
 fn run(program: &Program, window_samples: u32) -> Run {
+    run_on(sts_hil_tests::twin_config(), program, window_samples, TICKS)
+}
+
+/// [`run`] on the board of `config`, for `ticks` ticks.
+fn run_on(mut config: HilConfig, program: &Program, window_samples: u32, ticks: u32) -> Run {
     let _serial = sts_hil_tests::serial();
-    let mut config = sts_hil_tests::twin_config();
     config.icount_shift = INSTRUCTION_BENCH_SHIFT;
     let per_count = 40.0 / f64::from(1u32 << INSTRUCTION_BENCH_SHIFT);
     let mut hil = Hil::start(config).expect("boot");
     prepare(&mut hil, program.clone(), window_samples).expect("prepare");
-    let mut busy = Vec::with_capacity(TICKS as usize);
+    let mut busy = Vec::with_capacity(ticks as usize);
     let mut sum = hil.diagnostics().busy_sum_counts;
-    for input in bench_inputs(TICKS) {
+    for input in bench_inputs(ticks) {
         hil.step(input).expect("tick");
         busy.push(tick_instructions(&hil, &mut sum, per_count));
     }
@@ -224,7 +232,47 @@ fn run(program: &Program, window_samples: u32) -> Run {
     let underruns = hil.counters().underruns;
     hil.shutdown().expect("shutdown");
     assert_eq!(underruns, 0);
-    Run { busy, kinds: schedule(TICKS, window_samples), busy_max }
+    Run { busy, kinds: schedule(ticks, window_samples), busy_max }
+}
+
+/// The tick budget, checked in CI: the costliest programs the validator accepts of each kind
+/// (the benchmark's cases at the top of the cost model: the axis twin with friction and six
+/// higher harmonics, with all three effects beside a drift and a coupling, eight harmonic
+/// terms, two beside a Laguerre bank, a bank beside a coupling), each run for 3,000 ticks
+/// under the 0.1 s window (every tick ramps, a model result every 48 ticks) on the Cortex-M4F,
+/// the costliest also on the Cortex-M7: every tick within the program's cost model, and that
+/// within the budget. The supervisor's share of the tick (the command stored at each block
+/// end) is paid whether it gates or not; its estimates run in the background.
+#[test]
+fn the_costliest_programs_the_validator_accepts_run_within_their_cost_models_on_both_cores() {
+    let mut two_and_bank = harmonics(2);
+    two_and_bank.push(position_sine(0));
+    let cases: [(&str, Vec<TickTerm>); 5] = [
+        ("axis twin with friction and 6 higher harmonics", axis_with_higher_harmonics(6)),
+        ("axis twin with all three + Drift + AxisCoupling", vec![drift(), axis_coupling(), axis(true, true, true)]),
+        ("8 harmonic terms", harmonics(8)),
+        ("2 harmonic terms + 1 Laguerre bank", two_and_bank),
+        ("1 Laguerre bank (velocity sign) + AxisCoupling", vec![velocity_sign(), axis_coupling()]),
+    ];
+    let programs: Vec<(&str, Program)> = cases.into_iter().map(|(name, terms)| (name, program_with(&terms))).collect();
+    for (name, program) in &programs {
+        assert_eq!(program.validate(), Ok(()), "{name}: the firmware would reject it");
+        assert!(program.tick_cost() <= TICK_BUDGET_INSTRUCTIONS, "{name}: the cost model beyond the budget");
+    }
+    let costliest = programs.iter().max_by_key(|(_, p)| p.tick_cost()).expect("cases");
+    let m7 = HilConfig { board: Mps2Image::An500, ..sts_hil_tests::twin_config() };
+    let runs = programs
+        .iter()
+        .map(|(name, program)| (format!("{name}, Cortex-M4F"), program, sts_hil_tests::twin_config()))
+        .chain([(format!("{}, Cortex-M7", costliest.0), &costliest.1, m7)]);
+    let mut cases = Vec::new();
+    for (name, program, config) in runs {
+        let run = run_on(config, program, 800, 3000);
+        let worst = run.worst().max(run.busy_max);
+        println!("{name}: median {:.0}, worst {worst:.0}, cost model {}", run.quantile(0.5), program.tick_cost());
+        cases.push((name, worst, program.tick_cost()));
+    }
+    within_models(&cases);
 }
 
 /// Prints a run: the figures of the BENCHMARKS.md table, then the ticks by kind.

@@ -9,7 +9,11 @@
 //! Measured per case: the verdict (confusion matrix), the waveform RMS of the diagnosed model
 //! on the data (reference: every group is held out for it; lab: its own 5-fold held-out RMS),
 //! and the held-out RMS of the model fitted with the verdict's terms, against the reference
-//! model's own held-out RMS on clean data.
+//! model's own held-out RMS on clean data. In the lab's workflow a `none` on a hidden effect
+//! counts as right (absorbed by the formulas) only where the case's own twin is within 1.2x of
+//! the clean twin's error and a refit with the hidden effect gains less than 10%; a verdict
+//! naming an effect the machine does not have is counted and asserted (none in CI's runs,
+//! at most 10% of the verdicts in a full run).
 //!
 //! CI runs a reduced suite (`ci_suite`: one seed per effect on 5.5 s groups, refitted but for
 //! the effects that `explain_several_effects`' CI sets refit; `ci_suite_lab`: the same cases
@@ -77,6 +81,9 @@ fn fit_config(suite: &Suite) -> FitConfig {
 struct Outcome {
     verdict: String,
     reference_rms_um: f64,
+    /// Lab workflow, `none` on a hidden effect: the held-out RMS of a refit with that effect,
+    /// um, where the case's own twin is within [`ABSORBED_WITHIN`] of the clean twin's.
+    absorbed_refit_rms_um: Option<f64>,
     refit_rms_um: Option<f64>,
     /// How much the measurement itself depends on the emulator's integration step, nm.
     step_dependence_nm: f64,
@@ -101,6 +108,7 @@ fn expected_verdict(case: &str) -> &str {
 fn run_case(
     suite: &Suite,
     reference: &ModelFile,
+    clean_rms_um: f64,
     effect: Option<&str>,
     seed: u64,
     refit: bool,
@@ -135,14 +143,19 @@ fn run_case(
             (diagnose(&data, &own).expect("diagnose"), own.validation.waveform_rms_um)
         }
     };
-    let refit_rms_um = if refit && d.verdict != "none" {
-        let prepared = prepare(&data, std::slice::from_ref(&d.verdict)).expect("prepare");
+    let refit_with = |effect: &str| {
+        let prepared = prepare(&data, &[effect.to_string()]).expect("prepare");
         let model = fit(&prepared.dataset, "suite", &fit_config(suite), &mut |_| {}).expect("fit");
-        let model = prepared.attach(model).expect("attach");
-        Some(model.validation.waveform_rms_um)
-    } else {
-        None
+        prepared.attach(model).expect("attach").validation.waveform_rms_um
     };
+    let refit_rms_um = (refit && d.verdict != "none").then(|| refit_with(&d.verdict));
+    // `none` on a hidden effect is right only where the data shows the twin has it: its own
+    // twin near the clean one's error, and the effect's refit no better by much.
+    let absorbed_refit_rms_um =
+        (suite.workflow == Workflow::Lab && d.verdict == "none" && before_rms_um <= ABSORBED_WITHIN * clean_rms_um)
+            .then_some(effect)
+            .flatten()
+            .map(refit_with);
     if effect.is_some_and(|e| e != d.verdict) {
         for r in d.ranking.iter().take(3) {
             println!(
@@ -162,6 +175,7 @@ fn run_case(
     Outcome {
         verdict: d.verdict,
         reference_rms_um: before_rms_um,
+        absorbed_refit_rms_um,
         refit_rms_um,
         step_dependence_nm,
         not_repeating: d.repeatability.not_repeating.len(),
@@ -188,9 +202,12 @@ fn run_suite(suite: &Suite) {
     rows.insert(3, IN_BAND_MODE);
     rows.push("none");
     let mut confusion = vec![vec![0usize; labels.len()]; rows.len()];
-    // Lab workflow: `none` where the twin fitted on the data already predicts it within 1.5x
-    // of the clean twin's error (the formulas absorbed the effect), per hidden effect.
+    // Lab workflow: `none` where the twin fitted on the data already predicts it within
+    // [`ABSORBED_WITHIN`] of the clean twin's error and a refit with the hidden effect gains
+    // less than [`ABSORBED_MAX_GAIN`] (the formulas absorbed the effect), per hidden effect.
     let mut absorbed = vec![0usize; rows.len()];
+    // Verdicts naming an effect the machine does not have, per hidden effect.
+    let mut wrong = vec![0usize; rows.len()];
     // Per case due a refit: the effect, the seed and the outcome (its refit's RMS `None`
     // where not refitted here).
     let mut falls: Vec<(String, u64, Outcome)> = Vec::new();
@@ -203,20 +220,23 @@ fn run_suite(suite: &Suite) {
             let effect = if *truth == "none" { None } else { Some(*truth) };
             let refit_due = effect.is_some() && seed - suite.first_seed < suite.fit_seeds;
             let refit = refit_due && effect.is_some_and(|e| !suite.no_refit.contains(&e));
-            let o = run_case(suite, &reference, effect, seed, refit, refit_due);
+            let o = run_case(suite, &reference, clean_rms, effect, seed, refit, refit_due);
             let col = labels.iter().position(|l| *l == o.verdict).unwrap_or(labels.len() - 1);
             confusion[row][col] += 1;
-            let absorbed_here = suite.workflow == Workflow::Lab
-                && effect.is_some()
-                && o.verdict == "none"
-                && o.reference_rms_um <= 1.5 * clean_rms;
+            let absorbed_here =
+                o.absorbed_refit_rms_um.is_some_and(|r| r >= (1.0 - ABSORBED_MAX_GAIN) * o.reference_rms_um);
             absorbed[row] += usize::from(absorbed_here);
+            wrong[row] += usize::from(o.verdict != "none" && o.verdict != expected_verdict(truth));
             println!(
                 "{truth:<24} seed {seed:>2}: verdict {:<22} twin's RMS {:.1} nm{}{}",
                 o.verdict,
                 o.reference_rms_um * 1e3,
                 o.refit_rms_um.map_or(String::new(), |r| format!(", refit held-out RMS {:.1} nm", r * 1e3)),
-                if absorbed_here { " (absorbed by the formulas)" } else { "" }
+                match o.absorbed_refit_rms_um {
+                    Some(r) if absorbed_here => format!(" (absorbed by the formulas: its refit {:.1} nm)", r * 1e3),
+                    Some(r) => format!(" (not absorbed: its refit {:.1} nm)", r * 1e3),
+                    None => String::new(),
+                }
             );
             if refit_due {
                 falls.push((truth.to_string(), seed, o));
@@ -304,10 +324,14 @@ fn run_suite(suite: &Suite) {
     }
     let total: usize = (0..rows.len()).map(right).sum();
     let cases = rows.iter().filter(|l| run(l)).count() as u64 * suite.seeds;
+    let wrong_total: usize = wrong.iter().sum();
+    println!("names of effects the machine does not have: {wrong_total} of {cases} verdicts");
     println!("\noverall: {total}/{cases} correct; every refit's error fell by at least 50% and ended within 1.5x clean ({unpredictable} of {} hunting, 1.5x not asserted): {fall_ok}", falls.len());
     if suite.seeds >= 20 {
         assert!(all_ok, "a per-effect rate is below its target");
+        assert!(wrong_total as f64 <= 0.1 * cases as f64, "{wrong_total} of {cases} verdicts name an absent effect");
     } else {
+        assert_eq!(wrong_total, 0, "verdicts naming an effect the machine does not have");
         // Few seeds: the overall rate must still reach 90% and every clean case must be `none`.
         assert!(total as f64 >= 0.9 * cases as f64, "only {total} of {cases} verdicts right");
         if run("none") {
@@ -320,6 +344,12 @@ fn run_suite(suite: &Suite) {
     }
     assert!(fall_ok, "a refit did not halve the error, or ended above 1.5x clean on a determined measurement");
 }
+
+/// A `none` on a hidden effect is absorbed only where the case's own twin is within this
+/// factor of the clean twin's error...
+const ABSORBED_WITHIN: f64 = 1.2;
+/// ...and a refit with the hidden effect lowers it by less than this fraction.
+const ABSORBED_MAX_GAIN: f64 = 0.1;
 
 /// The axis twin's effects (and the drift), which CI refits in `explain_several_effects`'
 /// two sets (friction with hysteresis, drift with ripple) on the same grid: CI's share here

@@ -5,9 +5,11 @@
 //!
 //! Measured per set: which of its effects the ladder named, why it stopped, and the final
 //! twin's held-out waveform RMS against a twin of the clean machine fitted on the same grid.
-//! An effect the ladder did not name counts as absorbed where the formulas can carry it
-//! (loop delay, an above-band structural mode, a sensor gain: a change of the response at the
-//! command frequency) and the final twin ends within 2x of the clean twin's error. Where the
+//! An effect the ladder did not name counts as absorbed only where the data shows the twin
+//! carries it: the final twin within 1.2x of the clean twin's error, and a refit with the
+//! missed effect beside the named ones lowering that error by less than 10%. Names of effects
+//! the set does not hold are counted and asserted (none in CI's sets, at most 10% of the
+//! ladders in a full run). Where the
 //! machine hunts (a friction's limit cycle: a slow group's reading depends on the emulator's
 //! integration step), the final diagnosis must find groups that do not repeat, and the 2x is
 //! taken over the groups where it does not hunt, against the clean twin's error over the same
@@ -32,14 +34,17 @@ use rand_chacha::ChaCha8Rng;
 use sts_analysis::repeat::rms_without;
 use sts_assess::explain::{explain, ExplainConfig, Stop};
 use sts_emulator::{EffectSpec, PlantParams, EFFECT_NAMES};
+use sts_fit::effects::fit_with;
 use sts_fit::FitConfig;
 use sts_model::Validation;
 
 use crate::support::{clean_twin, hunting_groups, measure, plant_from_env};
 
-/// Effects a refitted formula can carry: a linear change of the response at the command
-/// frequency. `none` for them is right where the twin ends near the clean one's error.
-const ABSORBABLE: [&str; 4] = ["loop-delay", "setpoint-delay", "structural-mode", "sensor-gain"];
+/// A missed effect is absorbed only where the final twin is within this factor of the clean
+/// twin's error...
+const ABSORBED_WITHIN: f64 = 1.2;
+/// ...and a refit with it beside the named effects lowers that error by less than this.
+const ABSORBED_MAX_GAIN: f64 = 0.1;
 
 struct Sets {
     /// The sets, each with its draw index (its position in the full list, so that a set run
@@ -98,6 +103,9 @@ struct Outcome {
     not_repeating: Vec<String>,
     /// The final twin's held-out validation.
     final_validation: Validation,
+    /// Per effect of the set the ladder missed: the held-out RMS of a refit with it beside the
+    /// named ones, um, where the final twin ends within [`ABSORBED_WITHIN`] of clean.
+    missed_refits_um: Vec<(String, f64)>,
 }
 
 /// A twin's held-out waveform RMS over the groups not in `skip` (at least one of them left
@@ -107,7 +115,7 @@ fn rms_over_others(validation: &Validation, skip: &[String]) -> f64 {
         .expect("some groups left out and some kept")
 }
 
-fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
+fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64, clean_rms_um: f64) -> Outcome {
     let mut rng = ChaCha8Rng::seed_from_u64(0x5e75_0000 + seed * 256 + set_index as u64);
     let effects: Vec<EffectSpec> = set.iter().map(|n| EffectSpec::random(n, &mut rng).expect("known effect")).collect();
     let data = measure(&s.plant, s.paper_grid, effects.clone(), 500 + seed);
@@ -115,9 +123,25 @@ fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64) -> Outcome {
         if set.contains(&"coulomb-friction") { hunting_groups(&s.plant, &effects, 500 + seed) } else { Vec::new() };
     let config = ExplainConfig { fit: FitConfig { max_epochs: s.epochs, ..FitConfig::default() }, max_effects: 4 };
     let e = explain(&data, "several effects", None, &config, &mut |_| {}).expect("explain");
+    let named: Vec<String> = e.steps.iter().map(|st| st.effect.clone()).collect();
+    let missed_refits_um = if e.waveform_rms_um <= ABSORBED_WITHIN * clean_rms_um {
+        set.iter()
+            .filter(|m| !named.iter().any(|n| n == *m))
+            .map(|m| {
+                let mut with = named.clone();
+                with.push(m.to_string());
+                let rms_um = fit_with(&data, &with, "several effects", &config.fit, &mut |_| {})
+                    .map_or(f64::INFINITY, |(model, _)| model.validation.waveform_rms_um);
+                (m.to_string(), rms_um)
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     Outcome {
         specs: effects.iter().map(ToString::to_string).collect(),
-        named: e.steps.iter().map(|st| st.effect.clone()).collect(),
+        named,
+        missed_refits_um,
         stop: e.stop,
         start_rms_um: e.start_waveform_rms_um,
         final_rms_um: e.waveform_rms_um,
@@ -140,11 +164,12 @@ fn run_sets(s: &Sets) {
     println!("clean twin: held-out waveform RMS {:.2} nm", clean_rms_um * 1e3);
 
     let (mut cases, mut all_named, mut named_or_absorbed, mut within_2x) = (0usize, 0usize, 0usize, 0usize);
+    let mut with_wrong_name = 0usize;
     // Per effect: in how many sets it was hidden, and named.
     let mut per_effect = vec![(0usize, 0usize); EFFECT_NAMES.len()];
     for seed in s.first_seed..s.first_seed + s.seeds {
         for (index, set) in &s.sets {
-            let o = run_set(s, set, *index, seed);
+            let o = run_set(s, set, *index, seed, clean_rms_um);
             // A hunting machine's error where it hunts is no test of the twin (issue 17): the
             // ratio is taken over the other groups, against the clean twin's over the same
             // groups, and the diagnosis must have found groups that do not repeat.
@@ -159,8 +184,12 @@ fn run_sets(s: &Sets) {
             };
             let missed: Vec<&str> = set.iter().copied().filter(|e| !o.named.iter().any(|n| n == e)).collect();
             let wrong: Vec<&String> = o.named.iter().filter(|n| !set.contains(&n.as_str())).collect();
-            let absorbed = missed.iter().all(|m| ABSORBABLE.contains(m)) && ratio <= 2.0;
+            let absorbed = !missed.is_empty()
+                && missed.iter().all(|m| {
+                    o.missed_refits_um.iter().any(|(e, r)| e == m && *r >= (1.0 - ABSORBED_MAX_GAIN) * o.final_rms_um)
+                });
             cases += 1;
+            with_wrong_name += usize::from(!wrong.is_empty());
             all_named += usize::from(missed.is_empty());
             named_or_absorbed += usize::from(missed.is_empty() || absorbed);
             within_2x += usize::from(ratio <= 2.0);
@@ -188,7 +217,15 @@ fn run_sets(s: &Sets) {
                 if missed.is_empty() {
                     String::new()
                 } else {
-                    format!("; missed {}{}", missed.join(", "), if absorbed { " (absorbed)" } else { "" })
+                    format!(
+                        "; missed {}{}{}",
+                        missed.join(", "),
+                        if absorbed { " (absorbed)" } else { "" },
+                        o.missed_refits_um
+                            .iter()
+                            .map(|(e, r)| format!(", refit with {e} {:.1} nm", r * 1e3))
+                            .collect::<String>()
+                    )
                 },
                 if wrong.is_empty() {
                     String::new()
@@ -225,6 +262,11 @@ fn run_sets(s: &Sets) {
         "effects named in only {named_or_absorbed} of {cases} sets"
     );
     assert!(within_2x as f64 >= 0.8 * cases as f64, "final twin within 2x clean in only {within_2x} of {cases} sets");
+    println!("a name of an effect the set does not hold in {with_wrong_name} of {cases} ladders (at most 10%)");
+    assert!(
+        with_wrong_name as f64 <= 0.1 * cases as f64,
+        "{with_wrong_name} of {cases} ladders name an effect the set does not hold"
+    );
 }
 
 /// CI's share: two sets on 5.5 s groups, one of them the axis twin with two effects.

@@ -12,7 +12,7 @@ use std::path::Path;
 use sts_emulator::PlantParams;
 use sts_model::ModelFile;
 use sts_rig::machine_params;
-use sts_rig::trial::{run_trial, with_measured_path, TrialConfig, TrialReport};
+use sts_rig::trial::{run_trial, TrialConfig, TrialReport};
 use sts_rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
 use sts_twin_core::feedforward::FeedforwardParams;
 
@@ -31,18 +31,17 @@ struct Case {
 
 /// The bare cut of `case`'s machine (seed 1).
 fn bare(case: &Case) -> TrialReport {
-    let params = machine_params(&case.plant, case.plant.interface.offset_v);
+    let params = sts_rig::trial::calibrated(&mut SimCoprocessor::boot(&[]), &case.plant, &[], 1, false).unwrap().0;
     let config = TrialConfig { freq_hz: case.freq_hz, seed: 1, ..TrialConfig::default() };
     run_trial(&mut SimCoprocessor::boot(&[]), &case.plant, &[], None, params, &config).unwrap()
 }
 
-/// The parameters calibrated for `plant` on the host's core: the analogue path measured
-/// through it (seed 1). The firmware in QEMU measures the same path, number for number
-/// (`trial_hil`'s 40 Hz cuts), so each case measures it once, on the host, and every cut
+/// The parameters calibrated for `plant` on the host's core: offset, `K_dv` and the analogue
+/// path measured through it (seed 1). The firmware in QEMU measures the same, number for
+/// number (`trial_hil`'s 40 Hz cuts), so each case calibrates once, on the host, and every cut
 /// starts on a freshly booted co-processor given these parameters.
 fn calibrated(plant: &PlantParams) -> FeedforwardParams {
-    let params = machine_params(plant, plant.interface.offset_v);
-    with_measured_path(&mut SimCoprocessor::boot(&[]), plant, &[], params, 1).unwrap().0
+    sts_rig::trial::calibrated(&mut SimCoprocessor::boot(&[]), plant, &[], 1, true).unwrap().0
 }
 
 /// The cut of `case` with the twin and the supervisor switched off, on the host: what the
@@ -60,13 +59,12 @@ fn faulty(coprocessor: &mut dyn Coprocessor, case: &Case, calibrated: Feedforwar
     run_trial(coprocessor, &case.plant, &[], Some(&model()), (case.params)(calibrated), &config).unwrap()
 }
 
-/// After `faulty`, on the same co-processor: the default machine recalibrated (the analogue
-/// path measured through the co-processor, which switches the supervisor off meanwhile and
+/// After `faulty`, on the same co-processor: the default machine recalibrated (offset, `K_dv`
+/// and the analogue path measured through the co-processor, which switches the supervisor off meanwhile and
 /// so forgets the other machine's bare error), then its 40 Hz cut with sound parameters.
 fn sound(coprocessor: &mut dyn Coprocessor) -> TrialReport {
     let plant = PlantParams::default();
-    let params = machine_params(&plant, plant.interface.offset_v);
-    let (calibrated, _) = with_measured_path(coprocessor, &plant, &[], params, 1).unwrap();
+    let (calibrated, _) = sts_rig::trial::calibrated(coprocessor, &plant, &[], 1, true).unwrap();
     let config = TrialConfig { freq_hz: 40.0, seed: 1, ..TrialConfig::default() };
     run_trial(coprocessor, &plant, &[], Some(&model()), calibrated, &config).unwrap()
 }

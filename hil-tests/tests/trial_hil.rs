@@ -11,8 +11,7 @@ use sts_emulator::{EffectSpec, PlantParams};
 use sts_hil::HilConfig;
 use sts_model::ModelFile;
 use sts_rig::calibrate::PathPoint;
-use sts_rig::machine_params;
-use sts_rig::trial::{run_trial, with_measured_path, TrialConfig, TrialReport};
+use sts_rig::trial::{run_trial, TrialConfig, TrialReport};
 use sts_rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::TickTerm;
@@ -32,12 +31,16 @@ fn same_cut(a: &TrialReport, b: &TrialReport) -> bool {
         && a.points == b.points
 }
 
-/// The parameters calibrated on `coprocessor` for the machine with `effects` (seed 1): the
-/// analogue path measured through it, with the points.
+/// The parameters calibrated on `coprocessor` for the machine with `effects` (seed 1): offset,
+/// `K_dv` and the analogue path measured through it, with the path's points.
 fn calibrated(coprocessor: &mut dyn Coprocessor, effects: &[EffectSpec]) -> (FeedforwardParams, Vec<PathPoint>) {
-    let plant = PlantParams::default();
-    let params = machine_params(&plant, plant.interface.offset_v);
-    with_measured_path(coprocessor, &plant, effects, params, 1).unwrap()
+    sts_rig::trial::calibrated(coprocessor, &PlantParams::default(), effects, 1, true).unwrap()
+}
+
+/// The parameters of a bare cut of the machine with `effects`: offset and `K_dv` calibrated on
+/// the host's core (seed 1).
+fn calibrated_bare(plant: &PlantParams, effects: &[EffectSpec]) -> FeedforwardParams {
+    sts_rig::trial::calibrated(&mut SimCoprocessor::boot(&[]), plant, effects, 1, false).unwrap().0
 }
 
 /// The 40 Hz cut on the machine with `effects` (seed 1), the analogue path measured through
@@ -103,7 +106,7 @@ fn bare_cut(effects: &[EffectSpec]) -> TrialReport {
 /// [`bare_cut`] at `freq_hz`.
 fn bare_cut_at(freq_hz: f64, effects: &[EffectSpec]) -> TrialReport {
     let plant = PlantParams::default();
-    let params = machine_params(&plant, plant.interface.offset_v);
+    let params = calibrated_bare(&plant, effects);
     let config = TrialConfig { freq_hz, seed: 1, ..TrialConfig::default() };
     run_trial(&mut SimCoprocessor::boot(&[]), &plant, effects, None, params, &config).unwrap()
 }
@@ -248,7 +251,7 @@ fn the_axis_twin_compensates_friction_at_low_speed_through_its_higher_harmonics(
     assert!(higher >= 4, "the fixture gives {higher} higher harmonics slots");
     let config = TrialConfig { freq_hz: 10.0, r_start_mm: 0.2, r_eval_mm: 0.2, seed: 1, ..TrialConfig::default() };
     let plant = PlantParams::default();
-    let bare_params = machine_params(&plant, plant.interface.offset_v);
+    let bare_params = calibrated_bare(&plant, &effects);
     let bare = run_trial(&mut SimCoprocessor::boot(&[]), &plant, &effects, None, bare_params, &config).unwrap();
     let (params, _) = calibrated(&mut SimCoprocessor::boot(&[]), &effects);
     let with_sim = run_trial(&mut SimCoprocessor::boot(&[]), &plant, &effects, Some(&model), params, &config).unwrap();

@@ -8,8 +8,7 @@
 
 use sts_emulator::{EffectSpec, PlantParams};
 use sts_model::ModelFile;
-use sts_rig::machine_params;
-use sts_rig::trial::{run_trial, with_measured_path, TrialConfig};
+use sts_rig::trial::{calibrated, run_trial, TrialConfig};
 use sts_rig::SimCoprocessor;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -23,8 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let model = ModelFile::read(&fixtures.join(name))?;
         for feed_um_per_rev in [1.25, 2.5, 5.0, 10.0] {
             let mut cop = SimCoprocessor::boot(&[]);
-            let params = machine_params(&plant, plant.interface.offset_v);
-            let (params, _) = with_measured_path(&mut cop, &plant, effects, params, 1)?;
+            let (params, _) = calibrated(&mut cop, &plant, effects, 1, true)?;
             let config = TrialConfig { feed_um_per_rev, ..TrialConfig::default() };
             let r = run_trial(&mut cop, &plant, effects, Some(&model), params, &config)?;
             println!("| {name} | {feed_um_per_rev} | {:.4} | {:+.4} |", r.form_error_pv_um, r.phase_error_deg);

@@ -10,7 +10,9 @@ use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
 use sts_twin_core::supervisor::SupervisorParams;
 use sts_twin_core::wire::{Request, Response, Status};
 
-/// The feedforward parameters matching the emulated controller's analogue interface.
+/// The feedforward parameters matching the emulated controller's analogue interface: its
+/// true values, which only the calibration's starting point and its tests use; a cut uses what
+/// the calibration measures ([`crate::trial::calibrated`]), as a lab has only that.
 pub fn machine_params(plant: &PlantParams, offset_v: f64) -> FeedforwardParams {
     let ain = &plant.interface;
     FeedforwardParams {

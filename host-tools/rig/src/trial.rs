@@ -18,7 +18,7 @@ use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::supervisor::Trip;
 use sts_twin_core::wire::{ConfigSource, Request};
 
-use crate::calibrate::{measure_path, path_table, PathConfig, PathPoint};
+use crate::calibrate::{measure_params, CalibrationConfig, PathConfig, PathPoint};
 use crate::{expect_ack, run_loop, Bicuspid, Coprocessor, RigError, Trajectory, TrajectoryPoint};
 use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_model::ModelFile;
@@ -145,21 +145,21 @@ impl TrialReport {
     }
 }
 
-/// Measures the analogue path's phase with `coprocessor` on a machine like the trial's (same
-/// plant and effects, its own noise seed), as a lab calibrates before cutting, and returns
-/// `params` carrying the table, with the measured points.
-pub fn with_measured_path(
+/// Calibrates `coprocessor` before a cut as a lab does (`sts-twin calibrate-offset`'s steps
+/// 1-3, [`measure_params`]) on a machine like the trial's (same plant and effects, its own
+/// noise seed): the interface offset, `K_dv` and `K_vc`, and with `path` the analogue path.
+/// Returns the parameters to cut with and the path's points (empty without `path`).
+pub fn calibrated(
     coprocessor: &mut dyn Coprocessor,
     plant: &PlantParams,
     effects: &[EffectSpec],
-    params: FeedforwardParams,
     seed: u64,
+    path: bool,
 ) -> Result<(FeedforwardParams, Vec<PathPoint>), RigError> {
     let mut machine = Machine::new(plant, effects, seed ^ 0xCA1B)?;
-    let config = PathConfig::default();
-    let points = measure_path(coprocessor, &mut machine, params, &config, 0)?;
-    let analogue_path = path_table(&points, config.amp_um)?;
-    Ok((FeedforwardParams { analogue_path, ..params }, points))
+    let config = CalibrationConfig { path: path.then(PathConfig::default), ..CalibrationConfig::default() };
+    let measured = measure_params(coprocessor, &mut machine, plant, &config, &mut |_| {})?;
+    Ok((measured.params, measured.path))
 }
 
 /// Time over which X accelerates to the facing feed before the cut, s.

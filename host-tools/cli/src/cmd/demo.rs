@@ -6,8 +6,7 @@ use std::path::PathBuf;
 use sts_emulator::{MeasureConfig, PlantParams};
 
 use sts_fit::{fit, FitConfig};
-use sts_rig::machine_params;
-use sts_rig::trial::{run_trial, with_measured_path, TrialConfig};
+use sts_rig::trial::{calibrated, run_trial, TrialConfig};
 
 use super::machine::{coprocessor, print_path, print_report};
 use sts_analysis::resample::SERVO_RATE_HZ;
@@ -55,19 +54,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
     eprintln!("3/3 cutting the bicuspid surface at {} Hz with {which} in the loop ...", args.freq);
-    let params = machine_params(&plant, plant.interface.offset_v);
     let window_samples = args.window_s.map(|s| ((s * SERVO_RATE_HZ) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut reports = Vec::new();
     for twin in [None, Some(&model)] {
         let mut cop = coprocessor(args.sim)?;
-        let params = if twin.is_some() && !args.no_path {
-            let (params, points) = with_measured_path(cop.as_mut(), &plant, &[], params, args.seed)?;
+        // Calibrated first, as a lab does: offset and K_dv, and the analogue path for the twin.
+        let (params, points) = calibrated(cop.as_mut(), &plant, &[], args.seed, twin.is_some() && !args.no_path)?;
+        if !points.is_empty() {
             print_path(&points);
-            params
-        } else {
-            params
-        };
+        }
         let report = run_trial(cop.as_mut(), &plant, &[], twin, params, &config)?;
         print_report(&report);
         reports.push(report);

@@ -9,8 +9,7 @@ use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_hil::HilConfig;
 use sts_model::ModelFile;
 use sts_rig::calibrate::PathPoint;
-use sts_rig::machine_params;
-use sts_rig::trial::{run_trial, stored_params, with_measured_path, TrialConfig, TrialReport};
+use sts_rig::trial::{calibrated, run_trial, stored_params, TrialConfig, TrialReport};
 use sts_rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
 
 /// Arguments of `sts-twin machine`.
@@ -28,8 +27,9 @@ pub struct Args {
     /// Run the core on the host instead of the firmware in QEMU (bit-identical, faster).
     #[arg(long)]
     pub sim: bool,
-    /// Offset voltage set in the co-processor (as `calibrate-offset` would), V; default: the
-    /// plant's interface offset.
+    /// Offset voltage set in the co-processor, V, in place of the one the calibration before
+    /// the cut measures (offset, K_dv and, for a twin, the analogue path, as
+    /// `calibrate-offset` does).
     #[arg(long)]
     pub offset: Option<f64>,
     /// Seed of the machine's noise.
@@ -39,8 +39,8 @@ pub struct Args {
     /// least 0.1 s).
     #[arg(long)]
     pub window_s: Option<f64>,
-    /// Do not measure the analogue path's phase before the twin's cut (Eq. 5 as the paper
-    /// applies it, uncorrected for the path's lag).
+    /// Do not measure the analogue path's phase in the calibration before the twin's cut (Eq.
+    /// 5 as the paper applies it, uncorrected for the path's lag).
     #[arg(long)]
     pub no_path: bool,
     /// Print the report as JSON.
@@ -51,7 +51,7 @@ pub struct Args {
     pub html: Option<PathBuf>,
     /// Cut with the calibration stored in this QEMU board memory file by
     /// `sts-twin calibrate-offset --bus FILE` (offset, K_dv, analogue path), as a machinist
-    /// calibrates once and then cuts, instead of the plant's offset and a path measured here.
+    /// calibrates once and then cuts, instead of a calibration run here before the cut.
     #[arg(long, conflicts_with_all = ["sim", "offset", "no_path"])]
     pub bus: Option<PathBuf>,
 }
@@ -149,7 +149,6 @@ pub fn print_report(report: &TrialReport) {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let (plant, effects) = args.machine.load()?;
     let model = args.twin.as_ref().map(|p| ModelFile::read(p)).transpose()?;
-    let params = machine_params(&plant, args.offset.unwrap_or(plant.interface.offset_v));
     let window_samples = args.window_s.map(|s| ((s * SERVO_RATE_HZ) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut cop = match &args.bus {
@@ -171,13 +170,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             );
         }
         stored
-    } else if model.is_some() && !args.no_path {
-        let (params, points) = with_measured_path(cop.as_mut(), &plant, &effects, params, args.seed)?;
-        if !args.json {
+    } else {
+        // Calibrated first, as a lab does: offset and K_dv, and the analogue path for a twin.
+        let with_path = model.is_some() && !args.no_path;
+        let (mut params, points) = calibrated(cop.as_mut(), &plant, &effects, args.seed, with_path)?;
+        if let Some(offset_v) = args.offset {
+            params.offset_v = offset_v as f32;
+        }
+        if !args.json && !points.is_empty() {
             print_path(&points);
         }
-        params
-    } else {
         params
     };
     let report = run_trial(cop.as_mut(), &plant, &effects, model.as_ref(), params, &config)?;

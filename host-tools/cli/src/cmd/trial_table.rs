@@ -10,8 +10,7 @@ use sts_emulator::{EffectSpec, MeasureConfig, PlantParams};
 use sts_fit::effects::{fit_with, write_records, AXIS_EFFECTS, SERVO_AXIS};
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
-use sts_rig::machine_params;
-use sts_rig::trial::{run_trial, with_measured_path, TrialConfig, TrialReport};
+use sts_rig::trial::{calibrated, run_trial, TrialConfig, TrialReport};
 
 use super::machine::{coprocessor, MachineArgs};
 
@@ -176,15 +175,17 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             model
         }
     };
-    let params = machine_params(&plant, plant.interface.offset_v);
     let mut rows = Vec::new();
     for &freq_hz in &args.freqs {
         let config = TrialConfig { freq_hz, seed: args.seed, ..TrialConfig::default() };
-        eprintln!("{freq_hz} Hz: bare machine ...");
-        let bare = run_trial(coprocessor(args.sim)?.as_mut(), &plant, &effects, None, params, &config)?;
-        eprintln!("{freq_hz} Hz: analogue path, then the twin ...");
+        // Each cut on a freshly booted co-processor, calibrated first as a lab does.
+        eprintln!("{freq_hz} Hz: calibration, then the bare machine ...");
         let mut cop = coprocessor(args.sim)?;
-        let (twin_params, _) = with_measured_path(cop.as_mut(), &plant, &effects, params, args.seed)?;
+        let (bare_params, _) = calibrated(cop.as_mut(), &plant, &effects, args.seed, false)?;
+        let bare = run_trial(cop.as_mut(), &plant, &effects, None, bare_params, &config)?;
+        eprintln!("{freq_hz} Hz: calibration with the analogue path, then the twin ...");
+        let mut cop = coprocessor(args.sim)?;
+        let (twin_params, _) = calibrated(cop.as_mut(), &plant, &effects, args.seed, true)?;
         let twin = run_trial(cop.as_mut(), &plant, &effects, Some(&model), twin_params, &config)?;
         let reduction_pct = 100.0 * (1.0 - twin.form_error_pv_um / bare.form_error_pv_um);
         let compensation = twin.compensation_summary();

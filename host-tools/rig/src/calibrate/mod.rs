@@ -20,7 +20,9 @@ pub use kdv::{measure_kdv, KdvConfig, KdvPoint, KdvReport};
 pub use lab::{calibrate_lab, LabCalibration, LabConfig, LabInstruments, LabPoint};
 pub use offset::{measure_offset, OffsetConfig, OffsetPoint, OffsetReport};
 pub use path::{measure_path, path_table, PathConfig, PathPoint};
-pub use procedure::{calibrate, describe_config_source, BootState, CalibrationConfig, CalibrationReport, StoreCheck};
+pub use procedure::{
+    calibrate, describe_config_source, measure_params, BootState, CalibrationConfig, CalibrationReport, Measured, StoreCheck,
+};
 pub use rest::{RestAverage, RestRig};
 
 /// The emulated machine's types the calibration takes, for callers without the emulator

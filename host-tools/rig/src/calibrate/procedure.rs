@@ -205,41 +205,10 @@ pub fn calibrate(
     let boot = BootState::read(board.coprocessor())?;
     progress(&boot.to_string());
 
-    // The DAC's full scale, slew limit and ramp are the co-processor's hardware settings;
-    // offset, K_dv and K_vc are what this measures.
-    let base = machine_params(plant, 0.0);
-    base.validate().map_err(|error| RigError::StartingParams { error })?;
-    let fs_v = f64::from(base.dac_full_scale_v);
-    let cop = board.coprocessor();
-    expect_ack("switching compensation off", cop.request(Request::SetEnabled(false))?)?;
-    expect_ack("clearing the program", cop.request(Request::ClearProgram)?)?;
-    expect_ack("the starting parameters", cop.request(Request::SetParams(base))?)?;
-
-    let mut rig = RestRig::new(cop, &mut machine, fs_v, 0);
-    progress("step 1: the interface offset (DAC codes against the controller's input reading, axis at rest)");
-    let offset = measure_offset(&mut rig, &base, &config.offset)?;
-    progress("step 2: K_dv (known voltages held, the probe at the TCP)");
-    let kdv = measure_kdv(&mut rig, &base, offset.offset_v, &config.kdv)?;
-    let mut params = FeedforwardParams {
-        offset_v: offset.offset_v as f32,
-        k_dv_um_per_v: kdv.k_dv_um_per_v as f32,
-        k_vc_pulses_per_v: offset.k_vc_pulses_per_v as f32,
-        ..base
-    };
-    params.validate().map_err(|error| RigError::MeasuredParams { error, params: Box::new(params) })?;
-    let path = match &config.path {
-        Some(path_config) => {
-            progress("step 3: the analogue path's phase (a sine through the analogue input at each frequency)");
-            let (cop, machine, tick) = rig.parts();
-            let t0_s = machine.time_s();
-            let points = measure_path(cop, machine, params, path_config, tick)?;
-            let ticks = ((machine.time_s() - t0_s) * path_config.sample_rate_hz).round() as u64;
-            rig.advanced(ticks, -offset.offset_v);
-            params.analogue_path = path_table(&points, path_config.amp_um)?;
-            points
-        }
-        None => Vec::new(),
-    };
+    let Measured { params, offset, kdv, path, rest_tick } =
+        measure_params(board.coprocessor(), &mut machine, plant, config, progress)?;
+    let fs_v = f64::from(params.dac_full_scale_v);
+    let mut rig = RestRig::new(board.coprocessor(), &mut machine, fs_v, rest_tick);
 
     progress("step 4: storing the calibration in the co-processor's config store");
     rig.request("the calibrated parameters", Request::SetParams(params))?;
@@ -282,6 +251,70 @@ pub fn calibrate(
         store,
         enable,
     })
+}
+
+/// What steps 1-3 measured.
+pub struct Measured {
+    /// The parameters: the co-processor's hardware settings with the measured offset,
+    /// `K_dv`, `K_vc` and (where measured) the analogue path's table.
+    pub params: FeedforwardParams,
+    /// Step 1 in detail.
+    pub offset: OffsetReport,
+    /// Step 2 in detail.
+    pub kdv: KdvReport,
+    /// Step 3's points (empty when not measured).
+    pub path: Vec<PathPoint>,
+    /// The tick the rest rig reached.
+    rest_tick: u64,
+}
+
+/// Steps 1-3 of the calibration on `coprocessor` against `machine` at rest: compensation off,
+/// the program cleared, then the offset, `K_dv` and (with `config.path`) the analogue path.
+/// The calibration runs them before it stores; a cut on the emulated machine runs them before
+/// it starts, as a lab calibrates its co-processor before cutting.
+pub fn measure_params(
+    coprocessor: &mut dyn Coprocessor,
+    machine: &mut Machine,
+    plant: &PlantParams,
+    config: &CalibrationConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Measured, RigError> {
+    // The DAC's full scale, slew limit and ramp are the co-processor's hardware settings;
+    // offset, K_dv and K_vc are what this measures (the plant's values are no more than a
+    // starting point).
+    let base = machine_params(plant, 0.0);
+    base.validate().map_err(|error| RigError::StartingParams { error })?;
+    let fs_v = f64::from(base.dac_full_scale_v);
+    expect_ack("switching compensation off", coprocessor.request(Request::SetEnabled(false))?)?;
+    expect_ack("clearing the program", coprocessor.request(Request::ClearProgram)?)?;
+    expect_ack("the starting parameters", coprocessor.request(Request::SetParams(base))?)?;
+
+    let mut rig = RestRig::new(coprocessor, machine, fs_v, 0);
+    progress("step 1: the interface offset (DAC codes against the controller's input reading, axis at rest)");
+    let offset = measure_offset(&mut rig, &base, &config.offset)?;
+    progress("step 2: K_dv (known voltages held, the probe at the TCP)");
+    let kdv = measure_kdv(&mut rig, &base, offset.offset_v, &config.kdv)?;
+    let mut params = FeedforwardParams {
+        offset_v: offset.offset_v as f32,
+        k_dv_um_per_v: kdv.k_dv_um_per_v as f32,
+        k_vc_pulses_per_v: offset.k_vc_pulses_per_v as f32,
+        ..base
+    };
+    params.validate().map_err(|error| RigError::MeasuredParams { error, params: Box::new(params) })?;
+    let path = match &config.path {
+        Some(path_config) => {
+            progress("step 3: the analogue path's phase (a sine through the analogue input at each frequency)");
+            let (cop, machine, tick) = rig.parts();
+            let t0_s = machine.time_s();
+            let points = measure_path(cop, machine, params, path_config, tick)?;
+            let ticks = ((machine.time_s() - t0_s) * path_config.sample_rate_hz).round() as u64;
+            rig.advanced(ticks, -offset.offset_v);
+            params.analogue_path = path_table(&points, path_config.amp_um)?;
+            points
+        }
+        None => Vec::new(),
+    };
+    Ok(Measured { params, offset, kdv, path, rest_tick: rig.tick() })
 }
 
 fn board_request(rig: &mut RestRig<'_>, request: Request) -> Result<Response, RigError> {

@@ -189,11 +189,11 @@ impl ProbeScale {
 mod tests {
     use super::*;
 
-    /// Groups at 1 and 20 Hz whose probe reads `1 + scale + machine_um / A` of a 1 Hz
-    /// command of stroke A (the 20 Hz ones read nonsense: only the slowest count).
-    fn groups(scale: f64, machine_um: f64) -> Vec<(GroupData, GroupInfo)> {
-        let fs = 1000.0;
-        [1.0, 20.0]
+    /// Six strokes (2-12 um) at each of `freqs_hz`, sampled at `fs` Hz, whose probe reads
+    /// `ratio(freq_hz, amp_um)` times the command.
+    fn groups_reading(fs: f64, freqs_hz: &[f64], ratio: impl Fn(f64, f64) -> f64) -> Vec<(GroupData, GroupInfo)> {
+        let ratio = &ratio;
+        freqs_hz
             .iter()
             .flat_map(|&freq_hz| {
                 (1..=6).map(move |a| {
@@ -204,13 +204,28 @@ mod tests {
                         let z = amp_um * (std::f64::consts::TAU * freq_hz * t).sin();
                         g.t_s[k] = t;
                         g.z_cmd_um[k] = z;
-                        g.z_tcp_um[k] = if freq_hz > 1.0 { 3.0 * z } else { z * (1.0 + scale + machine_um / amp_um) };
+                        g.z_tcp_um[k] = z * ratio(freq_hz, amp_um);
                     }
-                    let info = GroupInfo { file: String::new(), freq_hz, amp_um, start_s: 0.0 };
-                    (g, info)
+                    (g, GroupInfo { file: String::new(), freq_hz, amp_um, start_s: 0.0 })
                 })
             })
             .collect()
+    }
+
+    /// Groups at 1 and 20 Hz whose probe reads `1 + scale + machine_um / A` of a 1 Hz
+    /// command of stroke A (the 20 Hz ones read nonsense: only the slowest count).
+    fn groups(scale: f64, machine_um: f64) -> Vec<(GroupData, GroupInfo)> {
+        groups_reading(
+            1000.0,
+            &[1.0, 20.0],
+            |freq_hz, amp_um| {
+                if freq_hz > 1.0 {
+                    3.0
+                } else {
+                    1.0 + scale + machine_um / amp_um
+                }
+            },
+        )
     }
 
     fn scale_of(groups: &[(GroupData, GroupInfo)]) -> ProbeScale {
@@ -230,28 +245,10 @@ mod tests {
         assert!(scale.gain > 0.94);
     }
 
-    /// Groups at 10 and 20 Hz whose probe reads `1 + scale + c f^2` of the command: the
+    /// Groups at 10, 20 and 30 Hz whose probe reads `1 + scale + c f^2` of the command: the
     /// machine's own in-phase error, 3% at 10 Hz, grows with the frequency squared.
     fn groups_from_10_hz(scale: f64) -> Vec<(GroupData, GroupInfo)> {
-        let fs = 4000.0;
-        [10.0, 20.0, 30.0]
-            .iter()
-            .flat_map(|&freq_hz| {
-                (1..=6).map(move |a| {
-                    let amp_um = a as f64 * 2.0;
-                    let own = 0.03 * (freq_hz / 10.0f64).powi(2);
-                    let mut g = GroupData::with_len(2000);
-                    for k in 0..2000 {
-                        let t = k as f64 / fs;
-                        let z = amp_um * (std::f64::consts::TAU * freq_hz * t).sin();
-                        g.t_s[k] = t;
-                        g.z_cmd_um[k] = z;
-                        g.z_tcp_um[k] = z * (1.0 + scale + own);
-                    }
-                    (g, GroupInfo { file: String::new(), freq_hz, amp_um, start_s: 0.0 })
-                })
-            })
-            .collect()
+        groups_reading(4000.0, &[10.0, 20.0, 30.0], |freq_hz, _| 1.0 + scale + 0.03 * (freq_hz / 10.0f64).powi(2))
     }
 
     #[test]

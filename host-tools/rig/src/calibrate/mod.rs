@@ -21,7 +21,8 @@ pub use lab::{calibrate_lab, LabCalibration, LabConfig, LabInstruments, LabPoint
 pub use offset::{measure_offset, OffsetConfig, OffsetPoint, OffsetReport};
 pub use path::{measure_path, path_table, PathConfig, PathPoint};
 pub use procedure::{
-    calibrate, describe_config_source, measure_params, BootState, CalibrationConfig, CalibrationReport, Measured, StoreCheck,
+    calibrate, describe_config_source, measure_params, BootState, CalibrationConfig, CalibrationReport, Measured,
+    StoreCheck,
 };
 pub use rest::{RestAverage, RestRig};
 

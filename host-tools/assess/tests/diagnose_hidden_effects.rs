@@ -15,9 +15,8 @@
 //! naming an effect the machine does not have is counted and asserted (none in CI's runs,
 //! at most 10% of the verdicts in a full run).
 //!
-//! CI runs a reduced suite (`ci_suite`: one seed per effect on 5.5 s groups, refitted but for
-//! the effects that `explain_several_effects`' CI sets refit; `ci_suite_lab`: the same cases
-//! in the lab's workflow, without refits).
+//! CI runs a reduced suite in the lab's workflow (`ci_suite_lab`: one seed per effect on 5.5 s
+//! groups, refitted but for the effects that `explain_several_effects`' CI sets refit).
 //! The full run is
 //!
 //! ```text
@@ -356,37 +355,20 @@ const ABSORBED_MAX_GAIN: f64 = 0.1;
 /// diagnoses them but does not refit them again (the refits were 40 of its 95 s).
 const REFIT_BY_CI_SETS: &[&str] = &["coulomb-friction", "presliding-hysteresis", "thermal-drift", "force-ripple"];
 
-/// CI's share: the 99 groups shortened to 5.5 s, one seed per effect (and clean), each refitted
-/// but those in [`REFIT_BY_CI_SETS`].
+/// CI's share, in the lab's workflow: the 99 groups shortened to 5.5 s, one seed per effect
+/// (and clean), each diagnosed against a twin fitted on its own data, the in-band mode and the
+/// late setpoint included (both named from the data's own error, where the twin's formulas
+/// have bent towards them), and each named effect refitted but those in
+/// [`REFIT_BY_CI_SETS`]. The reference workflow runs in the full suite.
 #[test]
-fn ci_suite() {
+fn ci_suite_lab() {
     run_suite(&Suite {
-        workflow: Workflow::Reference,
+        workflow: Workflow::Lab,
         only: Vec::new(),
         first_seed: 0,
         seeds: env_u64("STS_SUITE_CI_SEEDS", 1),
         fit_seeds: env_u64("STS_SUITE_CI_FIT_SEEDS", 1),
         no_refit: REFIT_BY_CI_SETS,
-        paper_grid: false,
-        epochs: 10,
-        plant: PlantParams::default(),
-    });
-}
-
-/// CI's share of the lab's workflow: the same cases, each diagnosed against a twin fitted on
-/// its own data (no refits), the in-band mode and the late setpoint included (both named from
-/// the data's own error, where the twin's formulas have bent towards them).
-#[test]
-fn ci_suite_lab() {
-    let only: Vec<String> =
-        EFFECT_NAMES.iter().map(|e| e.to_string()).chain([IN_BAND_MODE.to_string(), "none".to_string()]).collect();
-    run_suite(&Suite {
-        workflow: Workflow::Lab,
-        only,
-        first_seed: 0,
-        seeds: env_u64("STS_SUITE_CI_SEEDS", 1),
-        fit_seeds: 0,
-        no_refit: &[],
         paper_grid: false,
         epochs: 10,
         plant: PlantParams::default(),

@@ -1,45 +1,19 @@
 //! The servo tick's outputs pinned bit for bit: a hash of every DAC code and prediction of
-//! long runs with every kind of per-tick term (programs within the tick budget), program
-//! changes and both update schedules (ramps that settle between model results and ramps
-//! that never do), and of the synthesiser driven directly with any terms (64-bit Laguerre
-//! stages and divisions too) and the inputs the bus does not carry yet. The hashes were
-//! taken from the implementation before the tick was optimised for its instruction budget;
-//! any change of output, however small, fails here.
+//! long runs with every kind of per-tick term (five programs within the tick budget: harmonics,
+//! Laguerre banks on each input, a drift, a servo-axis twin), program changes and both update
+//! schedules (ramps that settle between model results and ramps that never do), and of the
+//! synthesiser driven directly with random terms (64-bit Laguerre stages, divisions, couplings)
+//! and the inputs the bus does not carry yet. Any change of output, however small, fails here.
 //!
-//! Program switches changed on purpose once since: a harmonic that goes now ramps out over
-//! the synthesiser's ramp from the switch (model updates no longer restart its ramp, which
-//! with truncated steps never reached zero under short windows) and is then dropped, and
-//! the new program's kernel terms (and harmonics taking a fading one's slot) start with the
-//! first model result after it, instead of at once beside it (a harmonic replaced by a
-//! kernel or by another order stopped at once). So the runs with program switches
-//! (`twin_hash`, and `synth_hash`, whose terms change at random) were pinned again then;
-//! the runs without one (`*_without_a_program_switch_*`, each program alone and the
-//! synthesiser with fixed terms), pinned before that change, kept their hashes: nothing
-//! else changed.
-//!
-//! The fifth program was a Dahl bank with an axis coupling until the servo-axis term made
-//! that pair cost 802 instructions (the validator refuses it): it is a Dahl bank with a
-//! drift now, its own hashes and those of the switching runs pinned from the code of that
-//! change; the other four programs' hashes held, and the synthesiser-level runs still
-//! drive Dahl and coupling terms together.
-//!
-//! The third program had a second harmonic after its kernels until the supervisor's command
-//! store raised the cost model (the validator refuses it at 813): its own hash and those of
-//! the switching runs were pinned again from the code of that change; the other programs'
-//! hashes held. The supervisor is switched off in these runs (the stream is open loop).
-//!
-//! The second program was a velocity-sign bank with an axis coupling until the cost model was
-//! fitted again on the bench (2026-11-29: that pair, 832, is refused): it is the bank with a
-//! drift now, its own hashes and those of the switching runs pinned from the code of that
-//! change; the other programs' hashes held.
-//!
-//! The coupling's X part changed on purpose on 2026-12-02: the gain is taken to Q20 when the
-//! term starts and the tick multiplies by it, instead of dividing the product by 10^6 (the
-//! tick's coupling 684 -> 639 instructions), which moves an output by at most
-//! `|x_acc| 2^-21 + 1` pm (`the_couplings_x_part_is_the_exact_product_within_its_bound`). The synthesiser-level
-//! runs, whose random terms hold couplings, were pinned again then (seed 1, seed 2, and the
-//! second and third of the runs without a switch); the twin programs hold no coupling, and
-//! their hashes held.
+//! The runs without a program switch (each program alone, the synthesiser with fixed terms)
+//! and those with switches are pinned apart, so that a change of the switching behaviour
+//! leaves the first ones standing. A hash is pinned again only with a change of behaviour on
+//! purpose, whose commit says what changed and why (`git log -- firmware/core/tests/tick_golden.rs`);
+//! a change of speed alone must leave every hash as it is. What the hashes cannot say, that the
+//! outputs are right, other tests check against plain computations: `synth::kernel`'s unit
+//! tests hold each fast kernel to its plain 64-bit form (the velocity sign without a 64-bit
+//! division exactly, the coupling's product within its bound), and the HIL tests hold the
+//! firmware's DAC codes to the host core's.
 
 use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
 use sts_twin_core::features::FeatureConfig;

@@ -10,6 +10,8 @@ use sts_hil::HilConfig;
 use sts_model::ModelFile;
 use sts_rig::calibrate::PathPoint;
 use sts_rig::trial::{calibrated, run_trial, stored_params, TrialConfig, TrialReport};
+
+use super::range_twin::measure_and_fit_range;
 use sts_rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
 
 /// Arguments of `sts-twin machine`.
@@ -18,9 +20,17 @@ pub struct Args {
     /// Z operational frequency, Hz (the spindle turns at half of it).
     #[arg(long, default_value_t = 40.0)]
     pub freq: f64,
-    /// Model file of the twin; without it the bare machine cuts.
+    /// Model file of the twin. Without it (and without `--bare`) the machine is measured over
+    /// its whole range and its twin fitted by itself, as `trial-table` does (the servo-axis
+    /// twin and the effects the data shows, 20-100 s), written to `--out`, then the cut.
     #[arg(long)]
     pub twin: Option<PathBuf>,
+    /// Cut the bare machine: no twin, nothing fitted.
+    #[arg(long, conflicts_with = "twin")]
+    pub bare: bool,
+    /// Where the twin fitted without `--twin` is written.
+    #[arg(long, default_value = "target/range-twin.json")]
+    pub out: PathBuf,
     /// The emulated machine.
     #[command(flatten)]
     pub machine: MachineArgs,
@@ -148,7 +158,22 @@ pub fn print_report(report: &TrialReport) {
 /// Runs `sts-twin machine`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let (plant, effects) = args.machine.load()?;
-    let model = args.twin.as_ref().map(|p| ModelFile::read(p)).transpose()?;
+    let model = match (&args.twin, args.bare) {
+        (Some(path), _) => Some(ModelFile::read(path)?),
+        (None, true) => None,
+        (None, false) => {
+            let description = "machine: servo-axis twin over 1-100 Hz";
+            let model = measure_and_fit_range(&plant, &effects, args.seed, &args.out, description)?;
+            // With --json, stdout holds the JSON only.
+            let summary = super::demo::fit_summary(&model, &args.out);
+            if args.json {
+                eprintln!("{summary}");
+            } else {
+                println!("{summary}");
+            }
+            Some(model)
+        }
+    };
     let window_samples = args.window_s.map(|s| ((s * SERVO_RATE_HZ) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut cop = match &args.bus {

@@ -13,6 +13,7 @@ pub mod import;
 pub mod machine;
 pub mod measure;
 pub mod paper_table;
+pub mod range_twin;
 pub mod regress;
 mod status;
 pub mod trial_table;

@@ -11,7 +11,7 @@ use sts_model::ModelFile;
 use sts_rig::calibrate::PathPoint;
 use sts_rig::trial::{calibrated, run_trial, stored_params, TrialConfig, TrialReport};
 
-use super::range_twin::measure_and_fit_range;
+use super::range_twin::fit_and_report;
 use sts_rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
 
 /// Arguments of `sts-twin machine`.
@@ -161,18 +161,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let model = match (&args.twin, args.bare) {
         (Some(path), _) => Some(ModelFile::read(path)?),
         (None, true) => None,
-        (None, false) => {
-            let description = "machine: servo-axis twin over 1-100 Hz";
-            let model = measure_and_fit_range(&plant, &effects, args.seed, &args.out, description)?;
-            // With --json, stdout holds the JSON only.
-            let summary = super::demo::fit_summary(&model, &args.out);
-            if args.json {
-                eprintln!("{summary}");
-            } else {
-                println!("{summary}");
-            }
-            Some(model)
-        }
+        (None, false) => Some(fit_and_report(
+            &plant,
+            &effects,
+            args.seed,
+            &args.out,
+            "machine: servo-axis twin over 1-100 Hz",
+            args.json,
+        )?),
     };
     let window_samples = args.window_s.map(|s| ((s * SERVO_RATE_HZ) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };

@@ -17,7 +17,7 @@ fn range_freqs_hz() -> Vec<f64> {
 /// formulas on what it leaves, and from it lets `explain` add the effects the data shows
 /// (the machine's own, which the tool is not told); writes the twin to `out`, described as
 /// `description`.
-pub fn measure_and_fit_range(
+fn measure_and_fit_range(
     plant: &PlantParams,
     effects: &[EffectSpec],
     seed: u64,
@@ -94,6 +94,26 @@ pub fn measure_and_fit_range(
     }
     model.write(out)?;
     write_records(out, &records)?;
+    Ok(model)
+}
+
+/// [`measure_and_fit_range`], then the twin's summary for people: on stdout, or with `json`
+/// on stderr (stdout then holds the JSON only).
+pub fn fit_and_report(
+    plant: &PlantParams,
+    effects: &[EffectSpec],
+    seed: u64,
+    out: &std::path::Path,
+    description: &str,
+    json: bool,
+) -> anyhow::Result<ModelFile> {
+    let model = measure_and_fit_range(plant, effects, seed, out, description)?;
+    let summary = super::demo::fit_summary(&model, out);
+    if json {
+        eprintln!("{summary}");
+    } else {
+        println!("{summary}");
+    }
     Ok(model)
 }
 

@@ -9,7 +9,7 @@ use sts_model::ModelFile;
 use sts_rig::trial::{calibrated, run_trial, TrialConfig, TrialReport};
 
 use super::machine::{coprocessor, MachineArgs};
-use super::range_twin::measure_and_fit_range;
+use super::range_twin::fit_and_report;
 
 /// Arguments of `sts-twin trial-table`.
 #[derive(Debug, clap::Args)]
@@ -62,18 +62,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     let model = match &args.twin {
         Some(path) => ModelFile::read(path)?,
-        None => {
-            let description = "trial-table: servo-axis twin over 1-100 Hz";
-            let model = measure_and_fit_range(&plant, &effects, args.seed, &args.out, description)?;
-            // With --json, stdout holds the JSON only.
-            let summary = super::demo::fit_summary(&model, &args.out);
-            if args.json {
-                eprintln!("{summary}");
-            } else {
-                println!("{summary}");
-            }
-            model
-        }
+        None => fit_and_report(
+            &plant,
+            &effects,
+            args.seed,
+            &args.out,
+            "trial-table: servo-axis twin over 1-100 Hz",
+            args.json,
+        )?,
     };
     let mut rows = Vec::new();
     for &freq_hz in &args.freqs {

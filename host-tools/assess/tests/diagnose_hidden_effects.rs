@@ -42,7 +42,9 @@ use sts_fit::effects::prepare;
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
 
-use crate::support::{clean_twin, measure, plant_from_env, step_dependence_nm, HUNTING_STEP_NM};
+use crate::support::{
+    clean_twin, measure, plant_from_env, refit_gains_nothing, step_dependence_nm, ABSORBED_WITHIN, HUNTING_STEP_NM,
+};
 
 /// Which twin a case is diagnosed against.
 #[derive(Clone, Copy, PartialEq)]
@@ -222,8 +224,7 @@ fn run_suite(suite: &Suite) {
             let o = run_case(suite, &reference, clean_rms, effect, seed, refit, refit_due);
             let col = labels.iter().position(|l| *l == o.verdict).unwrap_or(labels.len() - 1);
             confusion[row][col] += 1;
-            let absorbed_here =
-                o.absorbed_refit_rms_um.is_some_and(|r| r >= (1.0 - ABSORBED_MAX_GAIN) * o.reference_rms_um);
+            let absorbed_here = o.absorbed_refit_rms_um.is_some_and(|r| refit_gains_nothing(r, o.reference_rms_um));
             absorbed[row] += usize::from(absorbed_here);
             wrong[row] += usize::from(o.verdict != "none" && o.verdict != expected_verdict(truth));
             println!(
@@ -343,12 +344,6 @@ fn run_suite(suite: &Suite) {
     }
     assert!(fall_ok, "a refit did not halve the error, or ended above 1.5x clean on a determined measurement");
 }
-
-/// A `none` on a hidden effect is absorbed only where the case's own twin is within this
-/// factor of the clean twin's error...
-const ABSORBED_WITHIN: f64 = 1.2;
-/// ...and a refit with the hidden effect lowers it by less than this fraction.
-const ABSORBED_MAX_GAIN: f64 = 0.1;
 
 /// The axis twin's effects (and the drift), which CI refits in `explain_several_effects`'
 /// two sets (friction with hysteresis, drift with ripple) on the same grid: CI's share here

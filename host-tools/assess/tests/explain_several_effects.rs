@@ -38,13 +38,7 @@ use sts_fit::effects::fit_with;
 use sts_fit::FitConfig;
 use sts_model::Validation;
 
-use crate::support::{clean_twin, hunting_groups, measure, plant_from_env};
-
-/// A missed effect is absorbed only where the final twin is within this factor of the clean
-/// twin's error...
-const ABSORBED_WITHIN: f64 = 1.2;
-/// ...and a refit with it beside the named effects lowers that error by less than this.
-const ABSORBED_MAX_GAIN: f64 = 0.1;
+use crate::support::{clean_twin, hunting_groups, measure, plant_from_env, refit_gains_nothing, ABSORBED_WITHIN};
 
 struct Sets {
     /// The sets, each with its draw index (its position in the full list, so that a set run
@@ -185,9 +179,9 @@ fn run_sets(s: &Sets) {
             let missed: Vec<&str> = set.iter().copied().filter(|e| !o.named.iter().any(|n| n == e)).collect();
             let wrong: Vec<&String> = o.named.iter().filter(|n| !set.contains(&n.as_str())).collect();
             let absorbed = !missed.is_empty()
-                && missed.iter().all(|m| {
-                    o.missed_refits_um.iter().any(|(e, r)| e == m && *r >= (1.0 - ABSORBED_MAX_GAIN) * o.final_rms_um)
-                });
+                && missed
+                    .iter()
+                    .all(|m| o.missed_refits_um.iter().any(|(e, r)| e == m && refit_gains_nothing(*r, o.final_rms_um)));
             cases += 1;
             with_wrong_name += usize::from(!wrong.is_empty());
             all_named += usize::from(missed.is_empty());

@@ -17,10 +17,10 @@ case "${1:-}" in
     build | test | all) mode=$1; shift ;;
 esac
 bash scripts/setup-python.sh
+source scripts/pyo3-env.sh
 if [ "$mode" != test ]; then
     rm -rf target/wheels
-    # For $PYO3_PYTHON where set (scripts/test.sh sets it for its builds), else python3.
-    python3 -m maturin build --locked --profile "$profile" -i "${PYO3_PYTHON:-python3}" \
+    python3 -m maturin build --locked --profile "$profile" -i "$PYO3_PYTHON" \
         -m host-tools/python/Cargo.toml -o target/wheels
 fi
 if [ "$mode" != build ]; then

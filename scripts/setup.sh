@@ -28,7 +28,7 @@ if ! command -v rustup >/dev/null; then
     echo "error: rustup not found; install Rust from https://rustup.rs first" >&2
     exit 1
 fi
-# clippy-driver lints the root workspace as scripts/test.sh builds it; rustfmt checks the format.
+# clippy lints, rustfmt checks the format.
 components=$(rustup component list --installed)
 for component in clippy rustfmt; do
     if ! grep -q "^$component-" <<<"$components"; then
@@ -44,8 +44,5 @@ for target in thumbv7em-none-eabihf riscv32imac-unknown-none-elf; do
     fi
 done
 
-# Python and the packages the tests use (scripts/setup-python.sh); `STS_TWIN_PYTHON_LATER=1`
-# leaves them to the caller (scripts/test.sh installs them while the firmware builds).
-if [ "${STS_TWIN_PYTHON_LATER:-0}" != 1 ]; then
-    bash "$(dirname "$0")/setup-python.sh"
-fi
+# Python and the packages the tests use.
+bash "$(dirname "$0")/setup-python.sh"

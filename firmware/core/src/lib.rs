@@ -7,6 +7,9 @@
 /// it follows) every 125 us. Every rate and tick length of the host tools derives from it.
 pub const SERVO_RATE_HZ: u32 = 8_000;
 
+/// One servo tick, s.
+pub const TICK_S: f64 = 1.0 / SERVO_RATE_HZ as f64;
+
 pub mod analogue_path;
 pub mod axis;
 pub mod bus;

@@ -5,6 +5,10 @@
 //! held in registers rather than in a `Vec`; every size computes the same arithmetic in the
 //! same order, so the outputs are the same bits whichever path runs (the test checks it).
 
+/// Pole of the Laguerre banks that model the servo's response to a disturbance, in the
+/// diagnosis's candidates and in the effect terms fitted for them alike.
+pub const LAGUERRE_POLE: f64 = 0.93;
+
 /// Laguerre filter bank outputs of `u` (whole group), kept over `start..`.
 pub fn laguerre(u: &[f64], start: usize, a: f64, stages: usize) -> Vec<Vec<f64>> {
     match stages {

@@ -3,8 +3,8 @@
 use sts_dataset::DatasetError;
 
 use crate::features::FeatureExtractionError;
-use crate::resample::SERVO_RATE_HZ;
 use crate::targets::TargetError;
+use sts_twin_core::SERVO_RATE_HZ;
 
 /// Why a dataset could not be read or turned into group samples.
 #[derive(Debug, thiserror::Error)]

@@ -25,9 +25,7 @@ use std::f64::consts::PI;
 
 use rayon::prelude::*;
 use sts_dataset::{Dataset, GroupData};
-
-/// The co-processor's servo rate, Hz.
-pub const SERVO_RATE_HZ: f64 = sts_twin_core::SERVO_RATE_HZ as f64;
+use sts_twin_core::SERVO_RATE_HZ;
 
 /// Zero crossings of the sinc on each side of an output instant (at the cut-off).
 const HALF_WIDTH_CROSSINGS: f64 = 32.0;
@@ -36,10 +34,10 @@ const CUTOFF_FRACTION: f64 = 0.95;
 
 /// `dataset` at the servo rate: borrowed when it is at that rate already.
 pub fn to_servo_rate(dataset: &Dataset) -> Cow<'_, Dataset> {
-    if dataset.manifest.sample_rate_hz == SERVO_RATE_HZ {
+    if dataset.manifest.sample_rate_hz == f64::from(SERVO_RATE_HZ) {
         Cow::Borrowed(dataset)
     } else {
-        Cow::Owned(resample(dataset, SERVO_RATE_HZ))
+        Cow::Owned(resample(dataset, f64::from(SERVO_RATE_HZ)))
     }
 }
 
@@ -249,7 +247,7 @@ mod tests {
             let recorded = dataset(rate_hz, 1.0, sine);
             let d = to_servo_rate(&recorded);
             let g = &d.groups[0];
-            assert_eq!(d.manifest.sample_rate_hz, SERVO_RATE_HZ);
+            assert_eq!(d.manifest.sample_rate_hz, f64::from(SERVO_RATE_HZ));
             assert!((g.t_s[1] - 1.0 / 8000.0).abs() < 1e-15);
             // Away from the record's ends (the window cut there), within 1e-4 of the signal.
             let worst = (100..g.len() - 100).map(|k| (g.z_tcp_um[k] - sine(g.t_s[k])).abs()).fold(0.0, f64::max);
@@ -264,7 +262,7 @@ mod tests {
     #[test]
     fn downsampling_removes_what_the_servo_rate_cannot_carry() {
         // 5 kHz at 20 kHz would alias to 3 kHz at 8 kHz; it is filtered out instead.
-        let d = resample(&dataset(20_000.0, 1.0, |t| (2.0 * PI * 5000.0 * t).sin()), SERVO_RATE_HZ);
+        let d = resample(&dataset(20_000.0, 1.0, |t| (2.0 * PI * 5000.0 * t).sin()), f64::from(SERVO_RATE_HZ));
         let g = &d.groups[0];
         let rms = ((200..g.len() - 200).map(|k| g.acc_mps2[k].powi(2)).sum::<f64>() / (g.len() - 400) as f64).sqrt();
         assert!(rms < 1e-3, "aliased RMS {rms}");
@@ -323,7 +321,7 @@ mod tests {
 
     #[test]
     fn a_dataset_at_the_servo_rate_is_not_copied() {
-        let d = dataset(SERVO_RATE_HZ, 0.1, |t| t);
+        let d = dataset(f64::from(SERVO_RATE_HZ), 0.1, |t| t);
         assert!(matches!(to_servo_rate(&d), Cow::Borrowed(_)));
     }
 }

@@ -9,7 +9,7 @@
 use std::f64::consts::PI;
 
 use crate::lsq::least_squares;
-use crate::resample::SERVO_RATE_HZ;
+use sts_twin_core::SERVO_RATE_HZ;
 
 /// A complex number, `(re, im)`.
 pub type Complex = (f64, f64);
@@ -76,7 +76,7 @@ pub fn mode_grid(top_hz: f64) -> Vec<(f64, f64)> {
 /// command of phasor `x_um`: `L0 = sqrt(1 - a^2) / (1 - a z^-1)`, each next stage times the
 /// all-pass `(z^-1 - a) / (1 - a z^-1)`, on `u = (1 - z^-4) x / smoothing`.
 pub fn velocity_bank<const N: usize>(freq_hz: f64, x_um: Complex, smooth_nm: f64, pole: f64) -> [Complex; N] {
-    let phi = 2.0 * PI * freq_hz / SERVO_RATE_HZ;
+    let phi = 2.0 * PI * freq_hz / f64::from(SERVO_RATE_HZ);
     let z1 = delay(phi);
     let z4 = delay(4.0 * phi);
     let u = mul((1.0 - z4.0, -z4.1), (x_um.0 * 1e3 / smooth_nm, x_um.1 * 1e3 / smooth_nm));
@@ -100,7 +100,7 @@ mod tests {
     fn the_bank_in_closed_form_is_the_bank_on_samples() {
         let (f, amp, smooth, pole) = (12.0, 5.0, 900.0, 0.93);
         let n = 16000;
-        let theta: Vec<f64> = (0..n).map(|k| 2.0 * PI * f * k as f64 / SERVO_RATE_HZ).collect();
+        let theta: Vec<f64> = (0..n).map(|k| 2.0 * PI * f * k as f64 / f64::from(SERVO_RATE_HZ)).collect();
         let x: Vec<f64> = theta.iter().map(|t| amp * t.sin()).collect();
         let u: Vec<f64> = (0..n).map(|k| (x[k] - x[k.saturating_sub(4)]) * 1e3 / smooth).collect();
         let stages = laguerre(&u, n / 2, pole, 4);

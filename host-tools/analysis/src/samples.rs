@@ -40,7 +40,7 @@ pub fn read_dataset(dir: &std::path::Path) -> Result<Dataset, AnalysisError> {
             "note: {} is sampled at {} Hz; resampled to the co-processor's servo rate, {} Hz",
             dir.display(),
             dataset.manifest.sample_rate_hz,
-            resample::SERVO_RATE_HZ
+            f64::from(sts_twin_core::SERVO_RATE_HZ)
         );
         return Ok(resampled);
     }
@@ -82,7 +82,7 @@ pub fn group_samples_skipping(
     skip_s: f64,
 ) -> Result<Vec<GroupSample>, AnalysisError> {
     let fs = dataset.manifest.sample_rate_hz;
-    if fs != resample::SERVO_RATE_HZ {
+    if fs != f64::from(sts_twin_core::SERVO_RATE_HZ) {
         // Features per sample and terms per tick at another rate would not be what the board
         // computes: the frequencies it reads would be off by the ratio.
         return Err(AnalysisError::SampleRate { sample_rate_hz: fs });

@@ -1,12 +1,12 @@
 //! Closed loop at one frequency, simulated co-processor, with and without a model:
 //! `cargo run --release -p sts-twin --example closed_loop -- MODEL FREQ_HZ AMP_UM`.
-use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_analysis::sine::fit_sine;
 use sts_emulator::{Machine, PlantParams};
 use sts_model::ModelFile;
 use sts_rig::{expect_ack, run_loop, Coprocessor, SimCoprocessor, Sinusoid};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::Request;
+use sts_twin_core::SERVO_RATE_HZ;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
@@ -33,7 +33,7 @@ fn main() -> anyhow::Result<()> {
             )?;
             expect_ack("enable", cop.request(Request::SetEnabled(true))?)?;
         }
-        let traj = Sinusoid { freq_hz, amp_um, duration_s: 10.0, sample_rate_hz: SERVO_RATE_HZ };
+        let traj = Sinusoid { freq_hz, amp_um, duration_s: 10.0, sample_rate_hz: f64::from(SERVO_RATE_HZ) };
         let (mut t, mut de, mut pred) = (Vec::new(), Vec::new(), Vec::new());
         run_loop(&mut machine, &mut cop, &traj, 0..80_000, 10.0, true, |s| {
             if s.machine.time_s >= 9.0 {

@@ -10,9 +10,9 @@ pub mod paper;
 pub mod params;
 
 pub use effects::{EffectError, EffectKind, EffectSpec, ParamDef, EFFECT_NAMES};
-pub use machine::{Machine, MachineError, MachineOptions, StepInput, StepOutput, TICK_S};
+pub use machine::{Machine, MachineError, MachineOptions, StepInput, StepOutput};
 pub use measure::{MeasureConfig, MeasureError, XMotion};
-pub use params::{ParamsError, PlantParams, DEFAULT_PLANT_TOML, SERVO_RATE_HZ};
+pub use params::{ParamsError, PlantParams, DEFAULT_PLANT_TOML};
 
 /// Standard gravity, m/s^2.
 pub const G_MPS2: f64 = 9.80665;

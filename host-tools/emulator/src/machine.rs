@@ -11,14 +11,12 @@
 
 use crate::effects::{check_unique, EffectError, EffectKind, EffectSpec};
 use crate::linalg::{discretize, NU, NX};
-use crate::params::{ParamsError, PlantParams, SERVO_RATE_HZ};
+use crate::params::{ParamsError, PlantParams};
 use crate::G_MPS2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::PI;
-
-/// Servo tick, s.
-pub const TICK_S: f64 = 1.0 / SERVO_RATE_HZ;
+use sts_twin_core::{SERVO_RATE_HZ, TICK_S};
 
 const HISTORY: usize = 128;
 
@@ -302,7 +300,8 @@ impl Machine {
         let norm = 1.0 / (1.0 + std::f64::consts::SQRT_2 * k + k * k);
         let b0 = k * k * norm;
         let lp = [b0, 2.0 * b0, b0, 2.0 * (k * k - 1.0) * norm, (1.0 - std::f64::consts::SQRT_2 * k + k * k) * norm];
-        let acc_noise_sigma = p.accelerometer.noise_ug_per_rthz * 1e-6 * G_MPS2 * (SERVO_RATE_HZ / 2.0).sqrt();
+        let acc_noise_sigma =
+            p.accelerometer.noise_ug_per_rthz * 1e-6 * G_MPS2 * (f64::from(SERVO_RATE_HZ) / 2.0).sqrt();
 
         let mut wander_rng = ChaCha8Rng::seed_from_u64(splitmix(options.seed));
         let mut wander_phase = [0.0; 3];

@@ -13,13 +13,14 @@
 //! real machine.
 
 use crate::effects::EffectSpec;
-use crate::machine::{Machine, MachineError, MachineOptions, StepInput, TICK_S};
-use crate::params::{PlantParams, SERVO_RATE_HZ};
+use crate::machine::{Machine, MachineError, MachineOptions, StepInput};
+use crate::params::PlantParams;
 use rayon::prelude::*;
 use std::f64::consts::PI;
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use sts_dataset::{Dataset, DatasetError, GroupData, GroupInfo, Manifest};
+use sts_twin_core::{SERVO_RATE_HZ, TICK_S};
 
 /// Why a measurement could not be made or written.
 #[derive(Debug, thiserror::Error)]
@@ -114,18 +115,18 @@ impl MeasureConfig {
 
     /// Samples per group.
     pub fn samples_per_group(&self) -> usize {
-        (self.duration_s * SERVO_RATE_HZ).round() as usize
+        (self.duration_s * f64::from(SERVO_RATE_HZ)).round() as usize
     }
 
     /// The manifest of the dataset this configuration writes (names no effect).
     pub fn manifest(&self) -> Manifest {
         let mut m = Manifest::new(
-            SERVO_RATE_HZ,
+            f64::from(SERVO_RATE_HZ),
             &format!(
                 "Offline dynamic-error measurement test on the emulated machine: {} groups of {} s at {} Hz, seed {}",
                 self.freqs_hz.len() * self.amps_um.len(),
                 self.duration_s,
-                SERVO_RATE_HZ,
+                f64::from(SERVO_RATE_HZ),
                 self.seed
             ),
             self.groups(),
@@ -140,7 +141,7 @@ impl MeasureConfig {
         if self.freqs_hz.is_empty() || self.amps_um.is_empty() {
             return bad("no frequencies or amplitudes");
         }
-        if self.freqs_hz.iter().any(|f| !(f.is_finite() && *f > 0.0 && *f < SERVO_RATE_HZ / 2.0)) {
+        if self.freqs_hz.iter().any(|f| !(f.is_finite() && *f > 0.0 && *f < f64::from(SERVO_RATE_HZ) / 2.0)) {
             return bad("frequencies must be in (0, 4000) Hz");
         }
         if self.amps_um.iter().any(|a| !(a.is_finite() && *a >= 0.0)) {

@@ -9,9 +9,6 @@ use serde::Deserialize;
 /// The default plant file's text (`host-tools/emulator/default-plant.toml`).
 pub const DEFAULT_PLANT_TOML: &str = include_str!("../default-plant.toml");
 
-/// The servo rate of the controller and the emulator's step rate, Hz.
-pub const SERVO_RATE_HZ: f64 = 8000.0;
-
 /// Why a plant file was rejected.
 #[derive(Debug, thiserror::Error)]
 pub enum ParamsError {

@@ -20,8 +20,8 @@ use sts_twin_core::wire::{ConfigSource, Request};
 
 use crate::calibrate::{measure_params, CalibrationConfig, PathConfig, PathPoint};
 use crate::{expect_ack, run_loop, Bicuspid, Coprocessor, RigError, Trajectory, TrajectoryPoint};
-use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_model::ModelFile;
+use sts_twin_core::SERVO_RATE_HZ;
 
 /// Settings of a trial.
 #[derive(Clone, Debug)]
@@ -245,14 +245,14 @@ pub fn run_trial(
         freq_hz: config.freq_hz,
         r_start_mm: config.r_start_mm,
         feed_um_per_rev: config.feed_um_per_rev,
-        sample_rate_hz: SERVO_RATE_HZ,
+        sample_rate_hz: f64::from(SERVO_RATE_HZ),
     };
     // The air cut: the feature window, the enable ramp and a settling second; at low
     // speed, where the window is long, the supervisor's baseline (two bare windows a window
     // apart, after the first) before the ramp, so that the cut starts compensated.
     let air_s = if model.is_some() { (window_s + 1.5).max(3.0 * window_s + 1.0) } else { 1.0 };
     let trajectory = WithAirCut { cut, air_s };
-    let ticks = (trajectory.duration_s() * SERVO_RATE_HZ).round() as u64;
+    let ticks = (trajectory.duration_s() * f64::from(SERVO_RATE_HZ)).round() as u64;
     let mut deviations = Vec::new();
     let (mut s_tcp, mut c_tcp, mut s_des, mut c_des) = (0.0, 0.0, 0.0, 0.0);
     let mut last_fault = 0;
@@ -320,7 +320,7 @@ pub fn run_trial(
         phase_error_deg: lag_deg,
         form_error_rms_um: rms,
         cut_time_s: cut.duration_s(),
-        machine_time_s: ticks as f64 / SERVO_RATE_HZ,
+        machine_time_s: ticks as f64 / f64::from(SERVO_RATE_HZ),
         wall_time_s: started.elapsed().as_secs_f64(),
         points: deviations.len(),
         fault_count: last_fault,

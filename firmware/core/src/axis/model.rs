@@ -4,8 +4,7 @@ use super::discretise::{zoh, Continuous};
 use super::{AxisError, AxisParams, MAX_CMD_DELAY_TICKS};
 use crate::math::{exp_neg, sin_turns, smooth_sign};
 
-/// Servo tick, s.
-const TICK_S: f64 = 1.0 / crate::SERVO_RATE_HZ as f64;
+use crate::TICK_S;
 /// Implicitness of the friction step (0.5: the force at the tick's mean velocity).
 const THETA: f32 = 0.5;
 /// A following error beyond this is a diverging (unstable) model: the state is reset, m.

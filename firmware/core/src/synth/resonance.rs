@@ -14,8 +14,7 @@
 
 use crate::program::{resonance_params_ok, TickTerm};
 
-/// Servo tick, s.
-const TICK_S: f64 = 1.0 / crate::SERVO_RATE_HZ as f64;
+use crate::TICK_S;
 
 /// A resonance's coefficients and state.
 #[derive(Clone, Copy, Debug, PartialEq)]

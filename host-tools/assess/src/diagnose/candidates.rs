@@ -4,19 +4,16 @@ use std::f64::consts::PI;
 
 use rayon::prelude::*;
 
-use sts_analysis::bases::laguerre;
+use sts_analysis::bases::{laguerre, LAGUERRE_POLE};
 use sts_analysis::lsq::{solve, Stats};
 use sts_analysis::response::{delay, mode_grid, mode_high_pass, mul, phasor, sine_weights, velocity_bank, Complex};
 use sts_analysis::sine::line_amp;
 use sts_model::EFFECTS;
 
 use super::GroupCtx;
-use sts_analysis::resample::SERVO_RATE_HZ;
+use sts_twin_core::program::LAGUERRE_STAGES;
+use sts_twin_core::SERVO_RATE_HZ;
 
-/// Pole of the Laguerre filters modelling the servo's response to a disturbance.
-pub const LAGUERRE_POLE: f64 = 0.93;
-/// Stages of those filters.
-pub const LAGUERRE_STAGES: usize = 8;
 /// Reference frequency normalising the frequency powers, Hz.
 const F_REF_HZ: f64 = 40.0;
 
@@ -515,7 +512,7 @@ fn setpoint_delay(ctx: &[GroupCtx], folds: usize) -> Evaluated {
 }
 
 fn transient_line_hz(ctx: &[GroupCtx]) -> f64 {
-    let fs = ctx.first().map_or(SERVO_RATE_HZ, |c| c.sample_rate_hz);
+    let fs = ctx.first().map_or(f64::from(SERVO_RATE_HZ), |c| c.sample_rate_hz);
     let n = (0.25 * fs) as usize;
     let mut spectrum = vec![0.0; 1000];
     for c in ctx {

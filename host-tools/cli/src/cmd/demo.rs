@@ -9,7 +9,7 @@ use sts_fit::{fit, FitConfig};
 use sts_rig::trial::{calibrated, run_trial, TrialConfig};
 
 use super::machine::{coprocessor, print_path, print_report};
-use sts_analysis::resample::SERVO_RATE_HZ;
+use sts_twin_core::SERVO_RATE_HZ;
 
 /// Arguments of `sts-twin demo`.
 #[derive(Debug, clap::Args)]
@@ -54,7 +54,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
     eprintln!("3/3 cutting the bicuspid surface at {} Hz with {which} in the loop ...", args.freq);
-    let window_samples = args.window_s.map(|s| ((s * SERVO_RATE_HZ) as u32 / 16) * 16);
+    let window_samples = args.window_s.map(|s| ((s * f64::from(SERVO_RATE_HZ)) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut reports = Vec::new();
     for twin in [None, Some(&model)] {

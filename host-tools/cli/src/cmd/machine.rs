@@ -5,11 +5,11 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use sts_emulator::{EffectSpec, PlantParams};
 
-use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_hil::HilConfig;
 use sts_model::ModelFile;
 use sts_rig::calibrate::PathPoint;
 use sts_rig::trial::{calibrated, run_trial, stored_params, TrialConfig, TrialReport};
+use sts_twin_core::SERVO_RATE_HZ;
 
 use super::range_twin::fit_and_report;
 use sts_rig::{Coprocessor, HilCoprocessor, SimCoprocessor};
@@ -170,7 +170,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             args.json,
         )?),
     };
-    let window_samples = args.window_s.map(|s| ((s * SERVO_RATE_HZ) as u32 / 16) * 16);
+    let window_samples = args.window_s.map(|s| ((s * f64::from(SERVO_RATE_HZ)) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut cop = match &args.bus {
         Some(bus) => stored_calibration_board(bus)?,

@@ -34,10 +34,9 @@ use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple, StructuralMo
 use sts_analysis::lsq::{solve, solve_damped, Stats};
 
 use crate::FitError;
-use sts_analysis::resample::SERVO_RATE_HZ;
+use sts_twin_core::{SERVO_RATE_HZ, TICK_S};
 
 /// Servo tick, s (the dataset's rate is checked to be 8 kHz by the caller).
-const TICK_S: f64 = 1.0 / SERVO_RATE_HZ;
 /// Implicitness of the friction step, as in the firmware.
 const THETA: f64 = 0.5;
 
@@ -478,7 +477,7 @@ impl<'a> Sample<'a> {
                 let freq_hz = dataset.manifest.groups[gi].freq_hz;
                 let window_s = if freq_hz > 0.0 { (periods / freq_hz).max(min_s) } else { f64::INFINITY };
                 let first = len / 12;
-                let end = (first as f64 + window_s * SERVO_RATE_HZ).min(len as f64) as usize;
+                let end = (first as f64 + window_s * f64::from(SERVO_RATE_HZ)).min(len as f64) as usize;
                 (first, end.max(first))
             })
             .collect();
@@ -885,7 +884,7 @@ mod tests {
             })
             .collect();
         let info = |i: usize, freq_hz: f64| GroupInfo { file: format!("g{i}.csv"), freq_hz, amp_um: 1.0, start_s: 0.0 };
-        Dataset { manifest: Manifest::new(SERVO_RATE_HZ, "", vec![info(0, 10.0), info(1, 40.0)]), groups }
+        Dataset { manifest: Manifest::new(f64::from(SERVO_RATE_HZ), "", vec![info(0, 10.0), info(1, 40.0)]), groups }
     }
 
     /// Five axes with friction, hysteresis, ripple and a second mode, each a little different.

@@ -4,7 +4,7 @@
 //! not follow (a delay's error grows as the frequency, a resonance peaks between two of the
 //! test's frequencies).
 //!
-//! - The velocity bank: a Laguerre bank (pole [`POLE`], 8 stages) on the command velocity,
+//! - The velocity bank: a Laguerre bank (pole [`LAGUERRE_POLE`], 8 stages) on the command velocity,
 //!   the velocity sign's input with a smoothing a quarter above the measurement's fastest
 //!   velocity (linear over the measured range, bounded beyond). It is a general stable
 //!   linear filter of the command on the servo's time scale: a setpoint delay
@@ -24,14 +24,15 @@ use std::cell::OnceCell;
 use rayon::prelude::*;
 use sts_analysis::bases::laguerre;
 use sts_analysis::lsq::{least_squares, solve, Stats};
-use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_analysis::response::{mode_grid, mode_high_pass, mul, phasor, velocity_bank, Complex};
 use sts_dataset::Dataset;
 use sts_twin_core::program::{resonance_params_ok, TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
 use sts_twin_core::synth::Resonance;
+use sts_twin_core::SERVO_RATE_HZ;
 
-use super::{term_input, GroupInputs, POLE};
+use super::{term_input, GroupInputs};
 use crate::FitError;
+use sts_analysis::bases::LAGUERRE_POLE;
 
 /// The velocity bank's input: the command velocity over 4 ticks, divided by a smoothing a
 /// quarter above the fastest the measurement has (within the 32-bit division's range).
@@ -64,9 +65,9 @@ fn to_pm(effect: &str, value_um: f64) -> Result<i32, FitError> {
 /// The bank's lag behind a steady velocity, us, from its gains (um per unit input): every
 /// stage passes a constant `u` as `sqrt(1 - a^2) / (1 - a)`.
 fn velocity_lag_us(gains_um: &[f64], kind: &TermInput) -> f64 {
-    let dc = (1.0 - POLE * POLE).sqrt() / (1.0 - POLE);
+    let dc = (1.0 - LAGUERRE_POLE * LAGUERRE_POLE).sqrt() / (1.0 - LAGUERRE_POLE);
     let um_per_unit = gains_um.iter().sum::<f64>() * dc;
-    let um_per_s_per_unit = smoothing(kind) * 1e-3 / (4.0 / SERVO_RATE_HZ);
+    let um_per_s_per_unit = smoothing(kind) * 1e-3 / (4.0 / f64::from(SERVO_RATE_HZ));
     -um_per_unit / um_per_s_per_unit * 1e6
 }
 
@@ -81,7 +82,7 @@ fn bank_term(kind: TermInput, gains_um: &[f64], effect: &str) -> Result<TickTerm
     for (g, t) in gains_pm.iter_mut().zip(gains_um) {
         *g = to_pm(effect, *t)?;
     }
-    Ok(TickTerm::Laguerre { input: kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm })
+    Ok(TickTerm::Laguerre { input: kind, pole_q30: (LAGUERRE_POLE * (1u64 << 30) as f64).round() as i32, gains_pm })
 }
 
 /// Least squares of the whole dynamic error on the velocity bank's stages and, with a unit
@@ -96,7 +97,7 @@ fn fit_on_samples(
         .par_iter()
         .enumerate()
         .map(|(i, gi)| {
-            let mut cols = laguerre(&term_input(kind, &gi.pos_nm), gi.start, POLE, LAGUERRE_STAGES);
+            let mut cols = laguerre(&term_input(kind, &gi.pos_nm), gi.start, LAGUERRE_POLE, LAGUERRE_STAGES);
             if let Some(mut r) = resonance.and_then(Resonance::new) {
                 // Stepped from the group's first tick, as the firmware does; the window after.
                 let out_um: Vec<f64> = gi.pos_nm.iter().map(|p| r.step(*p) as f64 * 1e-6).collect();
@@ -153,7 +154,7 @@ impl ModePhasors {
     /// Group `i`'s real and imaginary rows: the bank's stages, then the resonance when given.
     fn rows(&self, i: usize, mode: Option<(f64, f64)>) -> [[f64; LAGUERRE_STAGES + 1]; 2] {
         let (x, f) = (self.phasors[i].0, self.freqs_hz[i]);
-        let bank: [Complex; LAGUERRE_STAGES] = velocity_bank(f, x, self.smooth, POLE);
+        let bank: [Complex; LAGUERRE_STAGES] = velocity_bank(f, x, self.smooth, LAGUERRE_POLE);
         let m = mode.map_or((0.0, 0.0), |(mode_hz, zeta)| mul(mode_high_pass(f, mode_hz, zeta), x));
         let row =
             |part: fn(Complex) -> f64| std::array::from_fn(|k| part(if k < LAGUERRE_STAGES { bank[k] } else { m }));

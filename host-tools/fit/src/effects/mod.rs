@@ -63,9 +63,6 @@ fn is_axis(name: &str) -> bool {
     name == SERVO_AXIS || AXIS_EFFECTS.contains(&name)
 }
 
-/// Laguerre pole of the effect terms (the same as the diagnosis's).
-pub const POLE: f64 = 0.93;
-
 /// One effect added to a model.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct EffectRecord {
@@ -859,6 +856,7 @@ fn read_json(path: &Path) -> Result<serde_json::Value, FitError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sts_analysis::bases::LAGUERRE_POLE;
 
     #[test]
     fn the_ripple_pitch_is_found_beside_friction_and_hysteresis() {
@@ -930,13 +928,16 @@ mod tests {
             TermInput::PositionSine { turns_per_nm: (4_294_967_296.0f64 / 3000.0) as u32, phase_turns: 1 << 30 },
         ] {
             let gains_pm = gains.map(|w| (w * 1e6) as i32);
-            let terms =
-                [TickTerm::Laguerre { input: kind, pole_q30: (POLE * (1u64 << 30) as f64).round() as i32, gains_pm }];
+            let terms = [TickTerm::Laguerre {
+                input: kind,
+                pole_q30: (LAGUERRE_POLE * (1u64 << 30) as f64).round() as i32,
+                gains_pm,
+            }];
             let kernel = terms_output(&terms, &g, 0.0, 8000.0);
             let stages = sts_analysis::bases::laguerre(
                 &term_input(&kind, &pos),
                 0,
-                POLE,
+                LAGUERRE_POLE,
                 sts_twin_core::program::LAGUERRE_STAGES,
             );
             let worst = (0..g.len())

@@ -8,7 +8,7 @@ use sts_twin_core::wire::Request;
 
 use super::rest::RestRig;
 use crate::RigError;
-use sts_analysis::resample::SERVO_RATE_HZ;
+use sts_twin_core::SERVO_RATE_HZ;
 
 /// Settings of the enable check.
 #[derive(Clone, Debug)]
@@ -23,7 +23,7 @@ pub struct EnableConfig {
 
 impl Default for EnableConfig {
     fn default() -> Self {
-        Self { settle_s: 0.25, window_s: 0.1, sample_rate_hz: SERVO_RATE_HZ }
+        Self { settle_s: 0.25, window_s: 0.1, sample_rate_hz: f64::from(SERVO_RATE_HZ) }
     }
 }
 

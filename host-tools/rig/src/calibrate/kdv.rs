@@ -13,7 +13,7 @@ use sts_twin_core::feedforward::FeedforwardParams;
 use super::rest::RestRig;
 use crate::RigError;
 use sts_analysis::lsq::least_squares;
-use sts_analysis::resample::SERVO_RATE_HZ;
+use sts_twin_core::SERVO_RATE_HZ;
 
 /// Settings of the `K_dv` measurement.
 #[derive(Clone, Debug)]
@@ -34,7 +34,7 @@ impl Default for KdvConfig {
             voltages_v: vec![0.0, 1.0, -1.0, 2.0, -2.0, 0.5, -0.5, 0.0],
             settle_s: 0.15,
             average_s: 0.05,
-            sample_rate_hz: SERVO_RATE_HZ,
+            sample_rate_hz: f64::from(SERVO_RATE_HZ),
         }
     }
 }

@@ -15,9 +15,9 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 use sts_analysis::lsq::least_squares;
-use sts_analysis::resample::SERVO_RATE_HZ;
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::Request;
+use sts_twin_core::SERVO_RATE_HZ;
 
 use crate::{expect_ack, status, Coprocessor, RigError};
 
@@ -145,7 +145,7 @@ pub fn calibrate_lab(
         let params = FeedforwardParams { offset_v: -dac_v as f32, ..base };
         let start = status(board)?.counters.ticks;
         expect_ack("holding a DAC voltage", board.request(Request::SetParams(params))?)?;
-        let settle_ticks = (config.settle.as_secs_f64() * SERVO_RATE_HZ).ceil() as u64;
+        let settle_ticks = (config.settle.as_secs_f64() * f64::from(SERVO_RATE_HZ)).ceil() as u64;
         let deadline = Instant::now() + config.settle_timeout;
         std::thread::sleep(config.settle.min(Duration::from_millis(20)));
         while status(board)?.counters.ticks.wrapping_sub(start) < settle_ticks {

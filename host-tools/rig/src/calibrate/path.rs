@@ -25,7 +25,7 @@ use sts_analysis::lsq::least_squares;
 use sts_model::replay::turns_u32;
 
 use crate::{expect_ack, restore_supervisor, supervisor_off, Coprocessor, RigError};
-use sts_analysis::resample::SERVO_RATE_HZ;
+use sts_twin_core::SERVO_RATE_HZ;
 
 /// Program id of the calibration's constant program.
 pub const PATH_PROGRAM_ID: u32 = 0xCA1B_0001;
@@ -55,7 +55,7 @@ impl Default for PathConfig {
             amp_um: 8.0,
             settle_s: 0.75,
             measure_s: 1.0,
-            sample_rate_hz: SERVO_RATE_HZ,
+            sample_rate_hz: f64::from(SERVO_RATE_HZ),
         }
     }
 }

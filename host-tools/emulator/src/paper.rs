@@ -76,7 +76,8 @@ pub fn figures_at(config: &MeasureConfig, freq_hz: f64, amp_um: f64) -> Result<G
         .position(|g| g.freq_hz == freq_hz && g.amp_um == amp_um)
         .ok_or_else(|| MeasureError::Config(format!("no group at {freq_hz} Hz, {amp_um} um")))?;
     let group = simulate_group(config, index)?;
-    Ok(group_figures(&group, freq_hz, config.duration_s - 1.0, config.duration_s))
+    group_figures(&group, freq_hz, config.duration_s - 1.0, config.duration_s)
+        .ok_or_else(|| MeasureError::Config(format!("the group at {freq_hz} Hz is shorter than its last second")))
 }
 
 /// The paper table for a machine (`config` gives plant, effects and seed; the grid should be

@@ -1,8 +1,8 @@
 //! Each physical effect leaves its expected signature in the measurement data.
 //! Clean and effect runs share seed and noise stream, so their difference is the effect.
 
+use sts_analysis::sine::fit_sine;
 use sts_dataset::GroupData;
-use sts_emulator::analysis::fit_sine;
 use sts_emulator::measure::simulate_group;
 use sts_emulator::{EffectKind, EffectSpec, MeasureConfig, EFFECT_NAMES};
 
@@ -33,7 +33,7 @@ fn times(g: &GroupData, idx: &[usize]) -> Vec<f64> {
 /// Amplitude of harmonic `k` of the dynamic error over the last 4 s, nm.
 fn harmonic_nm(g: &GroupData, freq_hz: f64, k: f64) -> f64 {
     let idx = tail(g, 4.0);
-    fit_sine(&times(g, &idx), &dynamic_error(g, &idx), freq_hz * k).amp * 1e3
+    fit_sine(&times(g, &idx), &dynamic_error(g, &idx), freq_hz * k).unwrap().amp * 1e3
 }
 
 /// Least-squares slope of y on x (through the means) and R^2.
@@ -74,10 +74,10 @@ fn presliding_hysteresis_is_a_spring_at_small_amplitude_and_saturates_at_large()
         dynamic_error(&small, &idx).iter().zip(dynamic_error(&clean_small, &idx)).map(|(a, b)| a - b).collect();
     let diff_large: Vec<f64> =
         dynamic_error(&large, &idx).iter().zip(dynamic_error(&clean_large, &idx)).map(|(a, b)| a - b).collect();
-    let h1_small = fit_sine(&t, &diff_small, 5.0).amp * 1e3;
-    let h3_small = fit_sine(&t, &diff_small, 15.0).amp * 1e3;
-    let h1_large = fit_sine(&t, &diff_large, 5.0).amp * 1e3;
-    let h3_large = fit_sine(&t, &diff_large, 15.0).amp * 1e3;
+    let h1_small = fit_sine(&t, &diff_small, 5.0).unwrap().amp * 1e3;
+    let h3_small = fit_sine(&t, &diff_small, 15.0).unwrap().amp * 1e3;
+    let h1_large = fit_sine(&t, &diff_large, 5.0).unwrap().amp * 1e3;
+    let h3_large = fit_sine(&t, &diff_large, 15.0).unwrap().amp * 1e3;
     // Small motion stays mostly in presliding: a (hysteretic) spring, mainly the fundamental.
     assert!(h1_small > 20.0 && h3_small < 0.4 * h1_small, "small: h1 {h1_small}, h3 {h3_small} nm");
     // Large motion saturates the Dahl force: friction-like odd harmonics grow.
@@ -92,7 +92,8 @@ fn structural_mode_rings_at_its_frequency() {
     // The start of the group (a velocity step) rings the mode: look at the first 0.15 s.
     let idx: Vec<usize> = (0..1200).collect();
     let t = times(&clean, &idx);
-    let ring = |g: &GroupData| fit_sine(&t, &idx.iter().map(|&i| g.acc_mps2[i]).collect::<Vec<_>>(), 180.0).amp;
+    let ring =
+        |g: &GroupData| fit_sine(&t, &idx.iter().map(|&i| g.acc_mps2[i]).collect::<Vec<_>>(), 180.0).unwrap().amp;
     assert!(ring(&with) > 4.0 * ring(&clean), "ringing {} vs {}", ring(&with), ring(&clean));
     // In steady state the mode amplifies the 40 Hz dynamic error.
     let (a, b) = (harmonic_nm(&with, 40.0, 1.0), harmonic_nm(&clean, 40.0, 1.0));
@@ -106,7 +107,7 @@ fn loop_delay_shifts_phase_growing_with_frequency() {
     // amplitudes below 40 Hz hardly change.
     let figures = |f: f64, effects: &[&str]| {
         let g = group(f, 5.0, effects);
-        sts_emulator::analysis::group_figures(&g, f, 4.0, 6.0)
+        sts_emulator::analysis::group_figures(&g, f, 4.0, 6.0).unwrap()
     };
     let (c10, d10) = (figures(10.0, &[]), figures(10.0, &["loop-delay"]));
     let (c40, d40) = (figures(40.0, &[]), figures(40.0, &["loop-delay"]));
@@ -124,7 +125,7 @@ fn setpoint_delay_makes_the_whole_response_late() {
     // interpolated between ticks, 312.5 us).
     let figures = |f: f64, effects: &[&str]| {
         let g = group(f, 5.0, effects);
-        sts_emulator::analysis::group_figures(&g, f, 4.0, 6.0)
+        sts_emulator::analysis::group_figures(&g, f, 4.0, 6.0).unwrap()
     };
     for f in [5.0, 20.0, 40.0] {
         let (c, d) = (figures(f, &[]), figures(f, &["setpoint-delay:delay_us=312.5"]));

@@ -201,18 +201,11 @@ pub fn sine_of(rows: &[Row], sample_rate_hz: f64) -> Option<(f64, f64)> {
     }
     let periods = (crossings.len() - 1) as f64;
     let freq_hz = periods * sample_rate_hz / (crossings[crossings.len() - 1] - crossings[0]);
-    // sin, cos and a constant at that frequency, by least squares (normal equations of three
-    // well-conditioned columns over whole periods, solved by Cholesky).
-    let w = 2.0 * std::f64::consts::PI * freq_hz / sample_rate_hz;
-    let mut ata = nalgebra::Matrix3::<f64>::zeros();
-    let mut aty = nalgebra::Vector3::<f64>::zeros();
-    for (k, r) in rows.iter().enumerate() {
-        let x = nalgebra::Vector3::new((w * k as f64).sin(), (w * k as f64).cos(), 1.0);
-        ata += x * x.transpose();
-        aty += x * r.cmd_um;
-    }
-    let coefficients = ata.cholesky()?.solve(&aty);
-    Some((freq_hz, coefficients[0].hypot(coefficients[1])))
+    // The amplitude at that frequency, by the sine fit of the analysis (time in samples).
+    let t: Vec<f64> = (0..n).map(|k| k as f64 / sample_rate_hz).collect();
+    let cmd: Vec<f64> = rows.iter().map(|r| r.cmd_um).collect();
+    let fit = sts_analysis::sine::fit_sine(&t, &cmd, freq_hz)?;
+    Some((freq_hz, fit.amp))
 }
 
 /// `x` to `digits` significant digits (what a test's nominal frequency or stroke looks like).

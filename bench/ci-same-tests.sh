@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Times CI like for like: `.ci/run` on a fresh clone of HEAD whose `scripts/test.sh` runs only
 # the Rust tests that existed at REV (and pytest only if REV had the Python package). Everything
-# is still built. Issue 16's "CI no slower than now" compares against the CI of its filing,
-# before later issues added tests (BENCHMARKS.md, "CI time").
+# is still built, so an old commit's CI time compares with today's on the same tests
+# (BENCHMARKS.md, "CI time").
 #
 #   bench/ci-same-tests.sh REV [CLONE_DIR]     (CLONE_DIR: ../ci-same-tests)
 #

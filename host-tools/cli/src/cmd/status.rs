@@ -2,12 +2,12 @@
 
 use sts_twin_core::counters::Counters;
 use sts_twin_core::supervisor::Trip;
-use sts_twin_core::wire::{ConfigSource, Status};
+use sts_twin_core::wire::Status;
 
 /// Prints `status`: compensation, the model, the parameters and path table, the features,
 /// the supervisor, the counters, and every fault in words.
 pub(crate) fn print_status(status: &Status) {
-    println!("config: {}", config_source_text(status.config_source));
+    println!("config: the co-processor {}", sts_rig::calibrate::describe_config_source(status.config_source));
     println!(
         "compensation: {} (gain {:.3}), program {} (staged {}), inputs {}",
         if status.enabled { "enabled" } else { "disabled" },
@@ -58,15 +58,6 @@ pub(crate) fn print_params(status: &Status) {
     for (freq_hz, gain, phase_deg) in p.analogue_path.points() {
         let gain = if gain > 0.0 { format!("gain {gain:.4}") } else { "gain not measured".to_string() };
         println!("  {freq_hz:6.1} Hz  {gain}, phase {phase_deg:+.3} deg");
-    }
-}
-
-/// Where the co-processor's configuration came from at boot, in words.
-pub(crate) fn config_source_text(source: ConfigSource) -> &'static str {
-    match source {
-        ConfigSource::Defaults => "defaults (the config store was empty)",
-        ConfigSource::Stored => "stored (loaded from the config store at boot)",
-        ConfigSource::DefaultsAfterCorrupt => "defaults (the config store was corrupt)",
     }
 }
 

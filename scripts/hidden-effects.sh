@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 18's check on the machines with hidden effects: for each effect of the library, the
+# The check on the machines with hidden effects: for each effect of the library, the
 # emulated machine is measured with it (seed 1), a twin refitted with it (`fit --effect`),
 # and the bicuspid cut made at 5, 40 and 80 Hz with the core on the host (bit for bit the
 # firmware's), without and with the twin. Prints one line per cut; "ok" where the twin's

@@ -3,9 +3,8 @@
 //! adds the linker scripts of cortex-m-rt and defmt.
 //!
 //! The linker looks in its working directory before the search path. This crate is its own
-//! workspace, so that is this directory, which has no `memory.x`; the repository root's
-//! `memory.x` (the QEMU board's) is no longer in the way, as it was while this crate was a
-//! member of the root workspace.
+//! workspace, so that is this directory, which has no `memory.x`: the repository root's (the
+//! QEMU board's) is not in the way.
 use std::path::PathBuf;
 
 fn main() {

@@ -23,8 +23,8 @@ fn the_40_hz_cut_on_the_cortex_m7_is_the_host_cores_and_removes_over_90_percent(
 }
 
 /// The same image executes the same instructions on both cores: the per-tick counts on the
-/// M7 equal the M4F's, and the worst tick stays within the servo budget (issue 18's 800
-/// instructions is the supervisor's share; the whole tick's is below a tenth of the 31,250
+/// M7 equal the M4F's, and the worst tick stays within the servo budget (the 800-instruction
+/// budget is the twin's share; the whole tick's is below a tenth of the 31,250
 /// instructions of a 125 us period at `-icount shift=2`).
 #[test]
 fn the_servo_tick_on_the_cortex_m7_executes_the_instructions_it_does_on_the_m4f() {

@@ -1,4 +1,4 @@
-//! Platform benchmarks (ignored by default; they print figures for BENCHMARKS.md):
+//! Platform benchmarks (ignored by default; they print their figures):
 //!
 //! ```text
 //! cargo test -p sts-hil-tests --release --test hil platform_bench:: -- --ignored --nocapture --test-threads=1

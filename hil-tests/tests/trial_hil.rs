@@ -137,8 +137,8 @@ pub(crate) fn the_40_hz_cut_removes_over_90_percent_on(config: HilConfig) {
 
 /// The twin for the machine's whole range (`trial-table`'s own: measured 1-100 Hz, `fit
 /// --effect servo-axis`, seed 1, kept as a fixture) at 40 and 80 Hz, the firmware in QEMU
-/// as the core on the host, number for number: issue 18's table at the two frequencies it
-/// asks to be cut in QEMU.
+/// as the core on the host, number for number: the range table at the two frequencies cut
+/// in QEMU.
 #[test]
 fn the_range_twin_in_qemu_cuts_40_and_80_hz_as_the_host_core_does() {
     let _serial = sts_hil_tests::serial();
@@ -209,7 +209,7 @@ fn the_axis_twin_compensates_friction_in_the_cut() {
 
 /// The friction twin over the speeds a lab cuts at (the core on the host, which the cut above
 /// shows equal to QEMU): never worse than the bare machine (5% or 10 nm), and from 5 Hz on the
-/// form error falls by what issue 59 asks of a machine with friction.
+/// form error falls by at least the reductions below.
 #[test]
 fn the_friction_twin_compensates_from_5_hz_and_is_never_worse() {
     let effects = ["coulomb-friction:coulomb_n=3,static_n=4.5,stribeck_mps=2e-4".parse().unwrap()];

@@ -1,7 +1,7 @@
 //! Instructions per servo tick of the twin firmware with a program, per-tick terms and model
 //! updates in force. CI checks the costliest accepted programs against their cost models
 //! (`the_costliest_programs_...`, 3,000 ticks each); the benchmarks (ignored by default) print
-//! the figures for BENCHMARKS.md:
+//! every program's figures:
 //!
 //! ```text
 //! cargo test -p sts-hil-tests --release --test hil twin_bench:: -- --ignored --nocapture --test-threads=1
@@ -275,7 +275,7 @@ fn the_costliest_programs_the_validator_accepts_run_within_their_cost_models_on_
     within_models(&cases);
 }
 
-/// Prints a run: the figures of the BENCHMARKS.md table, then the ticks by kind.
+/// Prints a run: median, p99 and worst tick, then the ticks by kind.
 fn report(name: &str, window_samples: u32, run: &Run) {
     println!(
         "{name}, window {window_samples}: median / p99 / worst {:.0} / {:.0} / {:.0} (firmware's worst {:.0})",

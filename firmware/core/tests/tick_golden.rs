@@ -107,14 +107,10 @@ fn programs() -> Vec<Program> {
     }
     vec![
         program(11, &harmonics),
-        // (A velocity bank with a coupling until the cost model's recalibration of 2026-11-29
-        // put that pair at 832: a velocity bank with a drift now.)
         program(12, &[velocity, drift]),
-        // Kernels beside a harmonic (between two until the supervisor's command store raised
-        // the cost model: that program, 813, is refused now).
+        // Kernels beside one harmonic (two would be over the tick's budget).
         program(13, &[harmonic(3, 2), sine, drift]),
         program(14, &[harmonic(3, 2), harmonic(2, 4)]),
-        // (Dahl + AxisCoupling until the servo-axis term made that pair 802 instructions.)
         {
             let mut paper = paper_program();
             paper.terms.push(dahl).unwrap();

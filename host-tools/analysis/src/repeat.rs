@@ -171,14 +171,13 @@ impl Repeatability {
         let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         Some(format!(
-            "the error does not repeat from one period to the next in {} group{} ({}: {:.1}-{:.1} nm RMS, against a floor of {:.1} nm, the lower quartile of all groups): \
+            "the error does not repeat from one period to the next in {} group{} ({}: {} nm RMS, against a floor of {:.1} nm, the lower quartile of all groups): \
              the axis moves by itself there (a limit cycle such as friction hunting where friction falls with velocity, or vibration from outside). \
              No twin driven by the command can predict that part; those groups' waveform error cannot fall below it.",
             self.not_repeating.len(),
             if self.not_repeating.len() == 1 { "" } else { "s" },
             places,
-            lo * 1e3,
-            hi * 1e3,
+            range_text(format!("{:.1}", lo * 1e3), format!("{:.1}", hi * 1e3)),
             self.floor_um * 1e3
         ))
     }
@@ -203,6 +202,16 @@ pub fn group_places(groups: &[usize], label: impl Fn(usize) -> (f64, f64)) -> St
         .map(|&(f, lo, hi)| if lo == hi { format!("{f} Hz at {lo} um") } else { format!("{f} Hz at {lo}-{hi} um") })
         .collect();
     places.join(", ")
+}
+
+/// A range of two values as already formatted, `lo-hi`, or the one value where both read the
+/// same (for people: `0.58`, not `0.58-0.58`).
+pub fn range_text(lo: String, hi: String) -> String {
+    if lo == hi {
+        lo
+    } else {
+        format!("{lo}-{hi}")
+    }
 }
 
 #[cfg(test)]

@@ -203,9 +203,8 @@ impl Standing {
     /// The RMS over the groups whose error repeats from one period to the next (`skip`: the
     /// files of those that do not), um; the whole RMS where none is skipped. Where the axis
     /// moves by itself (a hunting limit cycle) no twin driven by the command can predict the
-    /// error, and those groups' share swamps what a step gains elsewhere: friction with a
-    /// 314 Hz mode hunting in six groups at 1 Hz, the second mode took the other 93 from 23.5
-    /// to 13.4 nm but the whole from 54.4 to 48.6 nm only (the sets of issue 17, BENCHMARKS.md).
+    /// error, and those groups' share swamps what a step gains elsewhere (a second mode that
+    /// nearly halves the error of the groups that repeat gains a tenth of the whole).
     fn repeating_rms_um(&self, skip: &[String]) -> f64 {
         rms_without(self.groups.iter().map(|(file, rms)| (file.as_str(), *rms)), skip).unwrap_or(self.rms_um)
     }
@@ -237,9 +236,8 @@ const OWN_TERM_EFFECTS: [&str; 5] =
 /// a term of their own, significant or not, and returns the partner and the refit of the pair
 /// that ends lowest (kept by the caller if it lowers the error by [`PARTNER_MIN_GAIN`]). An effect the twin does
 /// not carry can bend the refitted formulas enough to hide what the named one's term brings:
-/// a ripple turns the phase formula at the slowest groups, and a coupling's refit alone ended
-/// at 605.3 nm against 311.5 without it, both together at 5.2 nm (the sets of issue 17,
-/// BENCHMARKS.md).
+/// a ripple turns the phase formula at the slowest groups, so a coupling's refit alone can end
+/// worse than without it while both together reach the data's floor.
 fn best_partner(
     dataset: &Dataset,
     description: &str,
@@ -280,8 +278,7 @@ fn best_partner(
 /// ([`Diagnosis::unexplained`]): the structural-mode candidate, to be tried as the axis twin's
 /// second mode. The forces of friction, hysteresis or a ripple ring a mode the twin lacks at
 /// the command's harmonics, right when they act, so its residual looks like the carried
-/// effect's or like no candidate's (the sets of issue 17: friction named again at 3.9-5.3x
-/// the clean twin's error, BENCHMARKS.md).
+/// effect's or like no candidate's.
 fn second_mode_try(d: &Diagnosis, carried: &[String]) -> Option<usize> {
     let mode = "structural-mode".to_string();
     let has_axis = carried.iter().any(|c| AXIS_EFFECTS.contains(&c.as_str()));

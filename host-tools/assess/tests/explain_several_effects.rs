@@ -13,7 +13,7 @@
 //! machine hunts (a friction's limit cycle: a slow group's reading depends on the emulator's
 //! integration step), the final diagnosis must find groups that do not repeat, and the 2x is
 //! taken over the groups where it does not hunt, against the clean twin's error over the same
-//! groups (issue 17: no twin driven by the command predicts a hunting axis).
+//! groups (no twin driven by the command predicts a hunting axis).
 //!
 //! CI runs `ci_sets` (two sets on 5.5 s groups). The full run, every pair of the eight
 //! effects with `STS_SETS_SEEDS` seeds each and `STS_SETS_TRIPLES` random triples:
@@ -164,7 +164,7 @@ fn run_sets(s: &Sets) {
     for seed in s.first_seed..s.first_seed + s.seeds {
         for (index, set) in &s.sets {
             let o = run_set(s, set, *index, seed, clean_rms_um);
-            // A hunting machine's error where it hunts is no test of the twin (issue 17): the
+            // A hunting machine's error where it hunts is no test of the twin: the
             // ratio is taken over the other groups, against the clean twin's over the same
             // groups, and the diagnosis must have found groups that do not repeat.
             let hunts = !o.hunting.is_empty();

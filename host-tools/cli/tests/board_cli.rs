@@ -67,7 +67,11 @@ fn a_lab_uploads_sets_enables_and_saves_a_twin_on_a_board_on_a_serial_port() {
     let fail = |action: &[&str]| failing(&with(action).iter().map(String::as_str).collect::<Vec<_>>());
 
     let fresh = run(&["board", "status"]);
-    assert!(fresh.contains("config: Defaults") && fresh.contains("no twin model is active"), "{fresh}");
+    assert!(
+        fresh.contains("config: the co-processor found no calibration in its config store")
+            && fresh.contains("no twin model is active"),
+        "{fresh}"
+    );
 
     let twin = fixture("twin-default-machine.json");
     let uploaded = run(&["board", "upload", twin.to_str().unwrap()]);
@@ -115,7 +119,7 @@ fn a_lab_uploads_sets_enables_and_saves_a_twin_on_a_board_on_a_serial_port() {
     let hil = hil.reboot().expect("the reboot");
     let pty = hil.control_pty().unwrap().to_str().unwrap().to_string();
     let back = ok(&["board", "status", "--port", &pty]);
-    assert!(back.contains("config: Stored"), "{back}");
+    assert!(back.contains("config: the co-processor loaded its stored calibration"), "{back}");
     assert!(back.contains("K_dv 2.5 um/V") && back.contains("offset -0.0125 V"), "{back}");
     assert!(back.contains("compensation: disabled") && !back.contains("program none"), "{back}");
     assert!(back.contains("analogue path (3 points"), "{back}");
@@ -175,6 +179,10 @@ fn calibrate_offset_on_a_serial_port_stores_what_the_labs_instruments_read() {
     let hil = hil.reboot().expect("the reboot");
     let pty = hil.control_pty().unwrap().to_str().unwrap().to_string();
     let back = ok(&["board", "status", "--port", &pty]);
-    assert!(back.contains("config: Stored") && back.contains(&format!("offset {} V", offset_v as f32)), "{back}");
+    assert!(
+        back.contains("config: the co-processor loaded its stored calibration")
+            && back.contains(&format!("offset {} V", offset_v as f32)),
+        "{back}"
+    );
     hil.shutdown().unwrap();
 }

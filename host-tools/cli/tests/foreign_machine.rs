@@ -4,7 +4,7 @@
 //! through the `sts-twin` command as a user drives it: fit the clean machine, then for each
 //! changed machine compare, diagnose, fit with the verdict, and see the error fall.
 //!
-//! Prints the table recorded in BENCHMARKS.md ("The loop on a foreign machine").
+//! Prints the table of each run.
 
 use crate::foreign::{self, Foreign, Lugre, ToolMode};
 use std::path::{Path, PathBuf};
@@ -337,8 +337,8 @@ fn an_in_band_mode_and_a_late_setpoint_are_named_and_carried() {
     // resonance (a velocity bank), a late setpoint included, so after the mode nothing of the
     // delay is left to name: `explain` must name the first right. The mode beside LuGre
     // friction is no case: the axis twin's structure leaves that machine at 3.5x the clean
-    // twin's error, and under the friction the mode's grid finds no resonance (BENCHMARKS.md,
-    // "Modes and delays told apart"; docs/diagnose.md).
+    // twin's error, and under the friction the mode's grid finds no resonance
+    // (docs/diagnose.md).
     let runs: [Run; 4] = [
         ("clean", clean, 1, &[], Expect::All),
         ("tool-mode", Foreign { tool_mode: Some(mode), ..clean }, 7, &[MODE], Expect::All),

@@ -1,5 +1,5 @@
 //! `trial-table --sim --json` without `--twin`: the machine measured over its whole range,
-//! the servo-axis twin fitted, and the cut at every frequency of issue 18's table. Its
+//! the servo-axis twin fitted, and the cut at every frequency of the range table. Its
 //! stdout must be the JSON alone (the fit's summary and the progress go to stderr), and the
 //! twin must be useful across the range and never worse than the bare machine.
 
@@ -36,7 +36,7 @@ fn the_range_twin_helps_from_20_to_100_hz_is_never_worse_and_stdout_is_json_only
         eprintln!("{freq_hz} Hz: {bare_um:.3} -> {twin_um:.3} um ({reduction_pct:.1}%), phase {phase_deg:+.2} deg");
         // Never worse than bare: within 5% or 10 nm PV.
         assert!(twin_um <= (bare_um * 1.05).max(bare_um + 0.010), "{freq_hz} Hz: {row}");
-        // Issue 18's targets: 90% from 20 to 60 Hz, 80% at 80 Hz.
+        // The range twin's targets: 90% from 20 to 60 Hz, 80% above.
         if (20.0..=60.0).contains(&freq_hz) {
             assert!(reduction_pct >= 90.0, "{freq_hz} Hz: {row}");
         }
@@ -45,7 +45,7 @@ fn the_range_twin_helps_from_20_to_100_hz_is_never_worse_and_stdout_is_json_only
         }
         if freq_hz == 40.0 {
             assert!(reduction_pct >= 98.5, "{row}");
-            // Issue 18's phase: to the paper's stated precision.
+            // The phase to the paper's stated precision.
             assert!(phase_deg.abs() <= 0.05, "{row}");
         }
     }

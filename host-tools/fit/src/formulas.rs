@@ -215,6 +215,9 @@ fn training_loss(predicted: &[f64], rows: &[&GroupSample], target: Target) -> f6
 /// final one's.
 pub const FOLD_FORMULA_LOSS_RATIO: f64 = 0.5;
 
+/// Marks the formula the model carries in the selection's table.
+const SELECTED_MARK: &str = "  <- selected";
+
 /// The formula the model carries for `target`: the final search's member at the selected
 /// complexity, unless a fold's search found one of at most that complexity whose loss on all
 /// training groups is clearly lower (searches are stochastic, and the final one can end in a
@@ -247,10 +250,15 @@ fn carried_formula(
                 score: member.score,
             };
             let why = format!(
-                "The final search's formula of this complexity fits all groups with a loss of {final_loss:.3e}; fold {}'s search found {} (complexity {}) with {loss:.3e}, under {FOLD_FORMULA_LOSS_RATIO} of it, and the model carries that one.",
+                "The final search's formula of this complexity fits all groups with a loss of {final_loss:.3e}; fold {}'s search found {} (complexity {}) with {loss:.3e}, under {FOLD_FORMULA_LOSS_RATIO} of it, and the model carries that one:\n{:>10} {:>12.3e} {:>12}  {}{SELECTED_MARK} (fold {}'s)",
                 k + 1,
                 member.expr.to_infix_rounded(&FEATURE_LABELS, 5),
-                member.complexity
+                member.complexity,
+                member.complexity,
+                1.0 - carried.r2,
+                "-",
+                member.expr.to_infix_rounded(&FEATURE_LABELS, 5),
+                k + 1
             );
             (carried, Some(why))
         }
@@ -386,7 +394,7 @@ fn cross_validate(
     );
     let _ = writeln!(explanation, "{:>10} {:>12} {:>12}  formula", "complexity", "nmse train", "nmse cv");
     for (i, (e, m)) in entries.iter().zip(&final_result.front).enumerate() {
-        let mark = if i == selected { "  <- selected" } else { "" };
+        let mark = if i == selected { SELECTED_MARK } else { "" };
         let _ = writeln!(
             explanation,
             "{:>10} {:>12.3e} {:>12.3e}  {}{mark}",
@@ -424,7 +432,11 @@ pub fn select_by_held_out(cv_nmse: &[f64], goal_nmse: f64, cv_ratio: f64) -> (us
 
 fn formula(result: &SearchResult, cv: &TargetCv, r2_cv: f64, carried: &(FrontMember, Option<String>)) -> Formula {
     let (best, why) = carried;
-    let mut selection = cv.explanation.clone();
+    // The mark stands beside the formula the model carries: a fold's, where one is carried.
+    let mut selection = match why {
+        Some(_) => cv.explanation.replacen(SELECTED_MARK, "  <- selected complexity (not carried, below)", 1),
+        None => cv.explanation.clone(),
+    };
     if let Some(why) = why {
         selection.push_str(why);
         selection.push('\n');

@@ -1,5 +1,5 @@
 //! The default fit on the default emulated measurement test (99 groups, simulated in
-//! memory): the held-out figures of issue 5's Must show, determinism across thread counts,
+//! memory): the held-out figures the twin must reach, determinism across thread counts,
 //! the firmware program against the formulas, and the Rust/C exports (compiled with the
 //! system's `rustc` and `cc`).
 

@@ -343,7 +343,7 @@ impl Hil {
                 waiter.reset();
             } else if written.wrapping_sub(read) >= STREAM_SLEEP_IN_FLIGHT {
                 // Plenty in flight: one long sleep instead of a wake-up per tick, which
-                // took a host core's worth of system time from QEMU (measured, BENCHMARKS.md).
+                // would take a host core's worth of system time from QEMU.
                 waiter.sleep(&mut self.qemu, &self.logs, STREAM_SLEEP, "the firmware to consume a stream of ticks")?;
             } else {
                 waiter.wait(&mut self.qemu, &self.logs, "the firmware to consume a stream of ticks")?;
@@ -539,9 +539,8 @@ fn check_alive(qemu: &mut QemuProcess, logs: &SharedLog, during: &str) -> Result
 /// Waiting for the firmware: spin briefly (a tick round trip is some 20 us), then sleep in
 /// short steps (QEMU needs both of a small machine's cores); check QEMU is alive and enforce
 /// the timeout. No `sched_yield` between the two: beside any other runnable task, even one at
-/// idle priority, a yield hands it the core for a whole time slice (a HIL cut 6.7 -> 25 s
-/// beside two idle-priority loops), where a sleep's wake-up preempts it at once (8.7 s;
-/// alone 6.5 s, as with the yields).
+/// idle priority, a yield hands it the core for a whole time slice (a HIL cut takes several
+/// times as long), where a sleep's wake-up preempts it at once.
 const SPIN_BEFORE_SLEEP: u32 = 64;
 /// A stream with at least this many ticks in flight (half the ring) sleeps [`STREAM_SLEEP`]
 /// at a time: at the guest's 20-40 thousand ticks a second the other half lasts 3-6 ms.
@@ -549,8 +548,8 @@ const STREAM_SLEEP_IN_FLIGHT: u32 = (RING_SLOTS / 2) as u32;
 const STREAM_SLEEP: Duration = Duration::from_millis(1);
 
 /// Asks Linux to wake this thread's short sleeps on time: the default 50 us of timer slack
-/// turns each 5 us sleep into some 55 us, longer than a lockstep tick's round trip
-/// (measured: a HIL cut 8.1 -> 7.2 s). Once per thread.
+/// turns each 5 us sleep into some 55 us, longer than a lockstep tick's round trip. Once per
+/// thread.
 fn fine_timer_slack() {
     thread_local!(static DONE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) });
     DONE.with(|done| {
@@ -591,8 +590,8 @@ impl Waiter {
 
     fn wait(&mut self, qemu: &mut QemuProcess, logs: &SharedLog, what: &str) -> Result<(), HilError> {
         self.spins += 1;
-        // Spinning longer than this only steals the core QEMU needs (measured: a 100k-spin
-        // host halved the lockstep rate on the 2-core machine).
+        // Spinning longer than this only steals the core QEMU needs (a long-spinning host
+        // halves the lockstep rate on a 2-core machine).
         if self.spins < SPIN_BEFORE_SLEEP {
             std::hint::spin_loop();
             return Ok(());
@@ -605,8 +604,7 @@ impl Waiter {
             }
         }
         // Then block in short sleeps: a host that stays runnable takes CPU share from QEMU's
-        // threads, which on a shared machine costs milliseconds per tick (measured,
-        // BENCHMARKS.md).
+        // threads, which on a shared machine costs milliseconds per tick.
         std::thread::sleep(Duration::from_micros(5));
         Ok(())
     }

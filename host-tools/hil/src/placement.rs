@@ -4,10 +4,8 @@
 //! thread and its main thread twice (the clock warps through the main loop while the guest
 //! idles in `WFI`). When the kernel spreads the two threads over two CPUs, each hand-off
 //! wakes an idle CPU, which in a virtual machine is a trip through the hypervisor; on one
-//! CPU it is a context switch. On the 2-core VM the project is tested on (BENCHMARKS.md,
-//! "HIL: QEMU on one CPU"), QEMU on one CPU ran 14.7-14.9 thousand lockstep ticks a second
-//! against 13.1-13.2 thousand spread, and a stream of ticks 15.8-17.0 thousand against
-//! 5.6-8.7 thousand.
+//! CPU it is a context switch, so lockstep ticks run a little faster and a stream of ticks
+//! about twice as fast.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -18,9 +16,8 @@ pub enum QemuPlacement {
     /// All on one CPU (the last of the harness's set) while this QEMU is the only one of the
     /// process that is so placed and the set holds at least two CPUs; anywhere otherwise.
     /// Two QEMUs on the two CPUs of a 2-core machine would each share its CPU with a
-    /// lockstep host thread, which then waits for time slices (measured: the CLI's board
-    /// tests ran their ticks too slowly for the offset calibration's settling check), and one
-    /// CPU for QEMU and its host ran about 600 lockstep ticks a second.
+    /// lockstep host thread, which then waits for time slices (too slow for the offset
+    /// calibration's settling check), and one CPU for QEMU and its host is slower still.
     #[default]
     OneCpu,
     /// Wherever the kernel puts them.

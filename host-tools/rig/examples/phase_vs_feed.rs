@@ -1,6 +1,6 @@
 //! The 40 Hz bicuspid cut's form error and phase error against the feed (how fast the cut's
 //! amplitude shrinks), for the range twin of the default machine and the friction axis twin
-//! (the hil-tests' fixtures), the core on the host. BENCHMARKS.md quotes it:
+//! (the hil-tests' fixtures), the core on the host:
 //!
 //! ```text
 //! cargo run --release -p sts-rig --example phase_vs_feed

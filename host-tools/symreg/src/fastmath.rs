@@ -7,7 +7,8 @@
 //! [`crate::BinaryOp::apply`]) and the evaluator's column kernels, so row-wise and column-wise
 //! evaluation agree bit for bit, and results do not depend on the platform's libm.
 //! [`sin_cos`] is the axis twin's identification's (`sts-fit`): its ripple takes two sines a
-//! tick in each simulated candidate, and libm's scalar `sin` was 40% of a three-effect fit.
+//! tick in each simulated candidate, where libm's scalar `sin` would take most of a
+//! three-effect fit.
 //!
 //! Accuracy against the correctly rounded value (measured against `std`/libm by the tests of
 //! this module over dense samples of the whole domain, see `docs/symreg.md`):

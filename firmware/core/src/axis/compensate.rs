@@ -58,8 +58,8 @@ pub const MAX_ORDERS: usize = BASE_ORDERS.len() + MAX_HIGHER_ORDERS;
 pub const MAX_HARMONIC_HZ: f32 = 160.0;
 
 /// Fraction of the simulated error's harmonics removed per command period (swept on three
-/// emulated machines in BENCHMARKS.md: faster follows a cut's changing amplitude better, 1.0
-/// already turned one of them worse).
+/// emulated machines: faster follows a cut's changing amplitude better, 1.0 already turns one
+/// of them worse, so 0.6 keeps a margin for twins identified less well).
 pub const LEARNING_PER_PERIOD: f32 = 0.6;
 
 /// Ticks the simulated axis settles after starting from rest before its error teaches
@@ -429,8 +429,7 @@ impl Compensator {
     ///
     /// The extrapolation assumes a correction proportional to the command, exact for a
     /// linear axis only: friction's error hardly scales with the stroke, and leading its whole
-    /// correction made the friction cut of `hil-tests` worse (0.237 -> 0.415 um PV, +0.82 ->
-    /// +1.04 deg at 40 Hz).
+    /// correction makes the friction cut of `hil-tests` nearly twice as bad.
     pub fn output_correction_nm(&self, lead_ticks: u32) -> [Phasor; MAX_ORDERS] {
         let amplitude_nm = self.command_nm.amplitude();
         if !self.linear_only || amplitude_nm < MIN_COMMAND_NM {

@@ -191,9 +191,9 @@ impl TickTerm {
 pub const TICK_BUDGET_INSTRUCTIONS: u32 = 800;
 
 /// The worst servo tick's instructions as a sum over a program's terms (Cortex-M4F, the
-/// firmware's `firmware` profile, counted under QEMU `-icount`; BENCHMARKS.md, "Twin
-/// firmware: instructions per servo tick", has the measurements these come from, each
-/// rounded up by a few instructions).
+/// firmware's `firmware` profile, counted under QEMU `-icount` by `twin_bench`; each share is
+/// the worst measured tick rounded up by one or two, for the bench timer's steps of 0.625
+/// instructions and for register allocation, which moves a tick by a few).
 ///
 /// The tick's extra work (the end or start of a 16-sample feature block, a model request,
 /// applying a model result) never falls on the same tick twice: requests and results come
@@ -209,66 +209,45 @@ pub const TICK_BUDGET_INSTRUCTIONS: u32 = 800;
 /// lies within the old program's slots or, if a new harmonic lies beyond them, within the
 /// new one's, each term costing at most what that program has in its slot (a harmonic
 /// standing for a kernel term costs less, every term at least a harmonic). The fade's last
-/// tick, which silences the faded slots, steps no ramp (BENCHMARKS.md measures the
-/// tightest switches).
+/// tick, which silences the faded slots, steps no ramp.
 pub mod tick_cost {
-    /// A tick without per-tick terms at its worst: the paper program's (512 measured with
-    /// the bus's six-word input slots; 482 with four, and 482 with six since the compiler
-    /// keeps the servo's address in a register: kept at 516, as that is no design's
-    /// guarantee; 514 since the tick tests whether to store the command for an axis twin;
-    /// 521 on the 2026-11-27 toolchain, 526 since the block end stores the command for the
-    /// supervisor), whose formulas are not evaluated in the tick (the model update runs at
-    /// low priority). The command-store test moved the kernel programs by 2-6 instructions
-    /// (register allocation): the kernel terms' figures below were raised by what each
-    /// needed. Recalibrated 2026-11-29 on every bench case (BENCHMARKS.md): 532 measured, and
-    /// 2 for the bench's timer, which counts in steps of 0.625 instructions (8 harmonic terms
-    /// measured 741 after a switch to the axis twin, 532 + 8 x 26 = 740).
+    /// A tick without per-tick terms at its worst: the paper program's, whose formulas are
+    /// not evaluated in the tick (the model update runs at low priority).
     pub const FIXED: u32 = 534;
     /// More for a servo-axis twin, whose correction is synthesised as a harmonic term: the
-    /// tick stores its command in the ring the twin's compensator reads at low priority (552
-    /// measured with it, 38 over the paper program's 514; 578 on 2026-11-29, 46 over 532).
+    /// tick stores its command in the ring the twin's compensator reads at low priority.
     pub const AXIS_COMMANDS: u32 = 20;
-    /// A harmonic term in a program without kernel terms (25.9 measured).
+    /// A harmonic term in a program without kernel terms.
     pub const HARMONIC: u32 = 26;
-    /// A harmonic term in a program with kernel terms (41.5 measured: the harmonic pass
-    /// then skips the kernel slots by a bit mask).
+    /// A harmonic term in a program with kernel terms (the harmonic pass then skips the
+    /// kernel slots by a bit mask).
     pub const HARMONIC_BESIDE_KERNELS: u32 = 42;
-    /// Once, when the program has kernel terms (anything but harmonics): running them (41).
+    /// Once, when the program has kernel terms (anything but harmonics): running them.
     pub const KERNELS: u32 = 42;
-    /// A Laguerre bank on the position sine (108; 669.4 in all since the axis twin's command
-    /// store), with 32-bit stages; 119 since the supervisor's command store, so that the
-    /// two-bank program (802 measured after a switch) and three harmonics beside a bank (802)
+    /// A Laguerre bank on the position sine, with 32-bit stages; high enough that the
+    /// two-bank program and three harmonics beside a bank, which measure over the budget,
     /// are refused.
     pub const LAGUERRE_POSITION_SINE: u32 = 119;
-    /// A Laguerre bank on the velocity sign (130; 134; 145 on 2026-11-29, 719 in all), with
-    /// 32-bit stages and divisions.
+    /// A Laguerre bank on the velocity sign, with 32-bit stages and divisions.
     pub const LAGUERRE_VELOCITY_SIGN: u32 = 145;
-    /// A Laguerre bank on the Dahl state (146; 151; 162 on 2026-11-29, 736 in all), with
-    /// 32-bit stages.
+    /// A Laguerre bank on the Dahl state, with 32-bit stages.
     pub const LAGUERRE_DAHL: u32 = 162;
     /// More for a Laguerre bank whose stages need 64 bits: a pole above 0.995 or gains
-    /// above 2^32 in sum (173 measured).
+    /// above 2^32 in sum.
     pub const LAGUERRE_WIDE_STAGES: u32 = 178;
     /// More for a velocity-sign bank whose smoothing velocity needs a 64-bit division
     /// (2^17 nm per 4 ticks or more, 262 mm/s): a library call whose length depends on the
-    /// operands (161 measured with, at most 234 on the bench's worst tick).
+    /// operands, so this is its worst case.
     pub const VELOCITY_64_BIT_DIVISION: u32 = 260;
-    /// A drift term, with its 64-bit step every 256 ticks (41; beside a velocity-sign bank
-    /// 44 since the servo-axis term joined the kernels; 46 alone since its command store; 53 on
-    /// 2026-11-29, 627 in all).
+    /// A drift term, with its 64-bit step every 256 ticks.
     pub const DRIFT: u32 = 53;
-    /// An axis-coupling term (90 measured with the bus's X acceleration and spindle words,
-    /// 48 when the servo passed constant zeros the compiler could fold; beside a Dahl bank
-    /// 97 since the servo-axis term joined the kernels; 100 alone since the axis twin's
-    /// command store; 110 on 2026-11-29, 684 in all; 639 in all since the X gain is taken to
-    /// Q20 when the term starts instead of dividing by 10^6 each tick, 2026-12-02, and two
-    /// for the timer's step), so that a velocity bank beside it (786) is accepted and a Dahl
-    /// bank beside it (803) is not.
+    /// An axis-coupling term: the X gain is taken to Q20 when the term starts, so the tick
+    /// multiplies rather than divides. A velocity bank beside it is accepted, a Dahl bank
+    /// beside it is not.
     pub const AXIS_COUPLING: u32 = 65;
-    /// A resonance: its f32 state update and one saturating conversion (84 measured alone,
-    /// 95 beside a velocity-sign bank: 787 in all; 131 alone when the output went through a
-    /// 64-bit conversion, a library call; 78 alone and 75 beside the velocity-sign bank on
-    /// 2026-11-29, 652 and 794 in all: the in-band mode's program stays accepted, at 800).
+    /// A resonance: its f32 state update and one saturating conversion (an `i64` conversion
+    /// would be a library call); the in-band mode's program (a velocity bank and a
+    /// resonance) comes to the budget exactly.
     pub const RESONANCE: u32 = 79;
 }
 

@@ -195,9 +195,9 @@ impl Harmonics {
     /// A harmonic that has to go (its slot is beyond the terms, or holds another kind of
     /// term now) ramps out over `ramp` ticks and is then dropped: the fade. It starts when
     /// the terms change (a program switch), and later updates neither restart nor retarget
-    /// it, so it ends `ramp` ticks after the switch however often model updates come (they
-    /// used to restart it with truncated steps: below `ramp` pm an amplitude never reached
-    /// zero). Meanwhile the terms that replace a fading harmonic in its slot, and any
+    /// it, so it ends `ramp` ticks after the switch however often model updates come
+    /// (restarting it with truncated steps would leave an amplitude below `ramp` pm short of
+    /// zero for good). Meanwhile the terms that replace a fading harmonic in its slot, and any
     /// kernel term that is not kept, wait: they start with the first update after the fade
     /// (a harmonic from silence, a kernel from rest), so that the tick never runs the old
     /// harmonics beside new kernel terms and stays within the budget of the programs on

@@ -66,7 +66,7 @@ pub(super) struct KernelState {
     /// or a coupling's X gain in picometres per (um/s^2), Q20, set when the term starts, so
     /// that the tick multiplies the acceleration by it instead of dividing the product by
     /// 10^6 (the 64-bit quotient took some 35 instructions of a tick). One field for both:
-    /// a larger slot moved the whole servo handler's register allocation (BENCHMARKS.md).
+    /// a larger slot moves the whole servo handler's register allocation.
     scale: i64,
     /// `sqrt(1 - a^2)` of a Laguerre bank, Q30.
     g_q30: i64,

@@ -137,13 +137,12 @@ impl Comparison {
         let share = positions.iter().map(|&p| ss(&self.groups[p])).sum::<f64>()
             / self.groups.iter().map(ss).sum::<f64>().max(1e-300);
         Some(format!(
-            "in {} group{} ({}) its line at the command frequency is only {:.2}-{:.2} of the rest of its signal: \
+            "in {} group{} ({}) its line at the command frequency is only {} of the rest of its signal: \
              it barely sees the motion there, the features are mostly noise and the formulas extrapolate. Those groups hold {:.0}% of the waveform error{}",
             positions.len(),
             if positions.len() == 1 { "" } else { "s" },
             sts_analysis::repeat::group_places(&positions, |p| (self.groups[p].freq_hz, self.groups[p].amp_um)),
-            lo,
-            hi,
+            sts_analysis::repeat::range_text(format!("{lo:.2}"), format!("{hi:.2}")),
             share * 100.0,
             if share > positions.len() as f64 / self.groups.len() as f64 { "; a quieter sensor, or larger strokes at those frequencies, would help the twin there." } else { " (no more than their share of the groups)." }
         ))

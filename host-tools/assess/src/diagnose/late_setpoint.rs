@@ -30,10 +30,9 @@ use super::{DataError, Diagnosis, GroupCtx, PhasorGain, Ranked};
 
 /// What the bank takes beyond the twin must stand this many times above the data's floor.
 /// Not once: on a clean machine, too, the bank follows the slowest groups better than formulas
-/// that read them from the accelerometer (the emulator's clean twins leave 6.1-7.1 nm at the
-/// command frequency, of which the bank takes 1.2-1.4x the floor), and that is the twin's
-/// resolution there, not an effect to add; setpoints 143-395 us late make it 1.6-2.9x (seeds 0-7)
-/// (BENCHMARKS.md, "The late setpoint in the lab's workflow").
+/// that read them from the accelerometer (on the emulator's clean machine by up to about 1.4x
+/// the floor), and that is the twin's resolution there, not an effect to add; a setpoint
+/// 150-400 us late makes it 1.6x and more.
 pub const GAIN_OVER_FLOOR: f64 = 1.5;
 
 /// How far short of a delay's -90 degrees the error's phase at the slowest frequency may lie:
@@ -55,9 +54,8 @@ pub const DELAY_PHASE_PAST_DEG: f64 = 1.0;
 
 /// Whether the model's program already predicts from the command: a velocity bank (the
 /// axis's linear response, a delay ahead of it included) or the servo-axis twin, whose
-/// command delay is identified in whole ticks from 1 to 3 (a later setpoint than that is left
-/// in its residual, and this stage does not look for it there: BENCHMARKS.md, "The late
-/// setpoint in the lab's workflow", the sets).
+/// command delay is identified in whole ticks (it carries a late setpoint, so this stage does
+/// not look for one there).
 fn carries_command_response(model: &ModelFile) -> bool {
     model.firmware_program().is_ok_and(|p| {
         p.terms

@@ -60,9 +60,10 @@ pub fn probe_scale_error(ctx: &[GroupCtx]) -> Option<Ranked> {
         groups_improved: scale.slowest_groups().filter(|g| (g.ratio - 1.0) * k > 0.0).count(),
         params: vec![("probe_gain".into(), 1.0 + k)],
         evidence: format!(
-            "at the slowest groups ({} Hz, {} strokes of {amp_lo}-{amp_hi} um{}), where the servo follows the command, the measured error is in phase with the motion and {:+.2}% of it at every stroke ({:+.2}% to {:+.2}% per group; {:.0}% of the error there; {:.0} standard errors from zero; the part that falls with the stroke, the machine's own, {:.1} nm): the capacitance probe reads {:.1}% {} (scale error); a twin fitted on these readings learns it as dynamics, so it comes before every other candidate (which are scored on readings it distorts)",
+            "at the slowest groups ({} Hz, {} strokes of {} um{}), where the servo follows the command, the measured error is in phase with the motion and {:+.2}% of it at every stroke ({:+.2}% to {:+.2}% per group; {:.0}% of the error there; {:.0} standard errors from zero; the part that falls with the stroke, the machine's own, {:.1} nm): the capacitance probe reads {:.1}% {} (scale error); a twin fitted on these readings learns it as dynamics, so it comes before every other candidate (which are scored on readings it distorts)",
             scale.slowest_freq_hz,
             scale.slowest_groups().count(),
+            sts_analysis::repeat::range_text(format!("{amp_lo}"), format!("{amp_hi}")),
             scale.next_freq_hz.map_or(String::new(), |f| format!(
                 "; beside those at {f} Hz, the machine's own in-phase error taken out as it grows with the frequency squared"
             )),

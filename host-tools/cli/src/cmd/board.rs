@@ -151,7 +151,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         }
         Action::Counters { reset } => {
             let s = status(&mut board)?;
-            println!("{:#?}", s.counters);
+            super::status::print_counters(&s.counters);
             if *reset {
                 accepted(&mut board, Request::ResetCounters, "resetting the counters")?;
                 println!("counters reset");
@@ -279,7 +279,7 @@ fn watch(board: &mut Board<SerialLink>, hz: f64, count: u32) -> anyhow::Result<(
         let faults = |st: &Status| st.counters.frame_errors + st.counters.model_faults + st.counters.supervisor_trips;
         let new_faults = last.as_ref().map_or(0, |l| faults(&s).saturating_sub(faults(l)));
         let supervisor = match (s.supervisor.tripped, s.supervisor.gated) {
-            (Some(trip), _) => format!("tripped {trip:?}"),
+            (Some(trip), _) => format!("tripped: {}", super::status::trip_text(trip)),
             (None, true) => "gated".to_string(),
             (None, false) if s.supervisor_params.active => "on".to_string(),
             (None, false) => "off".to_string(),

@@ -97,13 +97,19 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             value["baseline"]["file"] = serde_json::Value::String(label.clone());
         }
         println!("{}", serde_json::to_string_pretty(&value)?);
+        if let Some(path) = &args.html {
+            // stdout holds the JSON alone.
+            eprintln!("report written to {}", path.display());
+        }
     } else {
         print_text(&file_label(&args.model), &c);
         if let Some((b, _, label)) = &baseline {
             print_text(label, b);
+            let fall = 1.0 - c.waveform_rms_um / b.waveform_rms_um.max(1e-300);
             println!(
-                "waveform RMS falls by {:.0}% from {label}",
-                (1.0 - c.waveform_rms_um / b.waveform_rms_um.max(1e-300)) * 100.0
+                "waveform RMS {} by {:.0}% from {label}",
+                if fall >= 0.0 { "falls" } else { "rises" },
+                fall.abs() * 100.0
             );
         }
         if let Some(path) = &args.html {

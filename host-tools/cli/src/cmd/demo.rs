@@ -1,5 +1,8 @@
-//! `sts-twin demo`: the main job. Measures the emulated machine, fits the twin, then cuts the
-//! bicuspid surface at 40 Hz with the firmware in QEMU in the loop, without and with the twin.
+//! `sts-twin demo`: the main job. Measures the emulated machine and fits the two twins the
+//! tool makes: the paper's formula twin (amplitude and phase formulas of the accelerometer's
+//! features, fitted on 1-40 Hz) and the range twin (the servo-axis twin `trial-table` fits
+//! over 1-100 Hz, which predicts from the command). Then cuts the bicuspid surface at 40 Hz
+//! with the firmware in QEMU in the loop, bare and with each twin, and prints them side by side.
 
 use std::path::PathBuf;
 
@@ -9,6 +12,7 @@ use sts_fit::{fit, FitConfig};
 use sts_rig::trial::{calibrated, run_trial, TrialConfig};
 
 use super::machine::{coprocessor, print_path, print_report};
+use super::range_twin::fit_and_report;
 use sts_twin_core::SERVO_RATE_HZ;
 
 /// Arguments of `sts-twin demo`.
@@ -17,12 +21,19 @@ pub struct Args {
     /// Z operational frequency of the cut, Hz.
     #[arg(long, default_value_t = 40.0)]
     pub freq: f64,
-    /// Use an existing model file instead of measuring and fitting one.
+    /// Use an existing model file as the formula twin instead of measuring and fitting one.
     #[arg(long)]
     pub twin: Option<PathBuf>,
-    /// Where to keep the fitted model.
+    /// Where to keep the fitted formula twin.
     #[arg(long, default_value = "target/demo-twin.json")]
     pub out: PathBuf,
+    /// Use an existing model file as the range twin instead of measuring the machine over
+    /// 1-100 Hz and fitting one.
+    #[arg(long)]
+    pub range_twin: Option<PathBuf>,
+    /// Where to keep the fitted range twin.
+    #[arg(long, default_value = "target/demo-range-twin.json")]
+    pub range_out: PathBuf,
     /// Run the core on the host instead of the firmware in QEMU.
     #[arg(long)]
     pub sim: bool,
@@ -44,39 +55,57 @@ pub struct Args {
 /// Runs `sts-twin demo`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plant = PlantParams::default();
-    let model = match &args.twin {
+    let formula_twin = match &args.twin {
         Some(path) => sts_model::ModelFile::read(path)?,
         None => {
+            println!("the paper's formula twin:");
             let model = measure_and_fit(args.seed, &args.out)?;
             println!("{}", fit_summary(&model, &args.out));
             model
         }
     };
+    let range_twin = match &args.range_twin {
+        Some(path) => sts_model::ModelFile::read(path)?,
+        None => {
+            println!("the range twin:");
+            fit_and_report(&plant, &[], args.seed, &args.range_out, "demo: servo-axis twin over 1-100 Hz", false)?
+        }
+    };
     let which = if args.sim { "the core simulated on the host" } else { "the firmware in QEMU" };
-    eprintln!("3/3 cutting the bicuspid surface at {} Hz with {which} in the loop ...", args.freq);
+    eprintln!(
+        "cutting the bicuspid surface at {} Hz with {which} in the loop: bare, then with each twin ...",
+        args.freq
+    );
     let window_samples = args.window_s.map(|s| ((s * f64::from(SERVO_RATE_HZ)) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
+    let cuts = [
+        ("bare machine", None),
+        ("the paper's formula twin", Some(&formula_twin)),
+        ("the range twin", Some(&range_twin)),
+    ];
     let mut reports = Vec::new();
-    for twin in [None, Some(&model)] {
+    for (name, twin) in cuts {
+        println!("{name}:");
         let mut cop = coprocessor(args.sim)?;
-        // Calibrated first, as a lab does: offset and K_dv, and the analogue path for the twin.
+        // Calibrated first, as a lab does: offset and K_dv, and the analogue path for a twin.
         let (params, points) = calibrated(cop.as_mut(), &plant, &[], args.seed, twin.is_some() && !args.no_path)?;
         if !points.is_empty() {
             print_path(&points);
         }
         let report = run_trial(cop.as_mut(), &plant, &[], twin, params, &config)?;
         print_report(&report);
-        reports.push(report);
+        reports.push((name, report));
     }
-    let (bare, twin) = (&reports[0], &reports[1]);
-    println!(
-        "form error {:.3} -> {:.3} um ({:.0}% less), phase error {:.2} -> {:.2} deg",
-        bare.form_error_pv_um,
-        twin.form_error_pv_um,
-        100.0 * (1.0 - twin.form_error_pv_um / bare.form_error_pv_um),
-        bare.phase_error_deg,
-        twin.phase_error_deg
-    );
+    let bare_pv_um = reports[0].1.form_error_pv_um;
+    println!("\n{:.0} Hz cut                 form error PV          phase error", args.freq);
+    for (name, report) in &reports {
+        let less = if report.twin {
+            format!("({:.1}% less)", 100.0 * (1.0 - report.form_error_pv_um / bare_pv_um))
+        } else {
+            String::new()
+        };
+        println!("{name:<26} {:>7.3} um {less:<12}  {:>+7.3} deg", report.form_error_pv_um, report.phase_error_deg);
+    }
     Ok(())
 }
 
@@ -96,14 +125,24 @@ pub fn measure_and_fit(seed: u64, out: &std::path::Path) -> anyhow::Result<sts_m
     Ok(model)
 }
 
+/// An R^2 for people: four decimals, or `undefined` where the validation has none (the
+/// formulas beside a servo-axis twin can have nothing left to score).
+fn r2_text(r2: f64) -> String {
+    if r2.is_finite() {
+        format!("{r2:.4}")
+    } else {
+        "undefined".to_string()
+    }
+}
+
 /// The fitted twin's formulas and held-out errors, in lines for people.
 pub fn fit_summary(model: &sts_model::ModelFile, out: &std::path::Path) -> String {
     format!(
-        "amplitude (um) = {}\nphase (deg)    = {}\nheld-out: amplitude R^2 {:.4}, phase R^2 {:.4}, waveform error {:.1} nm mean absolute ({} written)",
+        "amplitude (um) = {}\nphase (deg)    = {}\nheld-out: amplitude R^2 {}, phase R^2 {}, waveform error {:.1} nm mean absolute ({} written)",
         model.amplitude.formula,
         model.phase.formula,
-        model.validation.amplitude_r2,
-        model.validation.phase_r2,
+        r2_text(model.validation.amplitude_r2),
+        r2_text(model.validation.phase_r2),
         model.validation.waveform_mae_um * 1e3,
         out.display()
     )

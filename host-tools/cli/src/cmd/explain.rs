@@ -55,8 +55,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut on_progress = |p: ExplainProgress| {
         let line = match p {
             ExplainProgress::Fitting => "fitting a twin on the data".to_string(),
-            ExplainProgress::Diagnosing { effects } => format!("diagnosing the twin with [{}]", effects.join(", ")),
-            ExplainProgress::Refitting { effects } => format!("fitting a twin with [{}]", effects.join(", ")),
+            ExplainProgress::Diagnosing { effects } => format!("diagnosing the twin{}", with_effects(effects)),
+            ExplainProgress::Refitting { effects } => format!("fitting a twin{}", with_effects(effects)),
         };
         eprintln!("{line}");
     };
@@ -67,13 +67,32 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         std::fs::write(path, report::explain::render(&name, &e))
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
+    let written = format!("twin written to {} (program id {:08x})", args.out.display(), e.model.program.id);
+    let report = args.html.as_ref().map(|path| format!("report written to {}", path.display()));
     if args.json {
         println!("{}", serde_json::to_string_pretty(&sts_assess::json::explanation(&e))?);
+        // stdout holds the JSON alone; the files written are named on stderr.
+        eprintln!("{written}");
+        if let Some(report) = report {
+            eprintln!("{report}");
+        }
     } else {
         print_ladder(&e);
-        println!("twin written to {} (program id {:08x})", args.out.display(), e.model.program.id);
+        println!("{written}");
+        if let Some(report) = report {
+            println!("{report}");
+        }
     }
     Ok(())
+}
+
+/// `" with a, b"` for the effects a twin carries, nothing where it carries none.
+fn with_effects(effects: &[String]) -> String {
+    if effects.is_empty() {
+        String::new()
+    } else {
+        format!(" with {}", effects.join(", "))
+    }
 }
 
 fn print_ladder(e: &Explanation) {

@@ -44,7 +44,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         .with_context(|| format!("exporting {}", args.model.display()))?;
     match &args.out {
         Some(path) => {
-            std::fs::write(path, &exported.text).with_context(|| format!("cannot write {}", path.display()))?
+            std::fs::write(path, &exported.text).with_context(|| format!("cannot write {}", path.display()))?;
+            eprintln!("written to {}", path.display());
         }
         None => print!("{}", exported.text),
     }

@@ -110,6 +110,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     if let Some(path) = &args.table {
         std::fs::write(path, analysis::training_table_csv(&samples))
             .with_context(|| format!("cannot write {}", path.display()))?;
+        println!("training table written to {}", path.display());
     }
     let Some(out) = &args.out else {
         return Ok(());
@@ -163,10 +164,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     if let Some(path) = &args.export_rust {
         std::fs::write(path, model.rust_source(&dataset_name(&args.data)))
             .with_context(|| format!("cannot write {}", path.display()))?;
+        println!("Rust source written to {}", path.display());
     }
     if let Some(path) = &args.export_c {
         std::fs::write(path, model.c_source(&dataset_name(&args.data)))
             .with_context(|| format!("cannot write {}", path.display()))?;
+        println!("C source written to {}", path.display());
     }
     Ok(())
 }

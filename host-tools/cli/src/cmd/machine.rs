@@ -221,9 +221,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         );
         std::fs::write(path, crate::report::trial::render(&title, std::slice::from_ref(&report)))
             .with_context(|| format!("writing {}", path.display()))?;
-        if !args.json {
-            eprintln!("report written to {}", path.display());
-        }
+        eprintln!("report written to {}", path.display());
     }
     if model.is_some() {
         sts_rig::print_fault_report(cop.as_mut())?; // every fault the co-processor counted, on stderr

@@ -88,11 +88,22 @@ pub fn open_chart(out: &mut String, class: &str, id: &str, title: &str, width: f
     );
 }
 
-fn frame(out: &mut String, id: &str, title: &str, x_label: &str, y_label: &str, xr: (f64, f64), yr: (f64, f64)) {
+/// The plot's frame, its axis labels and the y ticks; numeric x ticks over `xr` where given
+/// (a chart of categories labels its own).
+fn frame(
+    out: &mut String,
+    id: &str,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    xr: Option<(f64, f64)>,
+    yr: (f64, f64),
+) {
     open_chart(out, "chart", id, title, W, H);
     let (pw, ph) = (W - LEFT - RIGHT, H - TOP - BOTTOM);
     let _ = write!(out, r##"<rect x="{LEFT}" y="{TOP}" width="{pw}" height="{ph}" fill="none" stroke="#888"/>"##);
-    for t in nice_ticks(xr.0, xr.1, 8) {
+    let x_ticks = xr.map(|xr| nice_ticks(xr.0, xr.1, 8).into_iter().map(move |t| (t, xr)));
+    for (t, xr) in x_ticks.into_iter().flatten() {
         let x = LEFT + (t - xr.0) / (xr.1 - xr.0) * pw;
         let _ = write!(
             out,
@@ -129,7 +140,7 @@ pub fn line_chart(id: &str, title: &str, x_label: &str, y_label: &str, series: &
     let xr = range(series.iter().flat_map(|s| s.x.iter().copied()));
     let yr = range(series.iter().flat_map(|s| s.y.iter().copied()));
     let mut out = String::new();
-    frame(&mut out, id, title, x_label, y_label, xr, yr);
+    frame(&mut out, id, title, x_label, y_label, Some(xr), yr);
     let (pw, ph) = (W - LEFT - RIGHT, H - TOP - BOTTOM);
     let px = |x: f64| LEFT + (x - xr.0) / (xr.1 - xr.0) * pw;
     let py = |y: f64| TOP + ph - (y - yr.0) / (yr.1 - yr.0) * ph;
@@ -286,7 +297,7 @@ pub fn bar_chart(
         series.iter().flat_map(|s| s.1.iter().copied()).filter(|v| v.is_finite()).fold(0.0f64, f64::max).max(1e-12)
             * 1.08;
     let mut out = String::new();
-    frame(&mut out, id, title, x_label, y_label, (0.0, labels.len() as f64), (0.0, ymax));
+    frame(&mut out, id, title, x_label, y_label, None, (0.0, ymax));
     let (pw, ph) = (W - LEFT - RIGHT, H - TOP - BOTTOM);
     let slot = pw / labels.len().max(1) as f64;
     let bw = slot * 0.8 / series.len().max(1) as f64;
@@ -308,7 +319,7 @@ pub fn bar_chart(
             out,
             r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" font-size="11" fill="#333">{}</text>"##,
             LEFT + (i as f64 + 0.5) * slot,
-            TOP + ph + 28.0,
+            TOP + ph + 15.0,
             esc(label)
         );
     }
@@ -350,5 +361,20 @@ mod tests {
         assert_eq!(hm.matches("class=\"cell\"").count(), 2);
         assert_eq!(colour_scale(0.0), "#ffffff");
         assert_eq!(nice_ticks(0.0, 1.0, 5).len(), 6);
+        // A bar chart's x axis shows its categories, no numbers between them.
+        let bars = bar_chart(
+            "b",
+            "bars",
+            "rung",
+            "nm",
+            &["start".into(), "+ drift".into()],
+            &[("rms".into(), vec![3.0, 1.0])],
+        );
+        let x_texts: Vec<&str> = bars
+            .split("<text ")
+            .filter(|t| t.contains("text-anchor=\"middle\" font-size=\"11\""))
+            .filter_map(|t| t.split('>').nth(1)?.split('<').next())
+            .collect();
+        assert_eq!(x_texts, ["start", "+ drift"]);
     }
 }

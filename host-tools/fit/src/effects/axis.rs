@@ -19,10 +19,8 @@
 //! The simulation is nearly all of the fit's time, so it is written by hand as a measured hot
 //! loop: the Jacobian's and the ripple's simulations run four candidates side by side, as
 //! branch-free steps over the lanes that compile to vector instructions (AVX2 where the CPU
-//! has it), each lane with a lone simulation's operations in the same order. `fit --effect`
-//! on the 99-group measurement (seed 11, 2 cores), the identification before -> after:
-//! friction 14.0 -> 6.8 s, hysteresis 5.4 -> 2.5 s, ripple 13.7 -> 8.3 s, all three (seed 12)
-//! 29.3 -> 19.4 s; the model files byte-identical.
+//! has it), each lane with a lone simulation's operations in the same order, so the lanes give
+//! a lone simulation's bits and the identification about half the time.
 
 use std::f64::consts::PI;
 
@@ -125,9 +123,8 @@ impl Slot {
 }
 
 /// The command delays of the starts' grid, 1 tick to this; a survivor at the top steps on
-/// towards [`MAX_CMD_DELAY_TICKS`]. With 3, friction beside a 450 us late setpoint ended at
-/// 3 ticks, its encoder fitted to 38 nm; with 6 it takes 6 ticks and 8.8 nm, in 13.5 s
-/// against 12.5 s for the whole `fit --effect`.
+/// towards [`MAX_CMD_DELAY_TICKS`]. A late setpoint adds up to 4 ticks to the machine's own
+/// delay; a grid that stops short of it bends the servo's gains instead.
 const GRID_TOP_DELAY_TICKS: usize = 6;
 
 /// A candidate axis: the parameter vector and the command delay.
@@ -342,7 +339,7 @@ fn simulate<const N: usize>(
         if ripple {
             for l in 0..N {
                 let theta = 2.0 * PI * (s[0][l] + r0) / pitch_m[l] + rph[l];
-                // The vectorised sine (libm's scalar one was 40% of a three-effect fit).
+                // The vectorised sine: libm's scalar one would dominate a three-effect fit.
                 let (sin, cos) = sts_symreg::fastmath::sin_cos(theta);
                 reading[l] += ra[l] * sin + r2[l] * (2.0 * sin * cos);
             }
@@ -583,12 +580,10 @@ fn rms(r: &[f64]) -> f64 {
 
 /// Levenberg-Marquardt over `free` slots, at most `iterations`.
 ///
-/// Hand-written rather than the `levenberg-marquardt` crate (MINPACK's trust region), which
-/// was measured in its place (2026-11-27, one fit each, `fit --effect E` on `measure --effect E
-/// --seed 3`): the same fits (encoder and probe RMS within 0.5%) from 12-19% fewer simulated
-/// groups, but identification times of 26.2 against 22.4 s (hysteresis), 40.4 against 42.6 s
-/// (friction) and 65.2 against 68.6 s (ripple): slower where the fit is quickest, and it
-/// would pin nalgebra to 0.34. The steps' least squares are `sts_analysis::lsq`'s QR.
+/// Hand-written rather than the `levenberg-marquardt` crate (MINPACK's trust region): measured
+/// in its place, it reached the same fits no faster in all and slower where the fit is
+/// quickest, and it would pin nalgebra's version. The steps' least squares are
+/// `sts_analysis::lsq`'s QR.
 fn levenberg_marquardt(
     start: Candidate,
     free: &[Slot],

@@ -448,8 +448,8 @@ impl CalibrationReport {
         }
         if self.store.config_source_after_reboot != ConfigSource::Stored {
             out.push(format!(
-                "after the reboot the configuration came from {:?}, not the store",
-                self.store.config_source_after_reboot
+                "after the reboot the co-processor {}, not its stored calibration",
+                describe_config_source(self.store.config_source_after_reboot)
             ));
         }
         if !self.store.stored_params_match {

@@ -47,10 +47,12 @@ fn boots_and_serves_ticks_bit_identical_to_the_reference_and_across_runs() {
     assert!(diag.booted);
     assert_eq!(diag.model_requests, TICKS / 64);
     assert!(diag.busy_max_counts > 0 && diag.busy_max_counts < diag.period_counts, "{diag:?}");
-    // One evaluation of the paper program, timed at boot: within the 20,000-instruction budget
-    // (at the default -icount shift=2 one 25 MHz timer count is 10 instructions).
+    // One evaluation of the paper program, timed at boot (at the default -icount shift=2 one
+    // 25 MHz timer count is 10 instructions). The background's budget for it is 20,000
+    // instructions; it takes about 1,320, and a quarter more fails here,
+    // so that a slower evaluation is seen in CI rather than as a smaller margin in the field.
     let eval_instructions = diag.paper_eval_counts * 40 / (1 << hil_shift());
-    assert!(eval_instructions > 100 && eval_instructions <= 20_000, "{diag:?}");
+    assert!(eval_instructions > 100 && eval_instructions <= 1_650, "{eval_instructions} instructions: {diag:?}");
 
     // Run 2: a fresh QEMU, pipelined through the ring: the same bits.
     let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("boot");

@@ -35,7 +35,7 @@ use crate::features::{DefaultFeatureState, DefaultSpectralRings, FeatureConfig, 
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
 use crate::program::{ModelOutput, TickTerm};
 use crate::supervisor::{Supervisor, SupervisorParamError, SupervisorParams, SupervisorState};
-use crate::synth::{Synth, SynthTargets};
+use crate::synth::{PreparedUpdate, Synth, SynthTargets, SynthView};
 use timing::first_request_countdown;
 
 pub use crate::counters::Counters;
@@ -156,6 +156,42 @@ enum PendingEffect {
     Fault,
 }
 
+/// The supervisor's verdict on a model result ([`Servo::judge`]), for the rest of its
+/// delivery.
+#[derive(Clone, Copy, Debug)]
+pub struct Judgement {
+    effect: PendingEffect,
+    /// The axis twin's correction alone takes effect (the gate holds the formulas off).
+    command_driven: bool,
+    /// The degraded bits applying the result sets, and the trips to count.
+    supervision: (u16, u32),
+}
+
+impl Judgement {
+    /// The synthesiser's update to `result` this verdict leaves: its targets and terms.
+    fn update_of<'a>(&self, result: &'a ModelResult) -> (&'a SynthTargets, &'a [TickTerm]) {
+        match &result.outcome {
+            Ok((_, terms, _)) => match &result.command_driven {
+                Some((_, command_targets)) if self.command_driven => (command_targets, terms),
+                _ => (&result.targets, terms),
+            },
+            Err(_) => (&SynthTargets::SILENT, &[]),
+        }
+    }
+}
+
+/// What preparing a delivery reads of the servo ([`Servo::delivery_view`]).
+#[derive(Clone, Copy, Debug)]
+pub struct DeliveryView {
+    /// Ticks from the view to the tick that applies the result.
+    ticks_ahead: u32,
+    synth: SynthView,
+}
+
+/// A delivery's synthesiser update, prepared outside the servo ([`Servo::prepare_delivery`]).
+#[derive(Clone, Copy, Debug)]
+pub struct PreparedDelivery(PreparedUpdate);
+
 /// Input-health tracking of the accelerometer and the bus.
 #[derive(Clone, Copy, Debug, Default)]
 struct Health {
@@ -173,7 +209,7 @@ struct Health {
 /// `repr(C)` with the fields every tick touches first, then the 90 KB feature state (whose
 /// per-sample fields come first): they then lie within 4 KB of the start, where a Cortex-M4
 /// load or store needs one instruction (three beyond, with the offset built in a register).
-/// The model results, touched only when one is delivered or applied, come last.
+/// The model results' parts, touched only when one is delivered or applied, come last.
 #[repr(C)]
 pub struct Servo {
     counters: Counters,
@@ -207,7 +243,8 @@ pub struct Servo {
     request: RequestSlot,
     synth: Synth,
     features: DefaultFeatureState,
-    results: [Option<ModelResult>; 2],
+    /// The features of each result slot's model update.
+    result_features: [[f32; 12]; 2],
     /// The last model output applied, per result slot (an error result carries the previous
     /// one over).
     last_outputs: [ModelOutput; 2],
@@ -250,7 +287,7 @@ impl Servo {
             counters: Counters::default(),
             health: Health::default(),
             request: RequestSlot::new(config.synth_ramp_ticks),
-            results: [None, None],
+            result_features: [[0.0; 12]; 2],
             applied: 0,
             pending_effect: PendingEffect::NoProgram,
             pending_due_tick: u64::MAX,
@@ -480,7 +517,7 @@ impl Servo {
         self.awaiting_due = None;
         // Prepared at delivery for this tick (see `deliver`): a switch.
         if !self.synth.switch_prepared() {
-            self.apply_unprepared(slot);
+            self.apply_unprepared();
         }
         match self.pending_effect {
             PendingEffect::Output { program_id } => {
@@ -510,16 +547,14 @@ impl Servo {
         self.pending_due_tick = u64::MAX;
     }
 
-    /// The synthesiser's update to result `slot` when it was not prepared for this tick.
+    /// The synthesiser's update when the pending result was not prepared for this tick:
+    /// silence (ramped). Not reached: a delivery is installed only when prepared for the tick
+    /// that applies it, and the servo keeps no more of a result than its prepared update.
     #[cold]
     #[inline(never)]
-    fn apply_unprepared(&mut self, slot: usize) {
-        // `deliver` prepares every result for the tick that applies it.
+    fn apply_unprepared(&mut self) {
         debug_assert!(false, "a model result applied without its prepared update");
-        match &self.results[slot & 1] {
-            Some(ModelResult { outcome: Ok((_, terms, _)), targets, .. }) => self.synth.apply(targets, terms),
-            _ => self.synth.apply(&SynthTargets::SILENT, &[]),
-        }
+        self.synth.apply(&SynthTargets::SILENT, &[]);
     }
 
     /// Whether the tick `ahead` ticks after the next one will end or start a feature block
@@ -542,12 +577,51 @@ impl Servo {
 
     /// Hands back a model result computed for a request of this servo, and prepares the
     /// synthesiser's update to it for the tick that will apply it (its due tick, or the next
-    /// tick if that has passed), so that this tick has little to do.
+    /// tick if that has passed), so that this tick has little to do. The same as
+    /// [`Servo::judge`], [`Servo::delivery_view`], [`Servo::prepare_delivery`] and
+    /// [`Servo::install_delivery`] in a row; the firmware runs the preparation between them
+    /// outside the critical section it shares with the tick.
     pub fn deliver(&mut self, result: ModelResult) {
+        let judgement = self.judge(&result);
+        let view = self.delivery_view(&result, &judgement);
+        let prepared = Self::prepare_delivery(&view, &result, &judgement);
+        let installed = self.install_delivery(&prepared, &result, &judgement);
+        debug_assert!(installed, "nothing changed since the view");
+    }
+
+    /// The first step of a delivery, once per result: the supervisor's verdict on it (in
+    /// force with the result) and the axis twin resets it reports.
+    pub fn judge(&mut self, result: &ModelResult) -> Judgement {
         self.count_axis_resets();
         if result.new_axis_resets != 0 {
             self.update_counters(|c| c.axis_resets = c.axis_resets.wrapping_add(result.new_axis_resets));
         }
+        let effect = match &result.outcome {
+            Ok((_, _, program_id)) => PendingEffect::Output { program_id: *program_id },
+            Err(ModelFault::NoProgram) => PendingEffect::NoProgram,
+            Err(_) => PendingEffect::Fault,
+        };
+        // The supervisor's verdict, in force with the result: its degraded bits. Where the
+        // gate holds the formulas off, an axis twin's correction (from the command) stays on.
+        self.supervisor.judge(&result.observation);
+        let command_driven = result.command_driven.is_some() && self.supervisor.allows_command_driven();
+        let bits = if self.supervisor.allows() || command_driven {
+            0
+        } else if self.supervisor.state().tripped.is_some() {
+            DEGRADED_SUPERVISED
+        } else {
+            DEGRADED_GATED
+        };
+        Judgement {
+            effect,
+            command_driven: command_driven && !self.supervisor.allows(),
+            supervision: (bits, self.supervisor.take_trips()),
+        }
+    }
+
+    /// What preparing the delivery of `result` reads of the servo (a copy of the live
+    /// synthesiser bank, a few hundred bytes), for [`Servo::prepare_delivery`].
+    pub fn delivery_view(&self, result: &ModelResult, judgement: &Judgement) -> DeliveryView {
         // The tick that will apply it (see `apply_due`).
         let next = self.counters.ticks;
         let apply_tick = if result.due_tick >= next {
@@ -556,46 +630,50 @@ impl Servo {
             // Late: the first tick from now that is not busy (at most two are in a row).
             next + u64::from((0..2).find(|&j| !self.tick_is_busy(j)).unwrap_or(2))
         };
-        let ticks_ahead = (apply_tick - next).min(u64::from(u32::MAX)) as u32;
+        let (targets, terms) = judgement.update_of(result);
+        DeliveryView {
+            ticks_ahead: (apply_tick - next).min(u64::from(u32::MAX)) as u32,
+            synth: self.synth.view(targets, terms),
+        }
+    }
+
+    /// Prepares the synthesiser's update to `result` from `view`; it touches no servo, so it
+    /// may run while the tick does.
+    pub fn prepare_delivery(view: &DeliveryView, result: &ModelResult, judgement: &Judgement) -> PreparedDelivery {
+        let (targets, terms) = judgement.update_of(result);
+        PreparedDelivery(Synth::prepare_from(&view.synth, targets, terms, view.ticks_ahead))
+    }
+
+    /// The last step of a delivery: hands over the prepared update and makes `result`
+    /// pending. Returns false, changing nothing, when the view is out of date (a result was
+    /// applied since, or the tick that was to apply this one has passed): take a new view
+    /// and prepare again.
+    pub fn install_delivery(
+        &mut self,
+        prepared: &PreparedDelivery,
+        result: &ModelResult,
+        judgement: &Judgement,
+    ) -> bool {
+        let (_, terms) = judgement.update_of(result);
+        if !self.synth.install(&prepared.0, terms) {
+            return false;
+        }
         let (applied, slot) = (self.applied & 1, (self.applied ^ 1) & 1);
-        self.pending_effect = match &result.outcome {
-            Ok((_, _, program_id)) => PendingEffect::Output { program_id: *program_id },
-            Err(ModelFault::NoProgram) => PendingEffect::NoProgram,
-            Err(_) => PendingEffect::Fault,
-        };
-        // The supervisor's verdict, in force with the result: its degraded bits. Where the
-        // gate holds the formulas off, an axis twin's correction (from the command) stays on.
-        self.supervisor.judge(&result.observation);
-        let command_driven = result.command_driven.filter(|_| self.supervisor.allows_command_driven());
-        let bits = if self.supervisor.allows() || command_driven.is_some() {
-            0
-        } else if self.supervisor.state().tripped.is_some() {
-            DEGRADED_SUPERVISED
-        } else {
-            DEGRADED_GATED
-        };
         self.last_outputs[slot] = match &result.outcome {
             Ok((output, terms, _)) => {
                 self.pending_push_commands = terms.iter().any(|t| matches!(t, TickTerm::Axis(_)));
-                match command_driven.filter(|_| !self.supervisor.allows()) {
-                    Some((command_output, command_targets)) => {
-                        self.synth.prepare(&command_targets, terms, ticks_ahead);
-                        command_output
-                    }
-                    None => {
-                        self.synth.prepare(&result.targets, terms, ticks_ahead);
-                        *output
-                    }
+                match &result.command_driven {
+                    Some((command_output, _)) if judgement.command_driven => *command_output,
+                    _ => *output,
                 }
             }
-            Err(_) => {
-                self.synth.prepare(&SynthTargets::SILENT, &[], ticks_ahead);
-                self.last_outputs[applied]
-            }
+            Err(_) => self.last_outputs[applied],
         };
-        self.pending_supervision = (bits, self.supervisor.take_trips());
+        self.pending_effect = judgement.effect;
+        self.pending_supervision = judgement.supervision;
         self.pending_due_tick = result.due_tick;
-        self.results[slot] = Some(result);
+        self.result_features[slot] = result.features;
+        true
     }
 
     /// The analogue-path table in force (part of the feedforward parameters).
@@ -702,7 +780,7 @@ impl Servo {
 
     /// The features of the last model update.
     pub fn last_features(&self) -> &[f32; 12] {
-        self.results[self.applied & 1].as_ref().map_or(&[0.0; 12], |result| &result.features)
+        &self.result_features[self.applied & 1]
     }
 
     /// Id of the program whose output is in force.

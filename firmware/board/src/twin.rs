@@ -35,6 +35,10 @@ pub static COMMANDS: DefaultCommandRing = DefaultCommandRing::new();
 /// (each retry follows a tick that made the view out of date, so it has most of a period).
 const DELIVERY_ATTEMPTS: usize = 8;
 
+/// Ticks after the next one from which a late model result is applied: time to prepare it
+/// outside the critical section before that tick (see `Servo::delivery_view`).
+const LATE_MARGIN_TICKS: u32 = 4;
+
 /// State shared by the two halves.
 pub struct TwinShared {
     /// The core's servo pipeline (it also holds the model request waiting for the
@@ -169,14 +173,14 @@ impl BackgroundApp for TwinBackground {
         // view is then out of date: another view, and at last all in one critical section.
         let (judgement, mut view) = ctx.shared.with(|s| {
             let judgement = s.servo.judge(&result);
-            (judgement, s.servo.delivery_view(&result, &judgement))
+            (judgement, s.servo.delivery_view(&result, &judgement, LATE_MARGIN_TICKS))
         });
         for _ in 0..DELIVERY_ATTEMPTS {
             let prepared = Servo::prepare_delivery(&view, &result, &judgement);
             let installed = ctx.shared.with(|s| {
                 let installed = s.servo.install_delivery(&prepared, &result, &judgement);
                 if !installed {
-                    view = s.servo.delivery_view(&result, &judgement);
+                    view = s.servo.delivery_view(&result, &judgement, LATE_MARGIN_TICKS);
                 }
                 installed
             });
@@ -185,7 +189,7 @@ impl BackgroundApp for TwinBackground {
             }
         }
         ctx.shared.with(|s| {
-            let view = s.servo.delivery_view(&result, &judgement);
+            let view = s.servo.delivery_view(&result, &judgement, LATE_MARGIN_TICKS);
             let prepared = Servo::prepare_delivery(&view, &result, &judgement);
             s.servo.install_delivery(&prepared, &result, &judgement)
         });

@@ -525,11 +525,13 @@ fn tick_instructions(hil: &Hil, sum: &mut u64, per_count: f64) -> f64 {
 /// The tick's start latency with a twin running, checked in CI: the demo twin under a
 /// 2,000-sample window (on-time model updates from tick 2,000, one every 112 ticks), 3,000
 /// ticks on the Cortex-M4F. A model delivery holds the critical section it shares with the
-/// tick for a view of the servo and a short install (some 800 instructions at worst over
-/// 20,000 ticks); the whole delivery in one section held it some 1,950. The bound sits between.
+/// tick only for the verdict and a view of the servo (a copy of the synthesiser's live bank)
+/// and for a short install: under 600 instructions at worst over 20,000 ticks, on either
+/// core, with the demo twin or an axis twin with six harmonics. The whole delivery in one
+/// section held it some 1,950. The bound leaves room for code generation to move.
 #[test]
 fn a_twin_delivers_its_model_updates_without_holding_off_the_tick() {
-    const ENTRY_BOUND: f64 = 1000.0;
+    const ENTRY_BOUND: f64 = 800.0;
     let _serial = sts_hil_tests::serial();
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/twin-default-machine.json");
     let model = sts_model::ModelFile::read(&path).expect("the demo twin");

@@ -7,7 +7,7 @@
 //! - [`TwinBackground::model_work`]: finishes the features, evaluates the twin program and
 //!   prepares the synthesiser's update outside any critical section, then hands it over in
 //!   a short one; the servo applies it at its due tick, so the outputs do not depend on how
-//!   fast this ran.
+//!   fast this ran (a late result, a few ticks after it arrived).
 //! - [`TwinBackground::on_control_bytes`]: decodes COBS/CRC frames, carries out requests with
 //!   [`handle_request`] and answers; bad frames are counted in the servo's `frame_errors`.
 
@@ -32,7 +32,8 @@ pub static RINGS: DefaultSpectralRings = DefaultSpectralRings::new();
 pub static COMMANDS: DefaultCommandRing = DefaultCommandRing::new();
 
 /// Preparations of a model delivery outside the critical section before the last one inside
-/// (each retry follows a tick that made the view out of date, so it has most of a period).
+/// (a retry follows a tick that made the view out of date: one that applied an earlier
+/// result, or passed this one's tick).
 const DELIVERY_ATTEMPTS: usize = 8;
 
 /// Ticks after the next one from which a late model result is applied: time to prepare it

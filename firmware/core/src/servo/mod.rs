@@ -236,10 +236,11 @@ pub struct Servo {
     awaiting_due: Option<u64>,
     /// [`Counters::fault_sum`] of `counters`, kept up to date where they change.
     fault_total: u32,
-    /// Due tick of the pending result (`u64::MAX`: none), next to the other per-tick fields.
+    /// The tick that applies the pending result (`u64::MAX`: none): its due tick, or a late
+    /// one's (see [`Servo::delivery_view`]); next to the other per-tick fields.
     pending_due_tick: u64,
-    /// `results[applied]` is the result in force; the other one is pending when
-    /// `pending_due_tick` says so. Applying it is a switch.
+    /// Slot `applied` of `last_outputs` and `result_features` is the result in force; the
+    /// other one is pending when `pending_due_tick` says so. Applying it is a switch.
     applied: usize,
     /// What applying the pending result does besides the synthesiser's update.
     pending_effect: PendingEffect,
@@ -509,8 +510,8 @@ impl Servo {
     /// come half a block away from the block ends, in whole blocks), and so the most
     /// expensive ticks never add up.
     fn apply_due(&mut self, tick: u64, busy: bool) {
-        // The pending result itself (about 600 bytes, waiting for most ticks of an interval)
-        // is neither moved nor looked at: its due tick is kept with the per-tick fields.
+        // The pending result's parts are not looked at: its tick is kept with the per-tick
+        // fields.
         if tick >= self.pending_due_tick {
             if tick == self.pending_due_tick || !busy {
                 self.apply_pending();

@@ -289,6 +289,21 @@ mod tests {
     }
 
     #[test]
+    fn slices_longer_than_a_chunk_keep_their_order_and_stop_when_full() {
+        let q: ByteQueue<40> = ByteQueue::new();
+        let bytes: std::vec::Vec<u8> = (0..50).collect();
+        assert_eq!(q.push_slice(&bytes[..3]), 3);
+        assert_eq!(q.pop_slice(&mut [0u8; 3]), 3);
+        // 40 fit (the ring wraps), the rest is refused.
+        assert_eq!(q.push_slice(&bytes), 40);
+        let mut out = [0u8; 50];
+        assert_eq!(q.pop_slice(&mut out[..17]), 17);
+        assert_eq!(q.pop_slice(&mut out[17..]), 23);
+        assert_eq!(&out[..40], &bytes[..40]);
+        assert!(q.is_empty());
+    }
+
+    #[test]
     fn deferred_events_pend_the_executor_and_wake_from_it() {
         use core::sync::atomic::AtomicU32;
         static PENDED: AtomicU32 = AtomicU32::new(0);

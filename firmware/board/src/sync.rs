@@ -68,6 +68,11 @@ impl<T> SharedCell<T> {
     }
 }
 
+/// Bytes the slice operations of a [`ByteQueue`] move per critical section: a byte costs the
+/// servo tick's start some ten instructions, a frame of a few hundred bytes in one section
+/// over a thousand.
+pub const SLICE_CHUNK: usize = 16;
+
 /// A bounded byte queue between an interrupt (one side) and the background (other side).
 /// Each operation is a short critical section.
 pub struct ByteQueue<const N: usize> {
@@ -105,18 +110,27 @@ impl<const N: usize> ByteQueue<N> {
         ok
     }
 
-    /// Appends as many of `bytes` as fit, returning how many.
+    /// Appends as many of `bytes` as fit, returning how many; [`SLICE_CHUNK`] bytes per
+    /// critical section.
     pub fn push_slice(&self, bytes: &[u8]) -> usize {
-        critical_section::with(|cs| {
-            let mut r = self.inner.borrow_ref_mut(cs);
-            let n = bytes.len().min(N - r.len);
-            for &b in &bytes[..n] {
-                let at = (r.head + r.len) % N;
-                r.buf[at] = b;
-                r.len += 1;
+        let mut pushed = 0;
+        for chunk in bytes.chunks(SLICE_CHUNK) {
+            let n = critical_section::with(|cs| {
+                let mut r = self.inner.borrow_ref_mut(cs);
+                let n = chunk.len().min(N - r.len);
+                for &b in &chunk[..n] {
+                    let at = (r.head + r.len) % N;
+                    r.buf[at] = b;
+                    r.len += 1;
+                }
+                n
+            });
+            pushed += n;
+            if n < chunk.len() {
+                break;
             }
-            n
-        })
+        }
+        pushed
     }
 
     /// Removes the oldest byte.
@@ -133,18 +147,27 @@ impl<const N: usize> ByteQueue<N> {
         })
     }
 
-    /// Moves up to `out.len()` of the oldest bytes into `out`, returning how many.
+    /// Moves up to `out.len()` of the oldest bytes into `out`, returning how many;
+    /// [`SLICE_CHUNK`] bytes per critical section.
     pub fn pop_slice(&self, out: &mut [u8]) -> usize {
-        critical_section::with(|cs| {
-            let mut r = self.inner.borrow_ref_mut(cs);
-            let n = out.len().min(r.len);
-            for o in &mut out[..n] {
-                *o = r.buf[r.head];
-                r.head = (r.head + 1) % N;
+        let mut popped = 0;
+        for chunk in out.chunks_mut(SLICE_CHUNK) {
+            let n = critical_section::with(|cs| {
+                let mut r = self.inner.borrow_ref_mut(cs);
+                let n = chunk.len().min(r.len);
+                for o in &mut chunk[..n] {
+                    *o = r.buf[r.head];
+                    r.head = (r.head + 1) % N;
+                }
+                r.len -= n;
+                n
+            });
+            popped += n;
+            if n < chunk.len() {
+                break;
             }
-            r.len -= n;
-            n
-        })
+        }
+        popped
     }
 
     /// True when nothing is queued.
@@ -262,6 +285,21 @@ mod tests {
         let mut out = [0u8; 8];
         assert_eq!(q.pop_slice(&mut out), 4);
         assert_eq!(&out[..4], b"bcdf");
+        assert!(q.is_empty());
+    }
+
+    #[test]
+    fn slices_longer_than_a_chunk_keep_their_order_and_stop_when_full() {
+        let q: ByteQueue<40> = ByteQueue::new();
+        let bytes: std::vec::Vec<u8> = (0..50).collect();
+        assert_eq!(q.push_slice(&bytes[..3]), 3);
+        assert_eq!(q.pop_slice(&mut [0u8; 3]), 3);
+        // 40 fit (the ring wraps), the rest is refused.
+        assert_eq!(q.push_slice(&bytes), 40);
+        let mut out = [0u8; 50];
+        assert_eq!(q.pop_slice(&mut out[..17]), 17);
+        assert_eq!(q.pop_slice(&mut out[17..]), 23);
+        assert_eq!(&out[..40], &bytes[..40]);
         assert!(q.is_empty());
     }
 

@@ -4,9 +4,10 @@
 //! - [`TwinServo::tick`]: the core's [`Servo::tick`] inside the shared cell (the servo
 //!   interrupt has the highest priority, so the critical section costs it nothing); a model
 //!   request is parked in the shared state and the background is woken.
-//! - [`TwinBackground::model_work`]: finishes the features and evaluates the twin program
-//!   outside any critical section, then hands the result back; the servo applies it at its
-//!   due tick, so the outputs do not depend on how fast this ran.
+//! - [`TwinBackground::model_work`]: finishes the features, evaluates the twin program and
+//!   prepares the synthesiser's update outside any critical section, then hands it over in
+//!   a short one; the servo applies it at its due tick, so the outputs do not depend on how
+//!   fast this ran (a late result, a few ticks after it arrived).
 //! - [`TwinBackground::on_control_bytes`]: decodes COBS/CRC frames, carries out requests with
 //!   [`handle_request`] and answers; bad frames are counted in the servo's `frame_errors`.
 
@@ -29,6 +30,15 @@ pub static RINGS: DefaultSpectralRings = DefaultSpectralRings::new();
 
 /// The recent ticks' commands, from the servo tick to the axis twin's compensator.
 pub static COMMANDS: DefaultCommandRing = DefaultCommandRing::new();
+
+/// Preparations of a model delivery outside the critical section before the last one inside
+/// (a retry follows a tick that made the view out of date: one that applied an earlier
+/// result, or passed this one's tick).
+const DELIVERY_ATTEMPTS: usize = 8;
+
+/// Ticks after the next one from which a late model result is applied: time to prepare it
+/// outside the critical section before that tick (see `Servo::delivery_view`).
+const LATE_MARGIN_TICKS: u32 = 4;
 
 /// State shared by the two halves.
 pub struct TwinShared {
@@ -158,7 +168,32 @@ impl BackgroundApp for TwinBackground {
             return;
         };
         let result = self.models.compute(&RINGS, &COMMANDS, &request, &path);
-        ctx.shared.with(|s| s.servo.deliver(result));
+        // The delivery in short critical sections: the verdict and a view of the servo, the
+        // synthesiser's update prepared from the view while the tick runs, then handed over.
+        // A tick between them may apply an earlier result or pass the result's tick, and the
+        // view is then out of date: another view, and at last all in one critical section.
+        let (judgement, mut view) = ctx.shared.with(|s| {
+            let judgement = s.servo.judge(&result);
+            (judgement, s.servo.delivery_view(&result, &judgement, LATE_MARGIN_TICKS))
+        });
+        for _ in 0..DELIVERY_ATTEMPTS {
+            let prepared = Servo::prepare_delivery(&view, &result, &judgement);
+            let installed = ctx.shared.with(|s| {
+                let installed = s.servo.install_delivery(&prepared, &result, &judgement);
+                if !installed {
+                    view = s.servo.delivery_view(&result, &judgement, LATE_MARGIN_TICKS);
+                }
+                installed
+            });
+            if installed {
+                return;
+            }
+        }
+        ctx.shared.with(|s| {
+            let view = s.servo.delivery_view(&result, &judgement, LATE_MARGIN_TICKS);
+            let prepared = Servo::prepare_delivery(&view, &result, &judgement);
+            s.servo.install_delivery(&prepared, &result, &judgement)
+        });
     }
 
     fn on_control_bytes(&mut self, rx: &[u8], ctx: &mut BackgroundCtx<'_, TwinShared>) {

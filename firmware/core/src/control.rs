@@ -90,25 +90,32 @@ pub fn handle_request(
     }
 }
 
-/// The status report.
+/// The status report. Read in short critical sections: what the tick changes in one, the
+/// settings in others (only the low-priority side, which runs this, changes them, so the
+/// report is the same as from one section).
 pub fn status(models: &Models, servo: &mut impl ServoAccess, config_source: ConfigSource) -> Status {
-    servo.with(|s| Status {
-        counters: {
-            s.count_axis_resets();
-            *s.counters()
-        },
-        enabled: s.enabled(),
-        gain: s.gain(),
-        degraded: s.degraded(),
+    let (counters, enabled, gain, degraded, amp_um, phase_deg, features) = servo.with(|s| {
+        s.count_axis_resets();
+        let output = s.last_output();
+        (*s.counters(), s.enabled(), s.gain(), s.degraded(), output.amp_um(), output.phase_deg(), *s.last_features())
+    });
+    let params = servo.with(|s| s.params());
+    let (feature_config, supervisor_params, supervisor) =
+        servo.with(|s| (*s.feature_config(), s.supervisor_params(), s.supervisor_state()));
+    Status {
+        counters,
+        enabled,
+        gain,
+        degraded,
         program_id: models.active_id(),
         staged_program_id: models.staged_id(),
-        params: s.params(),
-        feature_config: *s.feature_config(),
+        params,
+        feature_config,
         config_source,
-        amp_um: s.last_output().amp_um(),
-        phase_deg: s.last_output().phase_deg(),
-        features: *s.last_features(),
-        supervisor_params: s.supervisor_params(),
-        supervisor: s.supervisor_state(),
-    })
+        amp_um,
+        phase_deg,
+        features,
+        supervisor_params,
+        supervisor,
+    }
 }

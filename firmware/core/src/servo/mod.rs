@@ -10,7 +10,8 @@
 //!   computed, so the output is a function of the input stream alone: the firmware and the
 //!   host produce the same DAC codes bit for bit. A result that comes later than that is
 //!   applied at once (or up to two ticks later, not to fall on a tick that ends or starts a
-//!   feature block or requests a model update) and counted as late.
+//!   feature block or requests a model update; the firmware adds a few ticks to prepare it
+//!   outside the critical section it shares with the tick) and counted as late.
 //!
 //! Faults never step the output and never stop the loop: a stuck or saturated accelerometer,
 //! or a missing host, marks the inputs untrusted ([`DEGRADED_STUCK`] ...) and the feedforward
@@ -31,11 +32,11 @@ use crate::bus::{
     OUT_FLAG_SLEWING,
 };
 use crate::commands::DefaultCommandRing;
-use crate::features::{DefaultFeatureState, DefaultSpectralRings, FeatureConfig, FeatureError};
+use crate::features::{DefaultFeatureState, DefaultSpectralRings, FeatureConfig, FeatureError, BLOCK_SAMPLES};
 use crate::feedforward::{Feedforward, FeedforwardParams, ParamError};
 use crate::program::{ModelOutput, TickTerm};
 use crate::supervisor::{Supervisor, SupervisorParamError, SupervisorParams, SupervisorState};
-use crate::synth::{Synth, SynthTargets};
+use crate::synth::{PreparedUpdate, Synth, SynthTargets, SynthView};
 use timing::first_request_countdown;
 
 pub use crate::counters::Counters;
@@ -156,6 +157,53 @@ enum PendingEffect {
     Fault,
 }
 
+/// The supervisor's verdict on a model result ([`Servo::judge`]), for the rest of its
+/// delivery.
+#[derive(Clone, Copy, Debug)]
+pub struct Judgement {
+    effect: PendingEffect,
+    /// The axis twin's correction alone takes effect (the gate holds the formulas off).
+    command_driven: bool,
+    /// The degraded bits applying the result sets, and the trips to count.
+    supervision: (u16, u32),
+}
+
+impl Judgement {
+    /// The synthesiser's update to `result` this verdict leaves: its targets and terms.
+    fn update_of<'a>(&self, result: &'a ModelResult) -> (&'a SynthTargets, &'a [TickTerm]) {
+        match &result.outcome {
+            Ok((_, terms, _)) => match &result.command_driven {
+                Some((_, command_targets)) if self.command_driven => (command_targets, terms),
+                _ => (&result.targets, terms),
+            },
+            Err(_) => (&SynthTargets::SILENT, &[]),
+        }
+    }
+}
+
+/// What preparing a delivery reads of the servo ([`Servo::delivery_view`]).
+#[derive(Clone, Copy, Debug)]
+pub struct DeliveryView {
+    /// The tick that applies the result.
+    apply_tick: u64,
+    /// Ticks from the view to it.
+    ticks_ahead: u32,
+    synth: SynthView,
+}
+
+/// A delivery's synthesiser update, prepared outside the servo ([`Servo::prepare_delivery`]).
+#[derive(Clone, Copy, Debug)]
+pub struct PreparedDelivery {
+    apply_tick: u64,
+    update: PreparedUpdate,
+}
+
+/// Largest margin of [`Servo::delivery_view`]. It looks ahead for the first model countdown
+/// hit only; the next one is an interval later (48 ticks by default). Missing a busy tick
+/// costs that tick time, never the result's exactness: it is applied on the tick it was
+/// prepared for.
+pub const MAX_LATE_MARGIN_TICKS: u32 = 16;
+
 /// Input-health tracking of the accelerometer and the bus.
 #[derive(Clone, Copy, Debug, Default)]
 struct Health {
@@ -173,7 +221,7 @@ struct Health {
 /// `repr(C)` with the fields every tick touches first, then the 90 KB feature state (whose
 /// per-sample fields come first): they then lie within 4 KB of the start, where a Cortex-M4
 /// load or store needs one instruction (three beyond, with the offset built in a register).
-/// The model results, touched only when one is delivered or applied, come last.
+/// The model results' parts, touched only when one is delivered or applied, come last.
 #[repr(C)]
 pub struct Servo {
     counters: Counters,
@@ -188,10 +236,11 @@ pub struct Servo {
     awaiting_due: Option<u64>,
     /// [`Counters::fault_sum`] of `counters`, kept up to date where they change.
     fault_total: u32,
-    /// Due tick of the pending result (`u64::MAX`: none), next to the other per-tick fields.
+    /// The tick that applies the pending result (`u64::MAX`: none): its due tick, or a late
+    /// one's (see [`Servo::delivery_view`]); next to the other per-tick fields.
     pending_due_tick: u64,
-    /// `results[applied]` is the result in force; the other one is pending when
-    /// `pending_due_tick` says so. Applying it is a switch.
+    /// Slot `applied` of `last_outputs` and `result_features` is the result in force; the
+    /// other one is pending when `pending_due_tick` says so. Applying it is a switch.
     applied: usize,
     /// What applying the pending result does besides the synthesiser's update.
     pending_effect: PendingEffect,
@@ -207,7 +256,8 @@ pub struct Servo {
     request: RequestSlot,
     synth: Synth,
     features: DefaultFeatureState,
-    results: [Option<ModelResult>; 2],
+    /// The features of each result slot's model update.
+    result_features: [[f32; 12]; 2],
     /// The last model output applied, per result slot (an error result carries the previous
     /// one over).
     last_outputs: [ModelOutput; 2],
@@ -250,7 +300,7 @@ impl Servo {
             counters: Counters::default(),
             health: Health::default(),
             request: RequestSlot::new(config.synth_ramp_ticks),
-            results: [None, None],
+            result_features: [[0.0; 12]; 2],
             applied: 0,
             pending_effect: PendingEffect::NoProgram,
             pending_due_tick: u64::MAX,
@@ -453,14 +503,15 @@ impl Servo {
         }
     }
 
-    /// Applies the pending result at its due tick. A result that came late is applied at
-    /// once, or a tick or two later while a tick ends or starts a feature block or requests
-    /// a model update (`busy`): on time it never falls on such a tick (requests and results
+    /// Applies the pending result on the tick its delivery prepared it for: its due tick, or
+    /// for a result that came late, the first tick from its delivery that neither ends nor
+    /// starts a feature block nor requests a model update (`busy`; see
+    /// [`Servo::delivery_view`]). On time it never falls on such a tick (requests and results
     /// come half a block away from the block ends, in whole blocks), and so the most
     /// expensive ticks never add up.
     fn apply_due(&mut self, tick: u64, busy: bool) {
-        // The pending result itself (about 600 bytes, waiting for most ticks of an interval)
-        // is neither moved nor looked at: its due tick is kept with the per-tick fields.
+        // The pending result's parts are not looked at: its tick is kept with the per-tick
+        // fields.
         if tick >= self.pending_due_tick {
             if tick == self.pending_due_tick || !busy {
                 self.apply_pending();
@@ -480,7 +531,7 @@ impl Servo {
         self.awaiting_due = None;
         // Prepared at delivery for this tick (see `deliver`): a switch.
         if !self.synth.switch_prepared() {
-            self.apply_unprepared(slot);
+            self.apply_unprepared();
         }
         match self.pending_effect {
             PendingEffect::Output { program_id } => {
@@ -510,27 +561,29 @@ impl Servo {
         self.pending_due_tick = u64::MAX;
     }
 
-    /// The synthesiser's update to result `slot` when it was not prepared for this tick.
+    /// The synthesiser's update when the pending result was not prepared for this tick:
+    /// silence (ramped). Not reached: a delivery is installed only when prepared for the tick
+    /// that applies it, and the servo keeps no more of a result than its prepared update.
     #[cold]
     #[inline(never)]
-    fn apply_unprepared(&mut self, slot: usize) {
-        // `deliver` prepares every result for the tick that applies it.
+    fn apply_unprepared(&mut self) {
         debug_assert!(false, "a model result applied without its prepared update");
-        match &self.results[slot & 1] {
-            Some(ModelResult { outcome: Ok((_, terms, _)), targets, .. }) => self.synth.apply(targets, terms),
-            _ => self.synth.apply(&SynthTargets::SILENT, &[]),
-        }
+        self.synth.apply(&SynthTargets::SILENT, &[]);
     }
 
     /// Whether the tick `ahead` ticks after the next one will end or start a feature block
     /// or hit the model countdown (the ticks a late result is not applied on; see
-    /// `apply_due`), for `ahead` of 0 or 1.
+    /// `apply_due`), for `ahead` below the shortest model interval.
     fn tick_is_busy(&self, ahead: u32) -> bool {
         let countdown_hit = self.model_countdown.max(1) == ahead + 1;
         let block = match ahead {
             0 => self.features.next_push_is_busy(),
-            // The next push ends a block, so the one after starts the next; or the one after ends one.
-            _ => self.features.next_push_ends_block() || self.features.pushes_to_block_end() == 2,
+            // Blocks end every 16 pushes, the first of them `to_end` pushes from now, and the
+            // push after each end starts the next block.
+            _ => {
+                let to_end = self.features.pushes_to_block_end() % BLOCK_SAMPLES as u32;
+                (ahead + 1) % BLOCK_SAMPLES as u32 == to_end || ahead % BLOCK_SAMPLES as u32 == to_end
+            }
         };
         countdown_hit || block
     }
@@ -542,23 +595,26 @@ impl Servo {
 
     /// Hands back a model result computed for a request of this servo, and prepares the
     /// synthesiser's update to it for the tick that will apply it (its due tick, or the next
-    /// tick if that has passed), so that this tick has little to do.
+    /// tick if that has passed), so that this tick has little to do. The same as
+    /// [`Servo::judge`], [`Servo::delivery_view`], [`Servo::prepare_delivery`] and
+    /// [`Servo::install_delivery`] in a row; the firmware runs the preparation between them
+    /// outside the critical section it shares with the tick.
     pub fn deliver(&mut self, result: ModelResult) {
+        let judgement = self.judge(&result);
+        let view = self.delivery_view(&result, &judgement, 0);
+        let prepared = Self::prepare_delivery(&view, &result, &judgement);
+        let installed = self.install_delivery(&prepared, &result, &judgement);
+        debug_assert!(installed, "nothing changed since the view");
+    }
+
+    /// The first step of a delivery, once per result: the supervisor's verdict on it (in
+    /// force with the result) and the axis twin resets it reports.
+    pub fn judge(&mut self, result: &ModelResult) -> Judgement {
         self.count_axis_resets();
         if result.new_axis_resets != 0 {
             self.update_counters(|c| c.axis_resets = c.axis_resets.wrapping_add(result.new_axis_resets));
         }
-        // The tick that will apply it (see `apply_due`).
-        let next = self.counters.ticks;
-        let apply_tick = if result.due_tick >= next {
-            result.due_tick
-        } else {
-            // Late: the first tick from now that is not busy (at most two are in a row).
-            next + u64::from((0..2).find(|&j| !self.tick_is_busy(j)).unwrap_or(2))
-        };
-        let ticks_ahead = (apply_tick - next).min(u64::from(u32::MAX)) as u32;
-        let (applied, slot) = (self.applied & 1, (self.applied ^ 1) & 1);
-        self.pending_effect = match &result.outcome {
+        let effect = match &result.outcome {
             Ok((_, _, program_id)) => PendingEffect::Output { program_id: *program_id },
             Err(ModelFault::NoProgram) => PendingEffect::NoProgram,
             Err(_) => PendingEffect::Fault,
@@ -566,36 +622,84 @@ impl Servo {
         // The supervisor's verdict, in force with the result: its degraded bits. Where the
         // gate holds the formulas off, an axis twin's correction (from the command) stays on.
         self.supervisor.judge(&result.observation);
-        let command_driven = result.command_driven.filter(|_| self.supervisor.allows_command_driven());
-        let bits = if self.supervisor.allows() || command_driven.is_some() {
+        let command_driven = result.command_driven.is_some() && self.supervisor.allows_command_driven();
+        let bits = if self.supervisor.allows() || command_driven {
             0
         } else if self.supervisor.state().tripped.is_some() {
             DEGRADED_SUPERVISED
         } else {
             DEGRADED_GATED
         };
+        Judgement {
+            effect,
+            command_driven: command_driven && !self.supervisor.allows(),
+            supervision: (bits, self.supervisor.take_trips()),
+        }
+    }
+
+    /// What preparing the delivery of `result` reads of the servo (a copy of the live
+    /// synthesiser bank, a few hundred bytes), for [`Servo::prepare_delivery`]. A late
+    /// result is applied on the first tick from `late_margin_ticks` after the next one
+    /// that is not busy (see `apply_due`): a margin leaves its preparation time to finish
+    /// before that tick (the result comes so much later, as if it had been computed so).
+    pub fn delivery_view(&self, result: &ModelResult, judgement: &Judgement, late_margin_ticks: u32) -> DeliveryView {
+        let next = self.counters.ticks;
+        let apply_tick = if result.due_tick >= next {
+            result.due_tick
+        } else {
+            // At most two busy ticks come in a row (a block's end and the next one's start).
+            let margin = late_margin_ticks.min(MAX_LATE_MARGIN_TICKS);
+            next + u64::from((margin..margin + 2).find(|&j| !self.tick_is_busy(j)).unwrap_or(margin + 2))
+        };
+        let (targets, terms) = judgement.update_of(result);
+        DeliveryView {
+            apply_tick,
+            ticks_ahead: (apply_tick - next).min(u64::from(u32::MAX)) as u32,
+            synth: self.synth.view(targets, terms),
+        }
+    }
+
+    /// Prepares the synthesiser's update to `result` from `view`; it touches no servo, so it
+    /// may run while the tick does.
+    pub fn prepare_delivery(view: &DeliveryView, result: &ModelResult, judgement: &Judgement) -> PreparedDelivery {
+        let (targets, terms) = judgement.update_of(result);
+        PreparedDelivery {
+            apply_tick: view.apply_tick,
+            update: Synth::prepare_from(&view.synth, targets, terms, view.ticks_ahead),
+        }
+    }
+
+    /// The last step of a delivery: hands over the prepared update and makes `result`
+    /// pending. Returns false, changing nothing, when the view is out of date (a result was
+    /// applied since, or the tick that was to apply this one has passed): take a new view
+    /// and prepare again.
+    pub fn install_delivery(
+        &mut self,
+        prepared: &PreparedDelivery,
+        result: &ModelResult,
+        judgement: &Judgement,
+    ) -> bool {
+        let (_, terms) = judgement.update_of(result);
+        if !self.synth.install(&prepared.update, terms) {
+            return false;
+        }
+        let (applied, slot) = (self.applied & 1, (self.applied ^ 1) & 1);
         self.last_outputs[slot] = match &result.outcome {
             Ok((output, terms, _)) => {
                 self.pending_push_commands = terms.iter().any(|t| matches!(t, TickTerm::Axis(_)));
-                match command_driven.filter(|_| !self.supervisor.allows()) {
-                    Some((command_output, command_targets)) => {
-                        self.synth.prepare(&command_targets, terms, ticks_ahead);
-                        command_output
-                    }
-                    None => {
-                        self.synth.prepare(&result.targets, terms, ticks_ahead);
-                        *output
-                    }
+                match &result.command_driven {
+                    Some((command_output, _)) if judgement.command_driven => *command_output,
+                    _ => *output,
                 }
             }
-            Err(_) => {
-                self.synth.prepare(&SynthTargets::SILENT, &[], ticks_ahead);
-                self.last_outputs[applied]
-            }
+            Err(_) => self.last_outputs[applied],
         };
-        self.pending_supervision = (bits, self.supervisor.take_trips());
-        self.pending_due_tick = result.due_tick;
-        self.results[slot] = Some(result);
+        self.pending_effect = judgement.effect;
+        self.pending_supervision = judgement.supervision;
+        // The tick it was prepared for (the due tick, or a late result's; see `apply_due`).
+        self.pending_due_tick = prepared.apply_tick;
+        self.result_features[slot] = result.features;
+        true
     }
 
     /// The analogue-path table in force (part of the feedforward parameters).
@@ -702,7 +806,7 @@ impl Servo {
 
     /// The features of the last model update.
     pub fn last_features(&self) -> &[f32; 12] {
-        self.results[self.applied & 1].as_ref().map_or(&[0.0; 12], |result| &result.features)
+        &self.result_features[self.applied & 1]
     }
 
     /// Id of the program whose output is in force.
@@ -775,6 +879,143 @@ mod tests {
         assert!(outputs[7999].fault_count > faults + 10);
         // The twin's output never leaves the divergence bound (1 mm of error and mode).
         assert!(outputs.iter().all(|o| o.de_pred_pm.unsigned_abs() <= 2_100_000_000));
+    }
+
+    /// A servo, rings, commands and models running a program with a harmonic term, as the
+    /// delivery tests use them.
+    #[allow(clippy::type_complexity)]
+    fn delivery_rig(
+        window_samples: u32,
+    ) -> (
+        std::boxed::Box<Servo>,
+        std::boxed::Box<DefaultSpectralRings>,
+        std::boxed::Box<DefaultCommandRing>,
+        std::boxed::Box<Models>,
+    ) {
+        use crate::program::{ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
+        let features = FeatureConfig { window_samples, ..FeatureConfig::DEFAULT };
+        let (servo, check) = Servo::new(features, ServoConfig::default(), FeedforwardParams::default());
+        assert_eq!(check, Ok(()));
+        let mut models = std::boxed::Box::new(Models::new());
+        let mut b = ProgramBuilder::new();
+        b.constant(2.0).feature(4).mul().store(REG_AMP_UM).constant(0.0).store(REG_PHASE_DEG);
+        b.term(TickTerm::Harmonic { order: 3, amp_reg: 0, phase_reg: 1 });
+        models.upload(b.finish().unwrap(), true).unwrap();
+        (
+            std::boxed::Box::new(servo),
+            std::boxed::Box::new(DefaultSpectralRings::new()),
+            std::boxed::Box::new(DefaultCommandRing::new()),
+            models,
+        )
+    }
+
+    fn delivery_input(k: u32) -> InputSlot {
+        InputSlot {
+            tick: k,
+            acc_code: ((k * 7919) % 4001) as i16 - 2000,
+            flags: crate::bus::IN_FLAG_PHASE_VALID,
+            cmd_phase_turns: k.wrapping_mul(STEP_40HZ as u32),
+            cmd_pos_nm: 0,
+            ..Default::default()
+        }
+    }
+
+    /// A delivery prepared from a view taken ticks before it is installed (as the firmware
+    /// prepares it while the tick runs) gives the DAC codes of one delivered at once, bit for
+    /// bit; a view whose result's tick passed is refused and changes nothing.
+    #[test]
+    fn deliveries_prepared_from_an_older_view_are_exact_and_stale_views_are_refused() {
+        let (mut plain, rings_a, commands_a, mut models_a) = delivery_rig(800);
+        let (mut split, rings_b, commands_b, mut models_b) = delivery_rig(800);
+        let mut held: Option<(u32, ModelResult, Judgement, PreparedDelivery)> = None;
+        let (mut refused, mut installed) = (0, 0);
+        for k in 0..6000u32 {
+            let input = delivery_input(k);
+            assert_eq!(
+                plain.tick(&rings_a, &commands_a, &input).0,
+                split.tick(&rings_b, &commands_b, &input).0,
+                "tick {k}"
+            );
+            if let Some(request) = plain.take_request() {
+                let path = *plain.analogue_path();
+                plain.deliver(models_a.compute(&rings_a, &commands_a, &request, &path));
+            }
+            if let Some(request) = split.take_request() {
+                let path = *split.analogue_path();
+                let result = models_b.compute(&rings_b, &commands_b, &request, &path);
+                let judgement = split.judge(&result);
+                let view = split.delivery_view(&result, &judgement, 0);
+                let prepared = Servo::prepare_delivery(&view, &result, &judgement);
+                // Held for 0 to 14 ticks: the result is due 16 ticks after its request.
+                held = Some((k + k % 15, result, judgement, prepared));
+            }
+            if let Some((at, result, judgement, prepared)) = held.take() {
+                if at != k {
+                    held = Some((at, result, judgement, prepared));
+                    continue;
+                }
+                // A copy held past the result's tick is refused.
+                let mut late = std::boxed::Box::new(
+                    Servo::new(
+                        FeatureConfig { window_samples: 800, ..FeatureConfig::DEFAULT },
+                        ServoConfig::default(),
+                        FeedforwardParams::default(),
+                    )
+                    .0,
+                );
+                late.synth = split.synth.clone();
+                late.synth.set_time_ticks(result.due_tick + 1);
+                if !late.install_delivery(&prepared, &result, &judgement) {
+                    refused += 1;
+                }
+                assert!(split.install_delivery(&prepared, &result, &judgement), "tick {k}");
+                installed += 1;
+            }
+        }
+        assert!(plain.counters().model_updates > 50, "{}", plain.counters().model_updates);
+        assert_eq!(plain.counters().model_updates, split.counters().model_updates);
+        assert_eq!(plain.counters().model_late, 0);
+        assert_eq!(refused, installed);
+    }
+
+    /// Late results delivered with a margin (as the firmware does) are applied on the first
+    /// tick from the margin that is not busy, and never before it.
+    #[test]
+    fn late_results_delivered_with_a_margin_are_applied_after_it_on_quiet_ticks() {
+        for margin in [1, 3, 4, 9] {
+            let (mut servo, rings, commands, mut models) = delivery_rig(800);
+            let mut waiting: Option<(u32, ModelRequest)> = None;
+            let mut delivered_at = None;
+            let mut updates = 0;
+            let mut applied = 0;
+            for k in 0..6000u32 {
+                let busy = servo.tick_is_busy(0);
+                servo.tick(&rings, &commands, &delivery_input(k));
+                if servo.counters().model_updates != updates {
+                    updates = servo.counters().model_updates;
+                    let at: u32 = delivered_at.take().expect("delivered");
+                    assert!(!busy, "margin {margin}: applied on busy tick {k}");
+                    assert!(k > at + margin, "margin {margin}: delivered after tick {at}, applied on {k}");
+                    assert!(k <= at + margin + 3, "margin {margin}: delivered after tick {at}, applied on {k}");
+                    applied += 1;
+                }
+                if let Some(request) = servo.take_request() {
+                    waiting = Some((k + 17 + k % 7, request));
+                }
+                if let Some((_, request)) = waiting.filter(|(at, _)| *at == k) {
+                    let path = *servo.analogue_path();
+                    let result = models.compute(&rings, &commands, &request, &path);
+                    let judgement = servo.judge(&result);
+                    let view = servo.delivery_view(&result, &judgement, margin);
+                    let prepared = Servo::prepare_delivery(&view, &result, &judgement);
+                    assert!(servo.install_delivery(&prepared, &result, &judgement));
+                    delivered_at = Some(k);
+                    waiting = None;
+                }
+            }
+            assert!(applied > 50, "{applied}");
+            assert_eq!(servo.counters().model_late, servo.counters().model_updates);
+        }
     }
 
     /// Results delivered late, some on the tick before a block end or a model request: each

@@ -137,6 +137,30 @@ struct Prepared {
     ramp_left: u32,
 }
 
+/// What preparing a model update reads of a [`Synth`] ([`Synth::view`]).
+#[derive(Clone, Copy, Debug)]
+pub struct SynthView {
+    bank: Harmonics,
+    ramp_left: u32,
+    ticks: u64,
+    generation: u32,
+    ramp_ticks: u32,
+    /// The update's kernel slots whose term runs in its slot now (and so runs on).
+    kept: u32,
+}
+
+/// A model update prepared away from the synthesiser ([`Synth::prepare_from`]), for
+/// [`Synth::install`].
+#[derive(Clone, Copy, Debug)]
+pub struct PreparedUpdate {
+    /// The bank in force from the update on (its kernel slots in their cells then).
+    bank: Harmonics,
+    /// Slots whose kernel term stops, and those whose term starts from rest, in the spare cell.
+    stop: u32,
+    start: u32,
+    prepared: Prepared,
+}
+
 /// The error synthesiser. See the [module docs](self).
 ///
 /// Term slot `i` holds the `i`-th tick term of the program in force: a harmonic (its order
@@ -275,37 +299,90 @@ impl Synth {
     /// Prepares the model update `targets` of `terms` (as [`Synth::apply_prepared`] will
     /// apply it) for `ticks_ahead` ticks from now: on the state the running ramps will be in
     /// then, with any kernel term that starts then set up in its slot's spare cell. The tick
-    /// applying it then only switches banks and cells.
+    /// applying it then only switches banks and cells. The same as [`Synth::view`],
+    /// [`Synth::prepare_from`] and [`Synth::install`] in a row.
     pub fn prepare(&mut self, targets: &SynthTargets, terms: &[TickTerm], ticks_ahead: u32) {
-        let ramp = self.ramp_ticks;
+        let view = self.view(targets, terms);
+        let update = Self::prepare_from(&view, targets, terms, ticks_ahead);
+        let installed = self.install(&update, terms);
+        debug_assert!(installed, "nothing changed since the view");
+    }
+
+    /// What preparing the update `targets` of `terms` reads of the synthesiser: a copy of
+    /// the live bank and the kernel slots that run on. Taken where the tick cannot run (a
+    /// few hundred bytes copied), so that [`Synth::prepare_from`] can run where it can.
+    pub fn view(&self, targets: &SynthTargets, terms: &[TickTerm]) -> SynthView {
         let count = terms.len().min(MAX_TERMS);
-        let at_ticks = self.ticks.wrapping_add(u64::from(ticks_ahead));
-        let live = self.live & 1;
-        let (mut next, ramp_left) = self.banks[live].advanced(self.ramp_left, ticks_ahead);
+        SynthView {
+            bank: *self.harmonics(),
+            ramp_left: self.ramp_left,
+            ticks: self.ticks,
+            generation: self.generation,
+            ramp_ticks: self.ramp_ticks,
+            kept: self.kept_kernels(targets, &terms[..count]),
+        }
+    }
+
+    /// Prepares the model update `targets` of `terms` from `view`, for `ticks_ahead` ticks
+    /// after the view was taken (see [`Synth::prepare`]); it touches no synthesiser, so it
+    /// may run while the tick does. [`Synth::install`] hands it over.
+    pub fn prepare_from(
+        view: &SynthView,
+        targets: &SynthTargets,
+        terms: &[TickTerm],
+        ticks_ahead: u32,
+    ) -> PreparedUpdate {
+        let ramp = view.ramp_ticks;
+        let count = terms.len().min(MAX_TERMS);
+        let at_ticks = view.ticks.wrapping_add(u64::from(ticks_ahead));
+        let (mut next, ramp_left) = view.bank.advanced(view.ramp_left, ticks_ahead);
         // (The cells do not change before then: only an update changes them.)
-        let kept = self.kept_kernels(targets, &terms[..count]);
+        let kept = view.kept;
         next.fundamental.retarget(targets.amp_pm, targets.phase_turns, ramp);
         let running = next.kernels.kernel_mask;
         let update = next.retarget_terms(targets, count, running, kept, ramp_left, ramp);
-        // As `change_kernels`, in the spare cells.
+        // As `change_kernels`, in the spare cells (written by `install`).
         let (stop, start) = (running & !kept, update.kernels & !kept);
         for i in 0..MAX_TERMS {
             if (stop | start) & (1 << i) != 0 {
-                let spare = (next.kernels.cell_of_slot[i] ^ 1) as usize & (CELLS - 1);
-                self.cells[spare] = match terms.get(i) {
-                    Some(term) if start & (1 << i) != 0 => {
-                        self.retire(spare);
-                        KernelSlot { term: Some(*term), state: KernelState::start(term, at_ticks) }
-                    }
-                    _ => KernelSlot { term: None, ..self.cells[spare] },
-                };
-                next.kernels.cell_of_slot[i] = spare as u8;
+                next.kernels.cell_of_slot[i] ^= 1;
             }
         }
         next.kernels.set_kernels(update.kernels, &terms[..count]);
-        self.banks[live ^ 1] = next;
-        self.prepared =
-            Some(Prepared { generation: self.generation, ramp_ticks: ramp, at_ticks, ramp_left: update.ramp_left });
+        PreparedUpdate {
+            bank: next,
+            stop: stop & !start,
+            start,
+            prepared: Prepared { generation: view.generation, ramp_ticks: ramp, at_ticks, ramp_left: update.ramp_left },
+        }
+    }
+
+    /// Hands over an update [`Synth::prepare_from`] prepared of `terms` (the same terms):
+    /// its bank and the kernel terms that start, in the spare cells, for the tick that
+    /// applies it. Returns false, changing nothing, when the view it was prepared from is
+    /// out of date: an update was applied since, or its tick has passed.
+    pub fn install(&mut self, update: &PreparedUpdate, terms: &[TickTerm]) -> bool {
+        let p = update.prepared;
+        if p.generation != self.generation || p.ramp_ticks != self.ramp_ticks || p.at_ticks < self.ticks {
+            return false;
+        }
+        let live = self.live & 1;
+        let mut changed = (update.stop | update.start) & 0xff;
+        while changed != 0 {
+            let i = (changed.trailing_zeros() & 7) as usize;
+            changed &= changed - 1;
+            let spare = update.bank.kernels.cell_of_slot[i] as usize & (CELLS - 1);
+            match terms.get(i) {
+                Some(term) if update.start & (1 << i) != 0 => {
+                    self.retire(spare);
+                    self.cells[spare] = KernelSlot { term: Some(*term), state: KernelState::start(term, p.at_ticks) };
+                }
+                _ => self.cells[spare].term = None,
+            }
+        }
+        self.banks[live ^ 1] = update.bank;
+        self.prepared = Some(p);
+        true
     }
 
     /// Applies a model update: the one [`Synth::prepare`]d, by switching banks and cells,

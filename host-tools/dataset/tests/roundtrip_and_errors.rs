@@ -22,12 +22,7 @@ fn sample_dataset(optional: bool) -> Dataset {
             data.temp_c = Some(vec![20.0; n]);
         }
         groups.push(data);
-        infos.push(GroupInfo {
-            file: format!("g{g:03}.csv"),
-            freq_hz: 5.0,
-            amp_um: g as f64 + 1.0,
-            start_s: 6.0 * g as f64,
-        });
+        infos.push(GroupInfo::new(&format!("g{g:03}.csv"), 5.0, g as f64 + 1.0, 6.0 * g as f64));
     }
     let mut manifest = Manifest::new(8000.0, "test data", infos);
     manifest.acc_mps2_per_lsb = Some(0.00059814);

@@ -7,9 +7,10 @@
 //!   target, then moved into place in one step (on Linux an atomic exchange with the old one).
 //!   Dropped before [`StagedDir::commit`], it removes what it wrote; a process killed before
 //!   the commit leaves the old dataset as it was and a `.NAME.partial-*` directory beside it.
-//! - [`check_file`], [`check_dataset_dir`]: what a command may write, checked before any
-//!   long work: an existing file or dataset only with `force`, and never an input or a path
-//!   inside an input dataset directory, whatever `force` says.
+//! - [`check_file`], [`check_files`], [`check_dataset_dir`]: what a command may write,
+//!   checked before any long work: an existing file or dataset only with `force`; never an
+//!   input, a path inside an input directory or a file inside any dataset directory, whatever
+//!   `force` says.
 
 use crate::{DatasetError, MANIFEST_FILE};
 use std::io::Write;
@@ -99,10 +100,18 @@ fn check_not_input(output: &Path, inputs: &[&Path]) -> Result<(), DatasetError> 
     Ok(())
 }
 
-/// Whether a command may write the file `path`: never one of `inputs` or inside one of them;
-/// an existing file only with `force`; never a directory.
+/// Whether a command may write the file `path`: never one of `inputs` or inside one of them,
+/// never inside a dataset directory (a dataset is written only as a whole); an existing file
+/// only with `force`; never a directory.
 pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<(), DatasetError> {
     check_not_input(path, inputs)?;
+    let dir = parent_of(path);
+    if dir.join(MANIFEST_FILE).is_file() {
+        return Err(refused(
+            path,
+            format!("is inside the dataset {} (a dataset is written only as a whole); write elsewhere", dir.display()),
+        ));
+    }
     match std::fs::metadata(path) {
         Ok(meta) if meta.is_dir() => Err(refused(path, "is a directory, not a file")),
         Ok(_) if !force => Err(refused(path, "already exists (--force replaces it)")),
@@ -110,13 +119,14 @@ pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<(), Data
     }
 }
 
-/// Refuses two outputs of one command that are the same file (the second would replace the
-/// first).
-pub fn check_distinct(outputs: &[&Path]) -> Result<(), DatasetError> {
+/// [`check_file`] of each of a command's `outputs`, and that no two are the same file (the
+/// second would replace the first).
+pub fn check_files(outputs: &[&Path], force: bool, inputs: &[&Path]) -> Result<(), DatasetError> {
     for (i, a) in outputs.iter().enumerate() {
         if let Some(b) = outputs[i + 1..].iter().find(|b| canonical(b) == canonical(a)) {
             return Err(refused(b, "is named for two outputs of this command"));
         }
+        check_file(a, force, inputs)?;
     }
     Ok(())
 }

@@ -21,7 +21,7 @@ pub struct Args {
     #[arg(long)]
     pub twin: Option<PathBuf>,
     /// Where to keep the fitted model.
-    #[arg(long, default_value = "target/demo-twin.json")]
+    #[arg(long, default_value = DEFAULT_OUT)]
     pub out: PathBuf,
     /// Run the core on the host instead of the firmware in QEMU.
     #[arg(long)]
@@ -39,11 +39,21 @@ pub struct Args {
     /// applies it, uncorrected for the path's lag).
     #[arg(long)]
     pub no_path: bool,
+    /// Replace an existing output named on the command line (the default --out is replaced
+    /// without it; never one of the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
+
+/// Where the fitted twin goes without --out.
+const DEFAULT_OUT: &str = "target/demo-twin.json";
 
 /// Runs `sts-twin demo`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plant = PlantParams::default();
+    if args.twin.is_none() {
+        sts_dataset::output::check_file(&args.out, args.force || args.out == std::path::Path::new(DEFAULT_OUT), &[])?;
+    }
     let model = match &args.twin {
         Some(path) => sts_model::ModelFile::read(path)?,
         None => {

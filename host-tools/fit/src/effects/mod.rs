@@ -822,6 +822,16 @@ pub fn write_records(path: &Path, records: &[EffectRecord]) -> Result<(), FitErr
     Ok(sts_dataset::output::write_file(path, text.as_bytes())?)
 }
 
+/// Writes `model`'s file whole or not at all ([`sts_dataset::output::write_file`]), with
+/// `records` as its `effects` field where given.
+pub fn write_model(path: &Path, model: &ModelFile, records: Option<&[EffectRecord]>) -> Result<(), FitError> {
+    let text = match records {
+        Some(records) => model_text_with_records(model, records)?,
+        None => serde_json::to_string_pretty(model)? + "\n",
+    };
+    Ok(sts_dataset::output::write_file(path, text.as_bytes())?)
+}
+
 /// The text of `model`'s file with `records` as its `effects` field: what
 /// [`ModelFile::write`] and then [`write_records`] leave on disk, byte for byte.
 pub fn model_text_with_records(model: &ModelFile, records: &[EffectRecord]) -> Result<String, FitError> {

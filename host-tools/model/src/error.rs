@@ -79,6 +79,14 @@ pub enum ModelError {
         #[source]
         source: std::io::Error,
     },
+    /// A formula's constant cannot be written in the export's language.
+    #[error("field `{field}.expr`: a constant {message}")]
+    Constant {
+        /// The formula (`amplitude` or `phase`).
+        field: &'static str,
+        /// What is wrong.
+        message: String,
+    },
     /// The program's bytes are not hexadecimal.
     #[error("is not hexadecimal (an even number of 0-9, a-f digits)")]
     NotHex,

@@ -13,3 +13,4 @@ mod import;
 mod machine_report;
 mod report_browser;
 mod trial_table_json;
+mod untrusted;

@@ -50,13 +50,16 @@ fn copy_dir(from: &Path, to: &Path) {
 }
 
 /// The shared dataset (`data`, 8 groups) and its twin (`twin.json`), made once.
-struct Fixture {
+pub struct Fixture {
     _dir: tempfile::TempDir,
-    data: PathBuf,
-    twin: PathBuf,
+    /// The dataset.
+    pub data: PathBuf,
+    /// Its twin.
+    pub twin: PathBuf,
 }
 
-fn fixture() -> &'static Fixture {
+/// The shared dataset and twin.
+pub fn fixture() -> &'static Fixture {
     static FIXTURE: OnceLock<Fixture> = OnceLock::new();
     FIXTURE.get_or_init(|| {
         let dir = tempfile::tempdir().expect("a temporary directory");

@@ -109,13 +109,26 @@ fn a_measurement_killed_part_way_leaves_the_old_dataset_whole() {
     let dir = tempfile::tempdir().unwrap();
     let data = data_copy(dir.path());
     let before = contents(&data);
-    // 88 groups take seconds: killed after half a second, as the report's SIGKILL.
+    // 88 groups take seconds: killed (SIGKILL) once some group files are written.
     let mut child = Command::new(env!("CARGO_BIN_EXE_sts-twin"))
         .args(["measure", "--out", s(&data), "--force", "--seed", "5", "--effect", "coulomb-friction", "--quiet"])
         .args(["--freqs", "5,10,15,20,25,30,35,40", "--amps", "1,2,3,4,5,6,7,8,9,10,11"])
         .spawn()
         .expect("sts-twin runs");
-    std::thread::sleep(std::time::Duration::from_millis(500));
+    let started = std::time::Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("the measurement ended before it was killed ({status})");
+        }
+        let written_beside = std::fs::read_dir(dir.path()).unwrap().flatten().any(|e| {
+            e.file_name().to_string_lossy().starts_with(".data.partial")
+                && std::fs::read_dir(e.path()).is_ok_and(|mut d| d.next().is_some())
+        });
+        if written_beside || contents(&data) != before || started.elapsed().as_secs() > 10 {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
     child.kill().expect("killed");
     child.wait().expect("ended");
     assert!(contents(&data) == before, "the dataset changed under a killed measurement");

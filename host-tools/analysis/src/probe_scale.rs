@@ -206,7 +206,7 @@ mod tests {
                         g.z_cmd_um[k] = z;
                         g.z_tcp_um[k] = z * ratio(freq_hz, amp_um);
                     }
-                    (g, GroupInfo { file: String::new(), freq_hz, amp_um, start_s: 0.0 })
+                    (g, GroupInfo::new("", freq_hz, amp_um, 0.0))
                 })
             })
             .collect()

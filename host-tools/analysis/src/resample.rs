@@ -234,7 +234,7 @@ mod tests {
                 sample_rate_hz: rate_hz,
                 description: String::new(),
                 acc_mps2_per_lsb: None,
-                groups: vec![GroupInfo { file: "g.csv".into(), freq_hz: 40.0, amp_um: 5.0, start_s: 0.0 }],
+                groups: vec![GroupInfo::new("g.csv", 40.0, 5.0, 0.0)],
             },
             groups: vec![g],
         }

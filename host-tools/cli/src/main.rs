@@ -33,7 +33,7 @@ enum Command {
     Fit(cmd::fit::Args),
     /// The firmware under QEMU on its own: status, benchmarks.
     Hil(cmd::hil::Args),
-    /// A lab's own recording (CSV or TSV, its own channel names and units) to a dataset, the groups found from the command.
+    /// A lab's own recording (CSV, TSV, MAT, TDMS or HDF5, its own channel names and units) to a dataset, the groups found from the command.
     Import(cmd::import::Args),
     /// Run the offline dynamic-error measurement test on the emulated machine.
     Measure(cmd::measure::Args),
@@ -95,7 +95,7 @@ fn run(cli: &Cli) -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            eprintln!("error: {}", sts_dataset::output::error_text(err.as_ref()));
             std::process::ExitCode::FAILURE
         }
     }

@@ -269,8 +269,16 @@ fn a_simulink_log_saved_as_a_mat_file_comes_back_as_the_same_dataset() {
     assert_same_groups("the MAT-file", &data.manifest, &src, &out_dir);
     // A column the matrix does not have, and a truncated file.
     std::fs::write(dir.0.join("bad.toml"), map.replace("Z[3]", "Z[4]")).unwrap();
-    let out =
-        sts_twin(&["import", path(&mat), "--out", path(&out_dir), "--map", path(&dir.0.join("bad.toml")), "--quiet"]);
+    let out = sts_twin(&[
+        "import",
+        path(&mat),
+        "--out",
+        path(&out_dir),
+        "--map",
+        path(&dir.0.join("bad.toml")),
+        "--quiet",
+        "--force",
+    ]);
     assert!(
         !out.status.success() && stderr(&out).contains("`Z[4]`") && stderr(&out).contains("tout"),
         "{}",
@@ -279,8 +287,16 @@ fn a_simulink_log_saved_as_a_mat_file_comes_back_as_the_same_dataset() {
     let bytes = std::fs::read(&mat).unwrap();
     let cut = dir.0.join("cut.mat");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let out =
-        sts_twin(&["import", path(&cut), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
+    let out = sts_twin(&[
+        "import",
+        path(&cut),
+        "--out",
+        path(&out_dir),
+        "--map",
+        path(&dir.0.join("map.toml")),
+        "--quiet",
+        "--force",
+    ]);
     assert!(
         !out.status.success() && stderr(&out).contains("cut.mat") && stderr(&out).contains("truncated"),
         "{}",
@@ -325,8 +341,16 @@ fn an_ni_daq_log_in_tdms_comes_back_as_the_same_dataset() {
     assert_same_groups("the TDMS file", &data.manifest, &src, &out_dir);
     // A channel the task did not log, and a file cut in its last segment.
     std::fs::write(dir.0.join("bad.toml"), map.replace("Dev1/ai3", "Dev1/ai7")).unwrap();
-    let out =
-        sts_twin(&["import", path(&tdms), "--out", path(&out_dir), "--map", path(&dir.0.join("bad.toml")), "--quiet"]);
+    let out = sts_twin(&[
+        "import",
+        path(&tdms),
+        "--out",
+        path(&out_dir),
+        "--map",
+        path(&dir.0.join("bad.toml")),
+        "--quiet",
+        "--force",
+    ]);
     assert!(
         !out.status.success()
             && stderr(&out).contains("`STS task/Dev1/ai7`")
@@ -337,8 +361,16 @@ fn an_ni_daq_log_in_tdms_comes_back_as_the_same_dataset() {
     let bytes = std::fs::read(&tdms).unwrap();
     let cut = dir.0.join("cut.tdms");
     std::fs::write(&cut, &bytes[..bytes.len() - 1000]).unwrap();
-    let out =
-        sts_twin(&["import", path(&cut), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
+    let out = sts_twin(&[
+        "import",
+        path(&cut),
+        "--out",
+        path(&out_dir),
+        "--map",
+        path(&dir.0.join("map.toml")),
+        "--quiet",
+        "--force",
+    ]);
     assert!(
         !out.status.success() && stderr(&out).contains("cut.tdms") && stderr(&out).contains("truncated"),
         "{}",
@@ -404,13 +436,13 @@ fn hdf5_and_mat_v7_3_recordings_come_back_as_the_same_dataset() {
         assert_same_groups(file, &data.manifest, &src, &out_dir);
         // A dataset the file lacks is named, with what it has.
         std::fs::write(dir.0.join("bad.toml"), map.replace("acc\"", "acc_x\"")).unwrap();
-        let out = sts_twin(&["import", path(&recording), "--out", path(&out_dir), "--map", path(&dir.0.join("bad.toml")), "--quiet"]);
+        let out = sts_twin(&["import", path(&recording), "--out", path(&out_dir), "--map", path(&dir.0.join("bad.toml")), "--quiet", "--force"]);
         assert!(!out.status.success() && stderr(&out).contains("acc_x`") && stderr(&out).contains(file), "{}", stderr(&out));
         // A file cut in two.
         let bytes = std::fs::read(&recording).unwrap();
         let cut = dir.0.join(format!("cut-{file}"));
         std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-        let out = sts_twin(&["import", path(&cut), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet"]);
+        let out = sts_twin(&["import", path(&cut), "--out", path(&out_dir), "--map", path(&dir.0.join("map.toml")), "--quiet", "--force"]);
         assert!(!out.status.success() && stderr(&out).contains("cut-") && stderr(&out).contains("truncated"), "{}", stderr(&out));
         println!("{file}, cut: {}", stderr(&out).trim());
     }

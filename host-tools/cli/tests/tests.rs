@@ -11,5 +11,7 @@ mod foreign_ball_screw;
 mod foreign_machine;
 mod import;
 mod machine_report;
+mod never_panics;
 mod report_browser;
 mod trial_table_json;
+mod untrusted;

@@ -60,6 +60,43 @@ pub enum DatasetError {
         /// The text found.
         text: String,
     },
+    /// A value no sensor of the column can produce ([`crate::Column::physical_bounds`]).
+    #[error("{path}:{line}:{column}: column `{field}`: {value:e} is beyond what the sensor can produce ({min:e} to {max:e})")]
+    OutOfRange {
+        /// The group file.
+        path: PathBuf,
+        /// Line, 1-based.
+        line: usize,
+        /// Column, 1-based.
+        column: usize,
+        /// The column's header name.
+        field: String,
+        /// The value read.
+        value: f64,
+        /// The column's lower bound.
+        min: f64,
+        /// The column's upper bound.
+        max: f64,
+    },
+    /// A group file is not the one the manifest describes (other rows or checksum): a
+    /// dataset mixed from two runs, or truncated.
+    #[error("{path}: not the file the manifest describes (group {group}): {message}")]
+    Mismatch {
+        /// The group file.
+        path: PathBuf,
+        /// Index of the group in the manifest.
+        group: usize,
+        /// What differs.
+        message: String,
+    },
+    /// An output the command may not write (it exists, or is an input).
+    #[error("{path}: {message}")]
+    Refused {
+        /// The output.
+        path: PathBuf,
+        /// Why.
+        message: String,
+    },
     /// A row has fewer fields than the header.
     #[error("{path}:{line}:{column}: column `{field}`: missing value (row has {found} of {expected} fields)")]
     MissingValue {

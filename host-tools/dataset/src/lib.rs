@@ -2,11 +2,12 @@
 #![deny(missing_docs)]
 
 mod error;
+pub mod output;
 mod read;
 mod write;
 
 pub use error::DatasetError;
-pub use read::{parse_group_csv, read, read_manifest};
+pub use read::{group_checksum, parse_group_csv, read, read_manifest};
 pub use write::{format_group_csv, write, write_group, write_manifest};
 
 use serde::{Deserialize, Serialize};
@@ -67,6 +68,21 @@ pub struct GroupInfo {
     pub amp_um: f64,
     /// Machine time at the group's start, s.
     pub start_s: f64,
+    /// Data rows of the group file, as written (absent in manifests written before it was
+    /// recorded, or by hand: then not checked).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rows: Option<usize>,
+    /// CRC-32 of the group file's bytes, 8 hex digits, as written ([`group_checksum`]):
+    /// the reader refuses a file that is not the one the manifest describes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub crc32: Option<String>,
+}
+
+impl GroupInfo {
+    /// A group not yet written (no row count or checksum).
+    pub fn new(file: &str, freq_hz: f64, amp_um: f64, start_s: f64) -> Self {
+        Self { file: file.to_string(), freq_hz, amp_um, start_s, rows: None, crc32: None }
+    }
 }
 
 /// A column of a group file.
@@ -129,6 +145,26 @@ impl Column {
     /// Whether every group file must have this column.
     pub fn is_required(self) -> bool {
         REQUIRED_COLUMNS.contains(&self)
+    }
+
+    /// The values a sensor of this channel can produce, inclusive, in the column's unit:
+    /// anything beyond (or not finite) is refused at read time. Wide on purpose: they catch
+    /// corrupt or mis-scaled data (1e308 um), never a real machine's.
+    pub fn physical_bounds(self) -> (f64, f64) {
+        match self {
+            // time since the group's start: up to about 11 days
+            Column::TS => (-1e6, 1e6),
+            // Z positions: within 1 m of the origin
+            Column::ZCmdUm | Column::ZEncUm | Column::ZTcpUm => (-1e6, 1e6),
+            // accelerations: 10,000 g, beyond any accelerometer on a machine tool
+            Column::AccMps2 | Column::XAccMps2 => (-1e5, 1e5),
+            // X slide: within 100 m of the origin
+            Column::XMm => (-1e5, 1e5),
+            // spindle angle, possibly unwrapped: 10^9 turns
+            Column::SpindleDeg => (-3.6e11, 3.6e11),
+            // machine temperature: absolute zero to 1000 C
+            Column::TempC => (-273.15, 1000.0),
+        }
     }
 
     /// Decimal places the writer uses: at or below each signal's resolution, so a written

@@ -37,7 +37,36 @@ fn read_group(dir: &Path, index: usize, info: &GroupInfo, sample_rate_hz: f64) -
         }
         Err(source) => return Err(DatasetError::Io { path, source }),
     };
-    parse_group_csv(&path, &bytes, sample_rate_hz)
+    let mismatch = |message: String| DatasetError::Mismatch { path: path.clone(), group: index, message };
+    let data_rows = || bytes.split(|&b| b == b'\n').skip(1).filter(|l| !l.iter().all(u8::is_ascii_whitespace)).count();
+    if let Some(expected) = &info.crc32 {
+        let found = group_checksum(&bytes);
+        if &found != expected {
+            let rows = match info.rows {
+                Some(rows) if rows != data_rows() => {
+                    format!("{} data rows where the manifest says {rows}, ", data_rows())
+                }
+                _ => String::new(),
+            };
+            return Err(mismatch(format!(
+                "{rows}CRC-32 {found} where the manifest says {expected} (a file of another run, or cut short; \
+                 if it was edited on purpose, remove its `crc32` and `rows` from the manifest)"
+            )));
+        }
+    }
+    let group = parse_group_csv(&path, &bytes, sample_rate_hz)?;
+    match info.rows {
+        Some(rows) if rows != group.len() => {
+            Err(mismatch(format!("{} data rows where the manifest says {rows}", group.len())))
+        }
+        _ => Ok(group),
+    }
+}
+
+/// The checksum the manifest records of a group file: CRC-32 (IEEE) of its bytes, 8 lower-case
+/// hex digits.
+pub fn group_checksum(bytes: &[u8]) -> String {
+    format!("{:08x}", crc32fast::hash(bytes))
 }
 
 /// Reads and validates `DIR/manifest.json`.
@@ -82,7 +111,14 @@ pub(crate) fn parse_manifest(path: &Path, text: &str) -> Result<Manifest, Datase
         groups: raw
             .groups
             .into_iter()
-            .map(|g| GroupInfo { file: g.file, freq_hz: g.freq_hz, amp_um: g.amp_um, start_s: g.start_s })
+            .map(|g| GroupInfo {
+                file: g.file,
+                freq_hz: g.freq_hz,
+                amp_um: g.amp_um,
+                start_s: g.start_s,
+                rows: g.rows,
+                crc32: g.crc32,
+            })
             .collect(),
     };
     let at = |needle: &str, nth: usize| {
@@ -137,6 +173,18 @@ struct RawGroup {
     amp_um: f64,
     #[serde(deserialize_with = "finite")]
     start_s: f64,
+    #[serde(default)]
+    rows: Option<usize>,
+    #[serde(default, deserialize_with = "checksum")]
+    crc32: Option<String>,
+}
+
+fn checksum<'de, D: Deserializer<'de>>(d: D) -> Result<Option<String>, D::Error> {
+    let text = String::deserialize(d)?;
+    if text.len() != 8 || !text.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b)) {
+        return Err(D::Error::custom(format!("`crc32` must be 8 lower-case hex digits, found {text:?}")));
+    }
+    Ok(Some(text))
 }
 
 fn format_tag<'de, D: Deserializer<'de>>(d: D) -> Result<String, D::Error> {
@@ -198,7 +246,8 @@ fn line_column(bytes: &[u8], offset: usize) -> (usize, usize) {
 }
 
 /// Parses one group file's bytes (`path` only names it in errors). Checks the header, that
-/// every value is a finite number, and that `t_s` advances by `1 / sample_rate_hz`.
+/// every value is a finite number within its column's [`Column::physical_bounds`], and that
+/// `t_s` advances by `1 / sample_rate_hz`.
 pub fn parse_group_csv(path: &Path, bytes: &[u8], sample_rate_hz: f64) -> Result<GroupData, DatasetError> {
     let path_buf = || PathBuf::from(path);
     let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF".as_slice()).unwrap_or(bytes);
@@ -259,6 +308,18 @@ pub fn parse_group_csv(path: &Path, bytes: &[u8], sample_rate_hz: f64) -> Result
                     }
                 }
             })?;
+            let (min, max) = column.physical_bounds();
+            if !(min..=max).contains(&value) {
+                return Err(DatasetError::OutOfRange {
+                    path: path_buf(),
+                    line: line_number,
+                    column: char_column(line, field_start),
+                    field: column.name().into(),
+                    value,
+                    min,
+                    max,
+                });
+            }
             storage[index].push(value);
             if index == t_index {
                 if let Some(prev) = previous_t {

@@ -1,11 +1,15 @@
 //! Writing a dataset: fixed decimal places per column ([`Column::write_decimals`]), formatted
 //! by integer arithmetic, so the bytes depend only on the values (same data, same files).
 
-use crate::{Column, Dataset, DatasetError, GroupData, Manifest, MANIFEST_FILE};
+use crate::output::{write_file, StagedDir};
+use crate::{group_checksum, Column, Dataset, DatasetError, GroupData, GroupInfo, Manifest, MANIFEST_FILE};
 use rayon::prelude::*;
 use std::path::Path;
 
-/// Writes a whole dataset into `dir` (created if needed): every group file, then the manifest.
+/// Writes a whole dataset as the directory `dir`, replacing it as a unit: every group file and
+/// the manifest (with each file's row count and checksum) go into a fresh directory beside
+/// it, which then takes its place ([`crate::output::StagedDir`]). Checks nothing about what
+/// `dir` held: [`crate::output::check_dataset_dir`] does.
 pub fn write(dir: &Path, dataset: &Dataset) -> Result<(), DatasetError> {
     if dataset.groups.len() != dataset.manifest.groups.len() {
         return Err(DatasetError::InvalidData {
@@ -17,23 +21,20 @@ pub fn write(dir: &Path, dataset: &Dataset) -> Result<(), DatasetError> {
             ),
         });
     }
-    create_dir(dir)?;
-    let results: Vec<Result<(), DatasetError>> = dataset
-        .manifest
+    let staged = StagedDir::new(dir)?;
+    let mut manifest = dataset.manifest.clone();
+    let results: Vec<Result<(), DatasetError>> = manifest
         .groups
-        .par_iter()
+        .par_iter_mut()
         .zip(dataset.groups.par_iter())
-        .map(|(info, group)| write_group(dir, &info.file, group))
+        .map(|(info, group)| write_group(staged.path(), info, group))
         .collect();
     results.into_iter().collect::<Result<Vec<()>, _>>()?;
-    write_manifest(dir, &dataset.manifest)
+    write_manifest(staged.path(), &manifest)?;
+    staged.commit()
 }
 
-fn create_dir(dir: &Path) -> Result<(), DatasetError> {
-    std::fs::create_dir_all(dir).map_err(|source| DatasetError::Io { path: dir.to_path_buf(), source })
-}
-
-/// Writes `DIR/manifest.json` (after validating it as the reader would).
+/// Writes `DIR/manifest.json` whole or not at all (after validating it as the reader would).
 pub fn write_manifest(dir: &Path, manifest: &Manifest) -> Result<(), DatasetError> {
     let path = dir.join(MANIFEST_FILE);
     let mut text = serde_json::to_string_pretty(manifest)
@@ -42,19 +43,24 @@ pub fn write_manifest(dir: &Path, manifest: &Manifest) -> Result<(), DatasetErro
     if let Err(err) = crate::read::parse_manifest(&path, &text) {
         return Err(DatasetError::InvalidData { path, message: err.to_string() });
     }
-    create_dir(dir)?;
-    std::fs::write(&path, text).map_err(|source| DatasetError::Io { path, source })
+    std::fs::create_dir_all(dir).map_err(|source| DatasetError::Io { path: dir.to_path_buf(), source })?;
+    write_file(&path, text.as_bytes())
 }
 
-/// Writes one group file `DIR/FILE`.
-pub fn write_group(dir: &Path, file: &str, group: &GroupData) -> Result<(), DatasetError> {
-    let path = dir.join(file);
+/// Writes `info.file` in `dir` whole or not at all, and records its row count and checksum in
+/// `info` (for the manifest).
+pub fn write_group(dir: &Path, info: &mut GroupInfo, group: &GroupData) -> Result<(), DatasetError> {
+    let path = dir.join(&info.file);
     let bytes = format_group_csv(group).map_err(|message| DatasetError::InvalidData { path: path.clone(), message })?;
-    std::fs::write(&path, bytes).map_err(|source| DatasetError::Io { path, source })
+    write_file(&path, &bytes)?;
+    info.rows = Some(group.len());
+    info.crc32 = Some(group_checksum(&bytes));
+    Ok(())
 }
 
 /// The CSV bytes of a group: header with the present columns in canonical order, then one row
-/// per sample. Errors (as text) on columns of unequal length or non-finite values.
+/// per sample. Errors (as text) on columns of unequal length, non-finite values or values
+/// beyond the column's [`Column::physical_bounds`] (the reader would refuse them).
 pub fn format_group_csv(group: &GroupData) -> Result<Vec<u8>, String> {
     let columns = group.present_columns();
     let data: Vec<(Column, &[f64])> = columns.iter().filter_map(|c| group.column(*c).map(|v| (*c, v))).collect();
@@ -65,6 +71,14 @@ pub fn format_group_csv(group: &GroupData) -> Result<Vec<u8>, String> {
         }
         if let Some(row) = values.iter().position(|v| !v.is_finite()) {
             return Err(format!("column `{}` sample {row} is not finite", column.name()));
+        }
+        let (min, max) = column.physical_bounds();
+        if let Some(row) = values.iter().position(|v| !(min..=max).contains(v)) {
+            return Err(format!(
+                "column `{}` sample {row}: {:e} is beyond what the sensor can produce ({min:e} to {max:e})",
+                column.name(),
+                values[row]
+            ));
         }
     }
     let names: Vec<&str> = columns.iter().map(|c| c.name()).collect();

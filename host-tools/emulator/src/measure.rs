@@ -102,12 +102,8 @@ impl MeasureConfig {
         for &freq_hz in &self.freqs_hz {
             for &amp_um in &self.amps_um {
                 let i = out.len();
-                out.push(GroupInfo {
-                    file: format!("g{i:03}.csv"),
-                    freq_hz,
-                    amp_um,
-                    start_s: i as f64 * (self.duration_s + self.lead_in_s) + self.lead_in_s,
-                });
+                let start_s = i as f64 * (self.duration_s + self.lead_in_s) + self.lead_in_s;
+                out.push(GroupInfo::new(&format!("g{i:03}.csv"), freq_hz, amp_um, start_s));
             }
         }
         out
@@ -225,29 +221,32 @@ pub fn run(config: &MeasureConfig, progress: &(dyn Fn(usize) + Sync)) -> Result<
     Ok(Dataset { manifest: config.manifest(), groups })
 }
 
-/// Runs the whole test and writes the dataset into `dir`, one group file as soon as it is
-/// simulated (memory stays at a few groups). Returns the manifest written.
+/// Runs the whole test and writes the dataset as the directory `dir`, one group file as soon
+/// as it is simulated (memory stays at a few groups), into a fresh directory beside `dir`
+/// that replaces it once whole ([`sts_dataset::output::StagedDir`]): killed part-way, it
+/// leaves `dir` as it was. Returns the manifest written.
 pub fn run_to_dir(
     config: &MeasureConfig,
     dir: &Path,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Manifest, MeasureError> {
     config.check()?;
-    let manifest = config.manifest();
-    std::fs::create_dir_all(dir).map_err(|source| DatasetError::Io { path: dir.to_path_buf(), source })?;
+    let mut manifest = config.manifest();
+    let staged = sts_dataset::output::StagedDir::new(dir)?;
     let done = AtomicUsize::new(0);
     let results: Vec<Result<(), MeasureError>> = manifest
         .groups
-        .par_iter()
+        .par_iter_mut()
         .enumerate()
         .map(|(i, info)| {
             let group = simulate_group(config, i)?;
-            sts_dataset::write_group(dir, &info.file, &group)?;
+            sts_dataset::write_group(staged.path(), info, &group)?;
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
             Ok(())
         })
         .collect();
     results.into_iter().collect::<Result<Vec<()>, _>>()?;
-    sts_dataset::write_manifest(dir, &manifest)?;
+    sts_dataset::write_manifest(staged.path(), &manifest)?;
+    staged.commit()?;
     Ok(manifest)
 }

@@ -47,7 +47,7 @@ fn same_seed_same_bytes_whatever_the_threads() {
     let a = tempfile::tempdir().unwrap();
     let b = tempfile::tempdir().unwrap();
     let c = tempfile::tempdir().unwrap();
-    run_to_dir(&small_config(7), a.path(), &|_| {}).unwrap();
+    let written = run_to_dir(&small_config(7), a.path(), &|_| {}).unwrap();
     let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     one_thread.install(|| run_to_dir(&small_config(7), b.path(), &|_| {})).unwrap();
     run_to_dir(&small_config(8), c.path(), &|_| {}).unwrap();
@@ -58,7 +58,12 @@ fn same_seed_same_bytes_whatever_the_threads() {
     // In memory and written agree (within the writer's decimals).
     let mem = run(&small_config(7), &|_| {}).unwrap();
     let back = sts_dataset::read(a.path()).unwrap();
-    assert_eq!(back.manifest, mem.manifest);
+    assert_eq!(back.manifest, written);
+    // The file's manifest adds each group file's rows and checksum.
+    let unchecked: Vec<sts_dataset::GroupInfo> =
+        written.groups.iter().map(|g| sts_dataset::GroupInfo { rows: None, crc32: None, ..g.clone() }).collect();
+    assert_eq!(unchecked, mem.manifest.groups);
+    assert!(written.groups.iter().all(|g| g.rows == Some(8000) && g.crc32.is_some()));
     for (x, y) in back.groups[3].z_tcp_um.iter().zip(&mem.groups[3].z_tcp_um) {
         assert!((x - y).abs() < 1e-5);
     }

@@ -198,15 +198,12 @@ pub enum FitError {
     /// The effect records could not be encoded as JSON.
     #[error(transparent)]
     Json(#[from] serde_json::Error),
-    /// A model file could not be written with its effect records.
-    #[error("cannot write {path}")]
-    Write {
-        /// The model file.
-        path: PathBuf,
-        /// The operating system's reason.
-        #[source]
-        source: std::io::Error,
-    },
+    /// A model file could not be written whole with its effect records.
+    #[error(transparent)]
+    Output(#[from] sts_dataset::DatasetError),
+    /// The fit was stopped through [`crate::FitConfig::stop`] before it finished.
+    #[error("stopped before the fit finished")]
+    Stopped,
 }
 
 /// "final Amplitude search", "Phase search of fold 2".

@@ -38,7 +38,7 @@ use std::sync::mpsc;
 
 use rayon::prelude::*;
 use sts_dataset::Dataset;
-use sts_symreg::{Expr, FrontMember, Matrix, OperatorSet, SearchConfig, SearchResult, SelectionConfig};
+use sts_symreg::{Expr, FrontMember, Matrix, OperatorSet, SearchConfig, SearchResult, SelectionConfig, StopFlag};
 use sts_twin_core::features::{FeatureConfig, FEATURE_LABELS};
 use sts_twin_core::program::Program;
 
@@ -83,6 +83,9 @@ pub struct FitConfig {
     pub phase_goal_nmse: f64,
     /// A complexity whose held-out NMSE is within this factor of the best is accurate enough.
     pub cv_ratio: f64,
+    /// Set from another thread to stop the fit at the searches' next epoch boundary (a
+    /// Ctrl-C from Python): the fit then ends with an error.
+    pub stop: Option<StopFlag>,
 }
 
 impl Default for FitConfig {
@@ -103,6 +106,7 @@ impl Default for FitConfig {
             // the probe's noise); those at 1e-4 left 5 nm.
             phase_goal_nmse: 1e-4,
             cv_ratio: 1.5,
+            stop: None,
         }
     }
 }
@@ -152,6 +156,7 @@ pub fn search_config(config: &FitConfig, target: Target, fold: Option<usize>) ->
         exact_patience: 4,
         // Errors below the goal tie, so pruning simplifies formulas down to the goal.
         selection: SelectionConfig { exact_nmse: goal, ..SelectionConfig::default() },
+        stop: config.stop.clone(),
         ..SearchConfig::default()
     }
 }

@@ -10,3 +10,4 @@ pub use error::FitError;
 pub use target::Target;
 
 pub use formulas::*;
+pub use sts_symreg::StopFlag;

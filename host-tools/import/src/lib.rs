@@ -5,7 +5,7 @@ pub mod source;
 
 use std::path::{Path, PathBuf};
 
-use sts_dataset::{GroupData, GroupInfo, Manifest};
+use sts_dataset::{Column, GroupData, GroupInfo, Manifest};
 
 use mapping::{Mapping, Resolved};
 use segment::{significant, sine_of, Finder, Row, Scheduler, Segmenter};
@@ -145,7 +145,10 @@ pub struct Imported {
 /// Progress: bytes read of all recordings, and their total.
 pub type Progress<'a> = &'a mut dyn FnMut(u64, u64);
 
-/// Imports `recordings` (in order) into the dataset directory `out` with `mapping`.
+/// Imports `recordings` (in order) as the dataset directory `out` with `mapping`. The dataset
+/// is written into a fresh directory beside `out` that replaces it once whole
+/// ([`sts_dataset::output::StagedDir`]); what `out` may be is the caller's check
+/// ([`sts_dataset::output::check_dataset_dir`]).
 pub fn import(
     recordings: &[PathBuf],
     mapping: &Mapping,
@@ -154,7 +157,8 @@ pub fn import(
     progress: Progress,
 ) -> Result<Imported, ImportError> {
     let resolved = mapping.resolve(mapping_path)?;
-    std::fs::create_dir_all(out).map_err(|source| ImportError::Io { path: out.to_path_buf(), source })?;
+    let staged = sts_dataset::output::StagedDir::new(out)?;
+    let out = staged.path();
     let total_bytes: u64 = recordings.iter().map(|p| std::fs::metadata(p).map_or(0, |m| m.len())).sum();
     let mut done_bytes = 0u64;
     let mut groups: Vec<FoundGroup> = Vec::new();
@@ -178,6 +182,7 @@ pub fn import(
         };
         while let Some(values) = source.next(path, k, &resolved)? {
             let at = source.at(k);
+            check_bounds(path, at, &values, &resolved)?;
             let time_channel = || resolved[0].channel.name.clone();
             let t = if has_time { values[0] } else { k as f64 / sample_rate_hz };
             if has_time {
@@ -238,7 +243,57 @@ pub fn import(
     let mut manifest = Manifest::new(sample_rate_hz, &format!("imported from {}", names(recordings)), infos);
     manifest.acc_mps2_per_lsb = mapping.acc_mps2_per_lsb;
     sts_dataset::write_manifest(out, &manifest)?;
+    staged.commit()?;
     Ok(Imported { groups, sample_rate_hz, rows: rows_read })
+}
+
+/// The dataset column a mapped role becomes.
+fn column_of(role: &str) -> Column {
+    match role {
+        "time" => Column::TS,
+        "command" => Column::ZCmdUm,
+        "encoder" => Column::ZEncUm,
+        "probe" => Column::ZTcpUm,
+        "accelerometer" => Column::AccMps2,
+        "x_position" => Column::XMm,
+        "x_acceleration" => Column::XAccMps2,
+        "spindle" => Column::SpindleDeg,
+        _ => Column::TempC,
+    }
+}
+
+/// Refuses a value (in the canonical unit) beyond what its channel's sensor can produce
+/// ([`Column::physical_bounds`]); the time only needs to be finite, its origin is the
+/// recording's.
+fn check_bounds(path: &Path, at: At, values: &[f64], resolved: &[Resolved]) -> Result<(), ImportError> {
+    for (r, v) in resolved.iter().zip(values) {
+        let column = column_of(r.role);
+        let (min, max) = if column == Column::TS { (f64::MIN, f64::MAX) } else { column.physical_bounds() };
+        if !(min..=max).contains(v) {
+            return Err(ImportError::Value {
+                path: path.to_path_buf(),
+                at,
+                channel: r.channel.name.clone(),
+                message: format!(
+                    "{v:e} {} (as `{}`) is beyond what the sensor can produce ({min:e} to {max:e})",
+                    unit_of(column),
+                    column.name()
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
+fn unit_of(column: Column) -> &'static str {
+    match column {
+        Column::TS => "s",
+        Column::ZCmdUm | Column::ZEncUm | Column::ZTcpUm => "um",
+        Column::AccMps2 | Column::XAccMps2 => "m/s^2",
+        Column::XMm => "mm",
+        Column::SpindleDeg => "deg",
+        Column::TempC => "C",
+    }
 }
 
 /// A row from the mapped values after the time.
@@ -304,13 +359,8 @@ fn write_group(
         }
     }
     let file = format!("g{:03}.csv", infos.len());
-    sts_dataset::write_group(out, &file, &g)?;
-    let info = GroupInfo {
-        file: file.clone(),
-        freq_hz: significant(freq_hz, 6),
-        amp_um: significant(amp_um, 6),
-        start_s: time_offset_s + start_s,
-    };
+    let mut info = GroupInfo::new(&file, significant(freq_hz, 6), significant(amp_um, 6), time_offset_s + start_s);
+    sts_dataset::write_group(out, &mut info, &g)?;
     groups.push(FoundGroup {
         recording: path.to_path_buf(),
         file,

@@ -233,6 +233,9 @@ impl Mapping {
             path: path.to_path_buf(),
             message: format!("{field}: {why}"),
         };
+        if mapping.sample_rate_hz.is_some_and(|r| !(r.is_finite() && r > 0.0)) {
+            return Err(bad("sample_rate_hz", "must be a positive number of samples per second"));
+        }
         if mapping.channels.time.is_none() && !mapping.sample_rate_hz.is_some_and(|r| r.is_finite() && r > 0.0) {
             return Err(bad("sample_rate_hz", "needed (a positive number) where there is no [channels] time"));
         }

@@ -130,6 +130,23 @@ impl Source {
             .trim(csv::Trim::All)
             .from_reader(BufReader::with_capacity(1 << 20, file));
         let header = reader.headers().map_err(|e| csv_error(path, e))?.clone();
+        for r in resolved {
+            let columns: Vec<usize> =
+                header.iter().enumerate().filter(|(_, h)| *h == r.channel.name).map(|(i, _)| i + 1).collect();
+            if columns.len() > 1 {
+                return Err(ImportError::Value {
+                    path: path.to_path_buf(),
+                    at: At::Line(1),
+                    channel: r.channel.name.clone(),
+                    message: format!(
+                        "the header names it {} times (columns {}): which one is the {}?",
+                        columns.len(),
+                        columns.iter().map(usize::to_string).collect::<Vec<_>>().join(", "),
+                        r.role
+                    ),
+                });
+            }
+        }
         let index = resolved
             .iter()
             .map(|r| {

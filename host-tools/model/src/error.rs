@@ -25,6 +25,21 @@ pub enum ModelFileError {
         /// What is wrong.
         message: String,
     },
+    /// A field with a bad value, where the field's path is known only on reading
+    /// (`effects[2].effect`).
+    #[error("field `{field}` {message}")]
+    Value {
+        /// The field's path.
+        field: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The file is larger than any model file ([`crate::MAX_MODEL_FILE_BYTES`]).
+    #[error("is larger than {max_bytes} bytes, more than any model file holds")]
+    TooLarge {
+        /// The bound.
+        max_bytes: usize,
+    },
 }
 
 /// Why a model file could not be read or written, or its program not decoded.
@@ -49,6 +64,9 @@ pub enum ModelError {
         /// What is wrong with its text (part of the message).
         error: ModelFileError,
     },
+    /// The model file could not be written whole, or may not be.
+    #[error(transparent)]
+    Output(#[from] sts_dataset::DatasetError),
     /// The model could not be encoded as JSON.
     #[error(transparent)]
     Encode(#[from] serde_json::Error),
@@ -60,6 +78,14 @@ pub enum ModelError {
         /// The operating system's reason.
         #[source]
         source: std::io::Error,
+    },
+    /// A formula's constant cannot be written in the export's language.
+    #[error("field `{field}.expr`: a constant {message}")]
+    Constant {
+        /// The formula (`amplitude` or `phase`).
+        field: &'static str,
+        /// What is wrong.
+        message: String,
     },
     /// The program's bytes are not hexadecimal.
     #[error("is not hexadecimal (an even number of 0-9, a-f digits)")]
@@ -96,7 +122,7 @@ pub enum ModelError {
 fn separator(error: &ModelFileError) -> &'static str {
     match error {
         ModelFileError::Json { .. } => ":",
-        ModelFileError::Field { .. } => ": ",
+        ModelFileError::Field { .. } | ModelFileError::Value { .. } | ModelFileError::TooLarge { .. } => ": ",
     }
 }
 

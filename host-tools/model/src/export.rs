@@ -75,6 +75,21 @@ fn term_in_words(term: &TickTerm) -> String {
 /// module's) name, `origin` says where the model came from (a comment).
 pub fn export(model: &ModelFile, language: ExportLanguage, name: &str, origin: &str) -> Result<Exported, ModelError> {
     let program = model.firmware_program()?;
+    for (field, formula) in [("amplitude", &model.amplitude), ("phase", &model.phase)] {
+        let constants = formula.expr.constants();
+        if let Some(c) = constants.iter().find(|c| !c.is_finite()) {
+            return Err(ModelError::Constant { field, message: format!("{c} is not a finite number") });
+        }
+        // C's float functions carry the constants as f32.
+        if language == ExportLanguage::C {
+            if let Some(c) = constants.iter().find(|c| c.abs() > f64::from(f32::MAX)) {
+                return Err(ModelError::Constant {
+                    field,
+                    message: format!("{c:e} overflows the float functions of the C header (at most {:e})", f32::MAX),
+                });
+            }
+        }
+    }
     let not_exported: Vec<String> = program.terms.iter().map(term_in_words).collect();
     let (amp, phase) = (&model.amplitude.expr, &model.phase.expr);
     let mut notes = vec![

@@ -28,6 +28,20 @@ pub const EFFECTS: [&str; 9] = [
     "sensor-gain",
 ];
 
+/// Not an effect but the servo-axis twin alone (controller, slide and structural mode,
+/// simulated from the command, no nonlinear effect): the twin for a machine's whole speed
+/// range, whose correction the firmware learns from the command rather than from the
+/// accelerometer's view of the compensated motion. `fit --effect servo-axis`.
+pub const SERVO_AXIS: &str = "servo-axis";
+
+/// The largest model file read, bytes: a twin of thousands of groups takes a few MB; a
+/// larger file is not one.
+pub const MAX_MODEL_FILE_BYTES: usize = 16 << 20;
+
+/// The longest string read in a model file, bytes (formulas, descriptions and selection
+/// notes take hundreds).
+pub const MAX_MODEL_STRING_BYTES: usize = 64 << 10;
+
 /// The value of the `format` field.
 pub const MODEL_FORMAT: &str = "sts-twin-model/1";
 
@@ -213,13 +227,27 @@ impl ModelFile {
 impl ModelFile {
     /// Reads and checks a model file; errors name the file (and line and column for JSON).
     pub fn read(path: &Path) -> Result<Self, ModelError> {
-        let text =
-            std::fs::read_to_string(path).map_err(|source| ModelError::Read { path: path.to_path_buf(), source })?;
+        use std::io::Read as _;
+        let read_error = |source| ModelError::Read { path: path.to_path_buf(), source };
+        let mut text = String::new();
+        std::fs::File::open(path)
+            .map_err(read_error)?
+            .take(MAX_MODEL_FILE_BYTES as u64 + 1)
+            .read_to_string(&mut text)
+            .map_err(read_error)?;
+        if text.len() > MAX_MODEL_FILE_BYTES {
+            let error = ModelFileError::TooLarge { max_bytes: MAX_MODEL_FILE_BYTES };
+            return Err(ModelError::File { path: path.to_path_buf(), error });
+        }
         Self::from_json(&text).map_err(|error| ModelError::File { path: path.to_path_buf(), error })
     }
 
-    /// Parses and checks the text of a model file.
+    /// Parses and checks the text of a model file: its format, no string longer than
+    /// [`MAX_MODEL_STRING_BYTES`], only known effects in its `effects` field, a valid program.
     pub fn from_json(text: &str) -> Result<Self, ModelFileError> {
+        if text.len() > MAX_MODEL_FILE_BYTES {
+            return Err(ModelFileError::TooLarge { max_bytes: MAX_MODEL_FILE_BYTES });
+        }
         let json = |e: serde_json::Error| ModelFileError::Json {
             line: e.line(),
             column: e.column(),
@@ -242,6 +270,8 @@ impl ModelFile {
                 })
             }
         }
+        check_strings(&value, &mut String::new())?;
+        check_effects(&value)?;
         let model: ModelFile = serde_json::from_str(text).map_err(json)?;
         model
             .firmware_program()
@@ -249,10 +279,11 @@ impl ModelFile {
         Ok(model)
     }
 
-    /// Writes the model file as pretty JSON.
+    /// Writes the model file as pretty JSON, whole or not at all
+    /// ([`sts_dataset::output::write_file`]).
     pub fn write(&self, path: &Path) -> Result<(), ModelError> {
         let text = serde_json::to_string_pretty(self)?;
-        std::fs::write(path, text + "\n").map_err(|source| ModelError::Write { path: path.to_path_buf(), source })
+        Ok(sts_dataset::output::write_file(path, (text + "\n").as_bytes())?)
     }
 
     /// The formulas as Rust source: `dynamic_error_amp_um(x: &[f64]) -> f64` and
@@ -293,6 +324,62 @@ impl ModelFile {
         program.validate().map_err(|error| ModelError::InvalidProgram { error })?;
         Ok(program)
     }
+}
+
+/// Refuses a string longer than [`MAX_MODEL_STRING_BYTES`] anywhere in `value`, naming its
+/// field (`at` is the path so far).
+fn check_strings(value: &serde_json::Value, at: &mut String) -> Result<(), ModelFileError> {
+    use serde_json::Value;
+    match value {
+        Value::String(s) if s.len() > MAX_MODEL_STRING_BYTES => Err(ModelFileError::Value {
+            field: at.trim_start_matches('.').to_string(),
+            message: format!(
+                "is a string of {} bytes, longer than any model file holds ({MAX_MODEL_STRING_BYTES})",
+                s.len()
+            ),
+        }),
+        Value::Array(items) => items.iter().enumerate().try_for_each(|(i, v)| {
+            let len = at.len();
+            at.push_str(&format!("[{i}]"));
+            let r = check_strings(v, at);
+            at.truncate(len);
+            r
+        }),
+        Value::Object(map) => map.iter().try_for_each(|(k, v)| {
+            let len = at.len();
+            at.push('.');
+            at.push_str(if k.len() > 64 { "(a long key)" } else { k });
+            let r = if k.len() > MAX_MODEL_STRING_BYTES {
+                Err(ModelFileError::Value {
+                    field: at.trim_start_matches('.').to_string(),
+                    message: format!("is a key of {} bytes, longer than any model file holds", k.len()),
+                })
+            } else {
+                check_strings(v, at)
+            };
+            at.truncate(len);
+            r
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Refuses an `effects` entry naming an effect this release does not know.
+fn check_effects(value: &serde_json::Value) -> Result<(), ModelFileError> {
+    let Some(effects) = value.get("effects").and_then(|e| e.as_array()) else { return Ok(()) };
+    for (i, record) in effects.iter().enumerate() {
+        let name = record.get("effect").and_then(|n| n.as_str()).unwrap_or_default();
+        if name != SERVO_AXIS && !EFFECTS.contains(&name) {
+            return Err(ModelFileError::Value {
+                field: format!("effects[{i}].effect"),
+                message: format!(
+                    "is {name:?}, not an effect this release knows ({SERVO_AXIS}, {})",
+                    EFFECTS.join(", ")
+                ),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// serde_json's message without its trailing " at line L column C" (given separately).

@@ -2,6 +2,8 @@
 #![deny(missing_docs)]
 
 use std::path::{Path, PathBuf};
+use std::sync::{mpsc, Arc};
+use std::time::Duration;
 
 use pyo3::create_exception;
 use pyo3::exceptions::PyException;
@@ -10,7 +12,7 @@ use pyo3::types::PyBytes;
 
 use sts_assess::explain::{Base, ExplainConfig};
 use sts_fit::effects::EffectRecord;
-use sts_fit::FitConfig;
+use sts_fit::{FitConfig, StopFlag};
 use sts_model::export::ExportLanguage;
 use sts_model::ModelFile;
 use sts_symreg::OperatorSet;
@@ -24,13 +26,94 @@ create_exception!(
 
 /// A library error as the Python exception, with its causes (`a: b: c`, as the CLI prints them).
 fn to_py<E: Into<anyhow::Error>>(error: E) -> PyErr {
-    StsTwinError::new_err(format!("{:#}", error.into()))
+    StsTwinError::new_err(sts_dataset::output::error_text(error.into().as_ref()))
+}
+
+/// What a panic says, for the error that reports it.
+fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| payload.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_else(|| "a panic".into())
+}
+
+/// `work` as an [`StsTwinError`] where it panics (a bug): never a `PanicException`.
+fn guarded<T>(work: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)).unwrap_or_else(|p| {
+        Err(StsTwinError::new_err(format!("internal error (please report it): {}", panic_text(&*p))))
+    })
+}
+
+/// What a long call reports to its thread: progress (message, done, total), then its result.
+enum Report<T> {
+    Progress(String, usize, Option<usize>),
+    Done(std::thread::Result<anyhow::Result<T>>),
+}
+
+/// How a long call's work reports progress: (message, steps done, steps in all if known).
+type Progress<'a> = &'a (dyn Fn(String, usize, Option<usize>) + Sync);
+
+/// How often a long call looks for Ctrl-C and relays progress.
+const POLL: Duration = Duration::from_millis(50);
+
+/// Runs `work` on a thread of its own while this one, the caller's, relays its progress to
+/// `progress` and looks for signals every [`POLL`]: a Ctrl-C (or an exception from
+/// `progress`) sets `stop` and raises at once (`KeyboardInterrupt`); the work ends at its next
+/// check of `stop` (a fit's searches at their next epoch), or runs out unseen where it has
+/// none (a diagnosis, seconds). A panic in the work is an [`StsTwinError`].
+fn run_long<T: Send + 'static>(
+    py: Python<'_>,
+    progress: Option<&Bound<'_, PyAny>>,
+    stop: StopFlag,
+    work: impl FnOnce(Progress) -> anyhow::Result<T> + Send + 'static,
+) -> PyResult<T> {
+    let (sender, mut receiver) = mpsc::channel::<Report<T>>();
+    let progress_sender = sender.clone();
+    std::thread::spawn(move || {
+        let report = move |message: String, done: usize, total: Option<usize>| {
+            let _ = progress_sender.send(Report::Progress(message, done, total));
+        };
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| work(&report)));
+        let _ = sender.send(Report::Done(result));
+    });
+    let interrupted = |error: PyErr| {
+        stop.stop();
+        Err(error)
+    };
+    loop {
+        let (message, back) = py.detach(move || (receiver.recv_timeout(POLL), receiver));
+        receiver = back;
+        match message {
+            Ok(Report::Progress(text, done, total)) => {
+                if let Some(callback) = progress {
+                    if let Err(error) = callback.call1((text, done, total)) {
+                        return interrupted(error);
+                    }
+                }
+            }
+            Ok(Report::Done(Ok(result))) => return result.map_err(to_py),
+            Ok(Report::Done(Err(panic))) => {
+                return Err(StsTwinError::new_err(format!(
+                    "internal error (please report it): {}",
+                    panic_text(&*panic)
+                )))
+            }
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+            Err(mpsc::RecvTimeoutError::Disconnected) => {
+                return Err(StsTwinError::new_err("internal error (please report it): the work ended without a result"))
+            }
+        }
+        if let Err(error) = py.check_signals() {
+            return interrupted(error);
+        }
+    }
 }
 
 /// A measurement in the canonical dataset format, resampled to the servo rate as the CLI reads it.
 #[pyclass(module = "sts_twin._native", name = "Dataset", frozen)]
 struct PyDataset {
-    dataset: sts_dataset::Dataset,
+    dataset: Arc<sts_dataset::Dataset>,
     /// The directory's name (the model file's description names it, never the whole path).
     name: String,
 }
@@ -40,8 +123,8 @@ impl PyDataset {
     /// Reads the dataset in directory `path` (sts-twin-dataset/1).
     #[new]
     fn new(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let dataset = py.detach(|| sts_analysis::read_dataset(&path)).map_err(to_py)?;
-        Ok(Self { dataset, name: dataset_name(&path) })
+        let dataset = guarded(|| py.detach(|| sts_analysis::read_dataset(&path)).map_err(to_py))?;
+        Ok(Self { dataset: Arc::new(dataset), name: dataset_name(&path) })
     }
 
     /// The directory's name.
@@ -106,11 +189,9 @@ struct PyModel {
     effects: Option<Vec<EffectRecord>>,
 }
 
-#[pymethods]
 impl PyModel {
-    /// Parses and checks the text of a model file (sts-twin-model/1).
-    #[staticmethod]
-    fn from_json(text: &str) -> PyResult<Self> {
+    /// The model file's text parsed and checked, with its `effects` field.
+    fn parse(text: &str) -> PyResult<Self> {
         let model = ModelFile::from_json(text).map_err(to_py)?;
         let value: serde_json::Value = serde_json::from_str(text).map_err(to_py)?;
         let effects = match value.get("effects") {
@@ -121,6 +202,31 @@ impl PyModel {
             None => None,
         };
         Ok(Self { model, effects })
+    }
+}
+
+#[pymethods]
+impl PyModel {
+    /// Parses and checks the text of a model file (sts-twin-model/1).
+    #[staticmethod]
+    fn from_json(text: &str) -> PyResult<Self> {
+        guarded(|| Self::parse(text))
+    }
+
+    /// Reads and checks a model file (bounded in size as the CLI reads it).
+    #[staticmethod]
+    fn read(path: PathBuf) -> PyResult<Self> {
+        guarded(|| {
+            ModelFile::read(&path).map_err(to_py)?;
+            let text = std::fs::read_to_string(&path).map_err(|e| to_py(anyhow::anyhow!("{}: {e}", path.display())))?;
+            Self::parse(&text).map_err(|e| StsTwinError::new_err(format!("{}: {}", path.display(), e)))
+        })
+    }
+
+    /// Writes the model file whole or not at all (a temporary file beside it, then a rename).
+    fn save(&self, path: PathBuf) -> PyResult<()> {
+        let text = self.to_json()?;
+        sts_dataset::output::write_file(&path, text.as_bytes()).map_err(to_py)
     }
 
     /// The model file's text, byte for byte what the CLI writes for the same twin.
@@ -175,9 +281,21 @@ impl PyModel {
     }
 }
 
-/// Fits a twin on `dataset`, with `effects`' per-tick terms, as `sts-twin fit` does.
+/// A fit's progress as the progress callback takes it: (message, searches done, searches in all).
+fn fit_progress(report: Progress<'_>) -> impl FnMut(&sts_fit::FitProgress) + '_ {
+    move |p: &sts_fit::FitProgress| {
+        let search = match p.fold {
+            Some(fold) => format!("{:?} search of fold {fold}", p.target),
+            None => format!("final {:?} search", p.target),
+        };
+        report(format!("{search}, epoch {}: {}", p.epoch, p.best), p.searches_done, Some(p.searches_total));
+    }
+}
+
+/// Fits a twin on `dataset`, with `effects`' per-tick terms, as `sts-twin fit` does. Ctrl-C
+/// stops it (`KeyboardInterrupt`); `progress(message, done, total)` is called as searches report.
 #[pyfunction]
-#[pyo3(signature = (dataset, effects=Vec::new(), seed=0, threads=None, epochs=None, folds=None, operators=None, max_complexity=None, acc_scale=None, skip_s=None))]
+#[pyo3(signature = (dataset, effects=Vec::new(), seed=0, threads=None, epochs=None, folds=None, operators=None, max_complexity=None, acc_scale=None, skip_s=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn fit(
     py: Python<'_>,
@@ -191,6 +309,7 @@ fn fit(
     max_complexity: Option<usize>,
     acc_scale: Option<f64>,
     skip_s: Option<f64>,
+    progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<PyModel> {
     // `None` takes the CLI's default.
     let d = FitConfig::default();
@@ -204,6 +323,7 @@ fn fit(
     if !(skip_s.is_finite() && skip_s >= 0.0) {
         return Err(StsTwinError::new_err(format!("skip_s must be zero or positive, not {skip_s}")));
     }
+    let stop = StopFlag::new();
     let config = FitConfig {
         seed,
         threads: threads.unwrap_or(d.threads).max(1),
@@ -213,45 +333,66 @@ fn fit(
         max_complexity: max_complexity.unwrap_or(d.max_complexity),
         acc_scale_override: acc_scale,
         skip_s,
+        stop: Some(stop.clone()),
         ..d
     };
     let description = format!("fitted by sts-twin fit on {} (seed {seed})", dataset.name);
-    let data = &dataset.dataset;
-    py.detach(|| {
+    let data = Arc::clone(&dataset.dataset);
+    run_long(py, progress.as_ref(), stop, move |report| {
+        let mut on_progress = fit_progress(report);
         if effects.is_empty() {
-            sts_fit::fit(data, &description, &config, &mut |_| {}).map(|model| PyModel { model, effects: None })
+            let model = sts_fit::fit(&data, &description, &config, &mut on_progress)?;
+            Ok(PyModel { model, effects: None })
         } else {
-            sts_fit::effects::fit_with(data, &effects, &description, &config, &mut |_| {})
-                .map(|(model, records)| PyModel { model, effects: Some(records) })
+            let (model, records) =
+                sts_fit::effects::fit_with(&data, &effects, &description, &config, &mut on_progress)?;
+            Ok(PyModel { model, effects: Some(records) })
         }
     })
-    .map_err(to_py)
 }
 
 /// Compares `model` with `dataset`, group by group: the JSON of `sts-twin compare --json`.
 #[pyfunction]
-fn compare(py: Python<'_>, dataset: &PyDataset, model: &PyModel) -> PyResult<String> {
-    py.detach(|| {
-        let (c, _) = sts_assess::compare::compare(&dataset.dataset, &model.model)?;
-        Ok::<_, anyhow::Error>(serde_json::to_string(&sts_assess::json::comparison(&c)?)?)
+#[pyo3(signature = (dataset, model, progress=None))]
+fn compare(
+    py: Python<'_>,
+    dataset: &PyDataset,
+    model: &PyModel,
+    progress: Option<Bound<'_, PyAny>>,
+) -> PyResult<String> {
+    let (data, model) = (Arc::clone(&dataset.dataset), model.model.clone());
+    run_long(py, progress.as_ref(), StopFlag::new(), move |report| {
+        report("comparing".into(), 0, Some(1));
+        let (c, _) = sts_assess::compare::compare(&data, &model)?;
+        report("compared".into(), 1, Some(1));
+        Ok(serde_json::to_string(&sts_assess::json::comparison(&c)?)?)
     })
-    .map_err(to_py)
 }
 
 /// Which physical effect `model` misses on `dataset`: the JSON of `sts-twin diagnose --json`.
+/// Ctrl-C raises `KeyboardInterrupt` at once (the diagnosis, seconds, runs out unseen).
 #[pyfunction]
-fn diagnose(py: Python<'_>, dataset: &PyDataset, model: &PyModel) -> PyResult<String> {
-    py.detach(|| {
-        let d = sts_assess::diagnose::diagnose(&dataset.dataset, &model.model)?;
-        Ok::<_, anyhow::Error>(serde_json::to_string(&sts_assess::json::diagnosis(&d, &dataset.dataset))?)
+#[pyo3(signature = (dataset, model, progress=None))]
+fn diagnose(
+    py: Python<'_>,
+    dataset: &PyDataset,
+    model: &PyModel,
+    progress: Option<Bound<'_, PyAny>>,
+) -> PyResult<String> {
+    let (data, model) = (Arc::clone(&dataset.dataset), model.model.clone());
+    run_long(py, progress.as_ref(), StopFlag::new(), move |report| {
+        report("diagnosing".into(), 0, Some(1));
+        let d = sts_assess::diagnose::diagnose(&data, &model)?;
+        report("diagnosed".into(), 1, Some(1));
+        Ok(serde_json::to_string(&sts_assess::json::diagnosis(&d, &data))?)
     })
-    .map_err(to_py)
 }
 
 /// The lab's loop run by itself, as `sts-twin explain` runs it: the JSON of `--json` and the
-/// final twin.
+/// final twin. Ctrl-C stops it (`KeyboardInterrupt`); `progress(message, step, None)` is
+/// called at each fit and diagnosis.
 #[pyfunction]
-#[pyo3(signature = (dataset, model=None, max_effects=4, seed=0, epochs=None))]
+#[pyo3(signature = (dataset, model=None, max_effects=4, seed=0, epochs=None, progress=None))]
 fn explain(
     py: Python<'_>,
     dataset: &PyDataset,
@@ -259,18 +400,33 @@ fn explain(
     max_effects: usize,
     seed: u64,
     epochs: Option<usize>,
+    progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<(String, PyModel)> {
     let d = FitConfig::default();
-    let config =
-        ExplainConfig { fit: FitConfig { seed, max_epochs: epochs.unwrap_or(d.max_epochs), ..d }, max_effects };
+    let stop = StopFlag::new();
+    let config = ExplainConfig {
+        fit: FitConfig { seed, max_epochs: epochs.unwrap_or(d.max_epochs), stop: Some(stop.clone()), ..d },
+        max_effects,
+    };
     let base = model.map(|m| Base { model: m.model.clone(), effects: m.effects.clone().unwrap_or_default() });
     let description = format!("fitted by sts-twin explain on {} (seed {seed})", dataset.name);
-    py.detach(|| {
-        let e = sts_assess::explain::explain(&dataset.dataset, &description, base, &config, &mut |_| {})?;
+    let data = Arc::clone(&dataset.dataset);
+    run_long(py, progress.as_ref(), stop, move |report| {
+        let mut step = 0;
+        let mut on_progress = |p: sts_assess::explain::ExplainProgress| {
+            use sts_assess::explain::ExplainProgress;
+            let text = match p {
+                ExplainProgress::Fitting => "fitting a twin on the data".to_string(),
+                ExplainProgress::Diagnosing { effects } => format!("diagnosing the twin with [{}]", effects.join(", ")),
+                ExplainProgress::Refitting { effects } => format!("fitting a twin with [{}]", effects.join(", ")),
+            };
+            report(text, step, None);
+            step += 1;
+        };
+        let e = sts_assess::explain::explain(&data, &description, base, &config, &mut on_progress)?;
         let json = serde_json::to_string(&sts_assess::json::explanation(&e))?;
-        Ok::<_, anyhow::Error>((json, PyModel { model: e.model, effects: Some(e.effects) }))
+        Ok((json, PyModel { model: e.model, effects: Some(e.effects) }))
     })
-    .map_err(to_py)
 }
 
 /// The native part of the `sts_twin` Python package.

@@ -40,7 +40,7 @@ def test_fit_writes_the_clis_twin_byte_for_byte(cli, machine, tmp_path):
     for effects in ([], ["thermal-drift"]):
         out = tmp_path / "cli.json"
         flags = ["--effect", ",".join(effects)] if effects else []
-        run(cli, "fit", str(machine), "--out", str(out), "--epochs", EPOCHS, "--seed", "3", "--quiet", *flags)
+        run(cli, "fit", str(machine), "--out", str(out), "--epochs", EPOCHS, "--seed", "3", "--quiet", "--force", *flags)
         twin = sts_twin.fit(data, effects=effects, epochs=int(EPOCHS), seed=3)
         assert twin.to_json() == out.read_text(), effects
         assert [e["effect"] for e in twin.effects] == effects
@@ -76,7 +76,7 @@ def test_explain_is_the_clis_ladder_and_twin(cli, machine, tmp_path):
     # From a given twin: the CLI's --model.
     base = tmp_path / "base.json"
     run(cli, "fit", str(machine), "--out", str(base), "--epochs", EPOCHS, "--quiet")
-    expected = cli_json(cli, "explain", str(machine), "--model", str(base), "--out", str(out),
+    expected = cli_json(cli, "explain", str(machine), "--model", str(base), "--out", str(out), "--force",
                         "--epochs", EPOCHS, "--max-effects", "1")
     ladder = sts_twin.explain(machine, model=base, max_effects=1, epochs=int(EPOCHS))
     assert ladder.to_dict() == expected and ladder.model.to_json() == out.read_text()
@@ -114,7 +114,7 @@ def test_bad_input_is_an_error_that_names_it(machine, tmp_path):
         sts_twin.read_dataset(broken)
     bad_model = tmp_path / "bad.json"
     bad_model.write_text('{"format": "sts-twin-model/1",\n "amplitude": }')
-    with pytest.raises(sts_twin.StsTwinError, match=r"bad\.json: 2:15"):
+    with pytest.raises(sts_twin.StsTwinError, match=r"bad\.json:2:15: expected value"):
         sts_twin.Model.load(bad_model)
     with pytest.raises(sts_twin.StsTwinError, match="no-such-effect"):
         sts_twin.fit(machine, effects=["no-such-effect"], epochs=1)

@@ -63,6 +63,9 @@ pub enum SymregError {
         /// Its value.
         value: f64,
     },
+    /// The search was stopped through [`crate::search::StopFlag`] before it finished.
+    #[error("stopped before the search finished")]
+    Stopped,
     /// The configuration cannot work.
     #[error("invalid search configuration: {0}")]
     Config(String),

@@ -18,6 +18,6 @@ pub use data::{Matrix, SymregError};
 pub use eval::{Evaluator, Program};
 pub use expr::{BinaryOp, Expr, FloatType, PostfixNode, UnaryOp};
 pub use operators::OperatorSet;
-pub use search::{fit, FrontMember, Progress, SearchConfig, SearchResult, StopReason};
+pub use search::{fit, FrontMember, Progress, SearchConfig, SearchResult, StopFlag, StopReason};
 pub use select::{select_model, Selection, SelectionConfig};
 pub use simplify::simplify;

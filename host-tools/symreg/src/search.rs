@@ -69,6 +69,38 @@ pub struct SearchConfig {
     pub exact_patience: usize,
     /// The model-selection rule.
     pub selection: SelectionConfig,
+    /// Set from another thread to stop the search at its next epoch boundary with
+    /// [`SymregError::Stopped`] (a Ctrl-C); not part of the search's settings.
+    #[serde(skip)]
+    pub stop: Option<StopFlag>,
+}
+
+/// A flag another thread sets to stop searches at their next epoch boundary. Clones share
+/// the flag; two flags are equal when they are the same flag.
+#[derive(Clone, Debug, Default)]
+pub struct StopFlag(std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+impl StopFlag {
+    /// A flag not set.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Sets the flag: searches holding it stop at their next epoch boundary.
+    pub fn stop(&self) {
+        self.0.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Whether the flag is set.
+    pub fn is_stopped(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::Relaxed)
+    }
+}
+
+impl PartialEq for StopFlag {
+    fn eq(&self, other: &Self) -> bool {
+        std::sync::Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 impl Default for SearchConfig {
@@ -95,6 +127,7 @@ impl Default for SearchConfig {
             early_stop_nmse: Some(1e-12),
             exact_patience: 2,
             selection: SelectionConfig::default(),
+            stop: None,
         }
     }
 }
@@ -479,7 +512,11 @@ where
     let mut exact_stable = 0usize;
     let mut front_members: Vec<FrontMember>;
     let mut selected;
+    let stopped = || cfg.stop.as_ref().is_some_and(StopFlag::is_stopped);
     loop {
+        if stopped() {
+            return Err(SymregError::Stopped);
+        }
         if epochs < cfg.max_epochs {
             pool.install(|| islands.par_iter_mut().for_each(|isl| isl.run_epoch(&problem)));
             epochs += 1;

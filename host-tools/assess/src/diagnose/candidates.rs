@@ -93,18 +93,25 @@ pub fn dahl(x: &[f64], x0_um: f64) -> Vec<f64> {
         .collect()
 }
 
-/// The variant whose least-squares fit over `groups` leaves the least, and its theta.
+/// The variant whose least-squares fit over `groups` leaves the least, and its theta (the
+/// first variant's where no fit leaves a finite sum, so the theta has its columns' length
+/// whatever the data).
 fn best_variant(stats: &[Vec<Stats>], groups: &[usize]) -> (usize, Vec<f64>) {
-    let mut best = (0usize, Vec::new(), f64::INFINITY);
+    let mut best: Option<(usize, Vec<f64>, f64)> = None;
     for (v, st) in stats.iter().enumerate() {
         let train: Vec<&Stats> = groups.iter().map(|&g| &st[g]).collect();
         let theta = solve(&train);
         let sse: f64 = train.iter().map(|s| s.sse(&theta)).sum();
-        if sse < best.2 {
-            best = (v, theta, sse);
+        // NaN loses to any number; the first variant stands until one is better.
+        let better = match &best {
+            None => true,
+            Some((_, _, b)) => sse < *b || (b.is_nan() && !sse.is_nan()),
+        };
+        if better {
+            best = Some((v, theta, sse));
         }
     }
-    (best.0, best.1)
+    best.map_or((0, Vec::new()), |(v, theta, _)| (v, theta))
 }
 
 /// Cross-validation over grid variants: `stats[v][g]` for variant v, group g.
@@ -748,13 +755,14 @@ fn coupling(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     let mut params = Vec::new();
     let mut words = Vec::new();
     let mut i = 0;
+    let coefficient = |k: usize| theta.get(k).copied().unwrap_or(0.0);
     if has_x {
-        params.push(("x_um_per_mps2".into(), theta[0]));
-        words.push(format!("the error follows the X slide's acceleration ({:.2} um per m/s^2)", theta[0]));
+        params.push(("x_um_per_mps2".into(), coefficient(0)));
+        words.push(format!("the error follows the X slide's acceleration ({:.2} um per m/s^2)", coefficient(0)));
         i = 1;
     }
     if has_spindle {
-        let amp = theta[i].hypot(theta[i + 1]);
+        let amp = coefficient(i).hypot(coefficient(i + 1));
         params.push(("spindle_um".into(), amp));
         words.push(format!("a once-per-revolution component of the spindle of {:.0} nm", amp * 1e3));
     }

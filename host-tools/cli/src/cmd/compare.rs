@@ -28,6 +28,9 @@ pub struct Args {
     /// Groups (indices) whose waveforms the report shows besides the worst ones.
     #[arg(long, value_delimiter = ',')]
     pub groups: Vec<usize>,
+    /// Replace an existing output (never one of the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
 
 fn file_label(path: &std::path::Path) -> String {
@@ -67,6 +70,11 @@ fn print_text(label: &str, c: &Comparison) {
 
 /// Runs `sts-twin compare`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    if let Some(html) = &args.html {
+        let mut inputs = vec![args.data.as_path(), args.model.as_path()];
+        inputs.extend(args.baseline.as_deref());
+        sts_dataset::output::check_file(html, args.force, &inputs)?;
+    }
     let dataset = sts_analysis::read_dataset(&args.data)?;
     let model = ModelFile::read(&args.model)?;
     let (c, waves) = compare(&dataset, &model).with_context(|| format!("comparing {}", args.model.display()))?;
@@ -88,7 +96,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             diagnosis: Some(&diagnosis),
             chosen_groups: args.groups.clone(),
         };
-        std::fs::write(path, render(&input)).with_context(|| format!("cannot write {}", path.display()))?;
+        sts_dataset::output::write_file(path, render(&input).as_bytes())?;
     }
     if args.json {
         let mut value = sts_assess::json::comparison(&c)?;

@@ -4,7 +4,7 @@
 //! over 1-100 Hz, which predicts from the command). Then cuts the bicuspid surface at 40 Hz
 //! with the firmware in QEMU in the loop, bare and with each twin, and prints them side by side.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use sts_emulator::{MeasureConfig, PlantParams};
 
@@ -25,14 +25,14 @@ pub struct Args {
     #[arg(long)]
     pub twin: Option<PathBuf>,
     /// Where to keep the fitted formula twin.
-    #[arg(long, default_value = "target/demo-twin.json")]
+    #[arg(long, default_value = DEFAULT_OUT)]
     pub out: PathBuf,
     /// Use an existing model file as the range twin instead of measuring the machine over
     /// 1-100 Hz and fitting one.
     #[arg(long)]
     pub range_twin: Option<PathBuf>,
     /// Where to keep the fitted range twin.
-    #[arg(long, default_value = "target/demo-range-twin.json")]
+    #[arg(long, default_value = DEFAULT_RANGE_OUT)]
     pub range_out: PathBuf,
     /// Run the core on the host instead of the firmware in QEMU.
     #[arg(long)]
@@ -50,11 +50,30 @@ pub struct Args {
     /// applies it, uncorrected for the path's lag).
     #[arg(long)]
     pub no_path: bool,
+    /// Replace an existing output named on the command line (the default --out is replaced
+    /// without it; never one of the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
+
+/// Where the fitted formula twin goes without --out.
+const DEFAULT_OUT: &str = "target/demo-twin.json";
+/// Where the fitted range twin goes without --range-out.
+const DEFAULT_RANGE_OUT: &str = "target/demo-range-twin.json";
 
 /// Runs `sts-twin demo`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plant = PlantParams::default();
+    if args.twin.is_none() {
+        sts_dataset::output::check_file(&args.out, args.force || args.out == Path::new(DEFAULT_OUT), &[])?;
+    }
+    if args.range_twin.is_none() {
+        sts_dataset::output::check_file(
+            &args.range_out,
+            args.force || args.range_out == Path::new(DEFAULT_RANGE_OUT),
+            &[],
+        )?;
+    }
     let formula_twin = match &args.twin {
         Some(path) => sts_model::ModelFile::read(path)?,
         None => {

@@ -3,9 +3,8 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context as _;
 use sts_assess::explain::{explain, Base, ExplainConfig, ExplainProgress, Explanation};
-use sts_fit::effects::{read_records, write_records};
+use sts_fit::effects::{read_records, write_model};
 use sts_fit::FitConfig;
 use sts_model::ModelFile;
 
@@ -37,10 +36,18 @@ pub struct Args {
     /// Print JSON instead of text (progress goes to stderr).
     #[arg(long)]
     pub json: bool,
+    /// Replace an existing output (never one of the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Runs `sts-twin explain`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    let mut inputs = vec![args.data.as_path()];
+    inputs.extend(args.model.as_deref());
+    let mut outputs = vec![args.out.as_path()];
+    outputs.extend(args.html.as_deref());
+    sts_dataset::output::check_files(&outputs, args.force, &inputs)?;
     let dataset = sts_analysis::read_dataset(&args.data)?;
     let base = match &args.model {
         Some(path) => Some(Base { model: ModelFile::read(path)?, effects: read_records(path)? }),
@@ -61,11 +68,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         eprintln!("{line}");
     };
     let e = explain(&dataset, &description, base, &config, &mut on_progress)?;
-    e.model.write(&args.out)?;
-    write_records(&args.out, &e.effects)?;
+    write_model(&args.out, &e.model, Some(&e.effects))?;
     if let Some(path) = &args.html {
-        std::fs::write(path, report::explain::render(&name, &e))
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        sts_dataset::output::write_file(path, report::explain::render(&name, &e).as_bytes())?;
     }
     let written = format!("twin written to {} (program id {:08x})", args.out.display(), e.model.program.id);
     let report = args.html.as_ref().map(|path| format!("report written to {}", path.display()));

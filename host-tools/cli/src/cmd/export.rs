@@ -21,6 +21,9 @@ pub struct Args {
     /// Write to this file instead of standard output.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Replace an existing output (never one of the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// A name every target language takes: a letter, then letters, digits or underscores.
@@ -37,6 +40,9 @@ fn c_identifier(s: &str) -> Result<String, String> {
 
 /// Runs `sts-twin export`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    if let Some(out) = &args.out {
+        sts_dataset::output::check_file(out, args.force, &[&args.model])?;
+    }
     let model = ModelFile::read(&args.model)?;
     let origin =
         args.model.file_name().map_or_else(|| args.model.display().to_string(), |n| n.to_string_lossy().into_owned());
@@ -44,7 +50,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         .with_context(|| format!("exporting {}", args.model.display()))?;
     match &args.out {
         Some(path) => {
-            std::fs::write(path, &exported.text).with_context(|| format!("cannot write {}", path.display()))?;
+            sts_dataset::output::write_file(path, exported.text.as_bytes())?;
             eprintln!("written to {}", path.display());
         }
         None => print!("{}", exported.text),

@@ -74,6 +74,9 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Replace an existing output (never one of the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Runs `sts-twin fit`.
@@ -100,6 +103,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         phase_goal_nmse: args.phase_goal,
         ..FitConfig::default()
     };
+    let outputs: Vec<&Path> = [&args.out, &args.table, &args.export_rust, &args.export_c]
+        .into_iter()
+        .flatten()
+        .map(PathBuf::as_path)
+        .collect();
+    sts_dataset::output::check_files(&outputs, args.force, &[&args.data])?;
     let dataset = sts_analysis::read_dataset(&args.data)?;
     let read_s = started.elapsed().as_secs_f64();
     let prepared = if args.effect.is_empty() { None } else { Some(sts_fit::effects::prepare(&dataset, &args.effect)?) };
@@ -108,8 +117,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let feature_config = analysis::feature_config_for(dataset, args.acc_scale);
     let samples = analysis::group_samples_skipping(dataset, &feature_config, args.skip_s)?;
     if let Some(path) = &args.table {
-        std::fs::write(path, analysis::training_table_csv(&samples))
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        sts_dataset::output::write_file(path, analysis::training_table_csv(&samples).as_bytes())?;
         println!("training table written to {}", path.display());
     }
     let Some(out) = &args.out else {
@@ -144,10 +152,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         Some(p) => p.attach(model)?,
         None => model,
     };
-    model.write(out)?;
-    if let Some(p) = &prepared {
-        p.write_record(out)?;
-    }
+    sts_fit::effects::write_model(out, &model, prepared.as_ref().map(|p| p.records.as_slice()))?;
     print_report(&model, out);
     let identified = if prepared.is_some() {
         format!(", the effects identified in {:.1} s", effects_s - read_s)
@@ -162,13 +167,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     );
 
     if let Some(path) = &args.export_rust {
-        std::fs::write(path, model.rust_source(&dataset_name(&args.data)))
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        sts_dataset::output::write_file(path, model.rust_source(&dataset_name(&args.data)).as_bytes())?;
         println!("Rust source written to {}", path.display());
     }
     if let Some(path) = &args.export_c {
-        std::fs::write(path, model.c_source(&dataset_name(&args.data)))
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        sts_dataset::output::write_file(path, model.c_source(&dataset_name(&args.data)).as_bytes())?;
         println!("C source written to {}", path.display());
     }
     Ok(())

@@ -8,11 +8,13 @@ use sts_import::mapping::Mapping;
 /// Arguments of `sts-twin import`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// The recordings (CSV or TSV), one long recording of the measurement test each; several
-    /// follow one another in machine time.
+    /// The recordings, one long recording of the measurement test each; several follow one
+    /// another in machine time. Formats read: CSV and TSV (.csv, .tsv, .txt), MATLAB v5, v7
+    /// and v7.3 (.mat), NI TDMS (.tdms), HDF5 (.h5, .hdf5).
     #[arg(required = true)]
     pub recordings: Vec<PathBuf>,
-    /// The dataset directory to write (created; existing group files are overwritten).
+    /// The dataset directory to write: new or empty, or holding a dataset with --force
+    /// (replaced as a whole once the new one is written; interrupted, it stays as it was).
     #[arg(long)]
     pub out: PathBuf,
     /// The mapping file (TOML: the channels' names, units and scales; docs/import.md). Without
@@ -22,6 +24,9 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Replace the dataset in --out (never a directory holding the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// The mapping of a recording with the dataset's own column names and units.
@@ -36,6 +41,9 @@ accelerometer = { name = "acc_mps2", unit = "m/s^2" }
 
 /// Runs `sts-twin import`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    let mut inputs: Vec<&Path> = args.recordings.iter().map(PathBuf::as_path).collect();
+    inputs.extend(args.map.as_deref());
+    sts_dataset::output::check_dataset_dir(&args.out, args.force, &inputs)?;
     let (mapping, mapping_path) = match &args.map {
         Some(path) => (Mapping::read(path)?, path.clone()),
         None => {

@@ -29,7 +29,7 @@ pub struct Args {
     #[arg(long, conflicts_with = "twin")]
     pub bare: bool,
     /// Where the twin fitted without `--twin` is written.
-    #[arg(long, default_value = "target/range-twin.json")]
+    #[arg(long, default_value = super::range_twin::DEFAULT_OUT)]
     pub out: PathBuf,
     /// The emulated machine.
     #[command(flatten)]
@@ -64,6 +64,10 @@ pub struct Args {
     /// calibrates once and then cuts, instead of a calibration run here before the cut.
     #[arg(long, conflicts_with_all = ["sim", "offset", "no_path"])]
     pub bus: Option<PathBuf>,
+    /// Replace an existing output named on the command line (the default --out is replaced
+    /// without it; never one of the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// The emulated machine named on a command line: plant parameters and hidden effects.
@@ -157,6 +161,16 @@ pub fn print_report(report: &TrialReport) {
 
 /// Runs `sts-twin machine`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    let mut inputs: Vec<&std::path::Path> =
+        args.twin.iter().chain(&args.machine.plant).chain(&args.bus).map(PathBuf::as_path).collect();
+    inputs.retain(|p| p.exists());
+    if args.twin.is_none() && !args.bare {
+        let force = args.force || args.out == std::path::Path::new(super::range_twin::DEFAULT_OUT);
+        sts_dataset::output::check_file(&args.out, force, &inputs)?;
+    }
+    if let Some(html) = &args.html {
+        sts_dataset::output::check_file(html, args.force, &inputs)?;
+    }
     let (plant, effects) = args.machine.load()?;
     let model = match (&args.twin, args.bare) {
         (Some(path), _) => Some(ModelFile::read(path)?),
@@ -219,9 +233,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             report.freq_hz,
             if report.twin { "with the twin" } else { "bare machine" }
         );
-        std::fs::write(path, crate::report::trial::render(&title, std::slice::from_ref(&report)))
-            .with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("report written to {}", path.display());
+        sts_dataset::output::write_file(
+            path,
+            crate::report::trial::render(&title, std::slice::from_ref(&report)).as_bytes(),
+        )?;
+        if !args.json {
+            eprintln!("report written to {}", path.display());
+        }
     }
     if model.is_some() {
         sts_rig::print_fault_report(cop.as_mut())?; // every fault the co-processor counted, on stderr

@@ -10,7 +10,8 @@ use sts_emulator::{EffectSpec, PlantParams};
 /// Arguments of `sts-twin measure`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Output directory (created; existing group files are overwritten).
+    /// Output directory: new or empty, or holding a dataset with --force (replaced as a whole
+    /// once the new one is written; interrupted, it stays as it was).
     #[arg(long)]
     pub out: PathBuf,
     /// Plant file (TOML; keys left out keep the default machine's values).
@@ -40,6 +41,9 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Replace the dataset in --out (never a directory holding the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// The measurement configuration the arguments describe.
@@ -69,6 +73,11 @@ pub fn config(args: &Args) -> anyhow::Result<MeasureConfig> {
 
 /// Runs `sts-twin measure`.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    sts_dataset::output::check_dataset_dir(
+        &args.out,
+        args.force,
+        &args.plant.iter().map(PathBuf::as_path).collect::<Vec<_>>(),
+    )?;
     let config = config(args)?;
     // Builds the machine once up front so that bad effect combinations fail before any output.
     sts_emulator::Machine::new(&config.plant, &config.effects, config.seed)?;

@@ -4,9 +4,13 @@
 
 use sts_assess::explain::{explain, Base, ExplainConfig};
 use sts_emulator::{EffectSpec, MeasureConfig, PlantParams};
-use sts_fit::effects::{fit_with, write_records, AXIS_EFFECTS, SERVO_AXIS};
+use sts_fit::effects::{fit_with, write_model, AXIS_EFFECTS, SERVO_AXIS};
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
+
+/// Where `machine` and `trial-table` keep the twin they fit without --out (replaced on each
+/// run).
+pub const DEFAULT_OUT: &str = "target/range-twin.json";
 
 /// Z frequencies of the measurement a twin for the whole range is fitted on, Hz.
 fn range_freqs_hz() -> Vec<f64> {
@@ -92,8 +96,7 @@ fn measure_and_fit_range(
     if let Some(dir) = out.parent() {
         std::fs::create_dir_all(dir)?;
     }
-    model.write(out)?;
-    write_records(out, &records)?;
+    write_model(out, &model, Some(&records))?;
     Ok(model)
 }
 

@@ -24,7 +24,7 @@ pub struct Args {
     #[arg(long)]
     pub twin: Option<PathBuf>,
     /// Where a fitted model is written.
-    #[arg(long, default_value = "target/range-twin.json")]
+    #[arg(long, default_value = super::range_twin::DEFAULT_OUT)]
     pub out: PathBuf,
     /// The emulated machine.
     #[command(flatten)]
@@ -39,6 +39,10 @@ pub struct Args {
     /// fit's and the trials' progress go to stderr).
     #[arg(long)]
     pub json: bool,
+    /// Replace an existing output named on the command line (the default --out is replaced
+    /// without it; never one of the command's inputs).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// One frequency of the table.
@@ -59,6 +63,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let (plant, effects) = args.machine.load()?;
     if let Some(bad) = args.freqs.iter().find(|f| !(f.is_finite() && **f > 0.0 && **f < 4000.0)) {
         anyhow::bail!("--freqs: {bad} Hz is not a Z frequency the servo can follow (0 < f < 4000)");
+    }
+    if args.twin.is_none() {
+        let inputs: Vec<&std::path::Path> = args.machine.plant.iter().map(PathBuf::as_path).collect();
+        let force = args.force || args.out == std::path::Path::new(super::range_twin::DEFAULT_OUT);
+        sts_dataset::output::check_file(&args.out, force, &inputs)?;
     }
     let model = match &args.twin {
         Some(path) => ModelFile::read(path)?,

@@ -878,7 +878,7 @@ mod tests {
                 g
             })
             .collect();
-        let info = |i: usize, freq_hz: f64| GroupInfo { file: format!("g{i}.csv"), freq_hz, amp_um: 1.0, start_s: 0.0 };
+        let info = |i: usize, freq_hz: f64| GroupInfo::new(&format!("g{i}.csv"), freq_hz, 1.0, 0.0);
         Dataset { manifest: Manifest::new(f64::from(SERVO_RATE_HZ), "", vec![info(0, 10.0), info(1, 40.0)]), groups }
     }
 

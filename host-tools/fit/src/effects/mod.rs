@@ -52,11 +52,7 @@ use crate::FitError;
 /// The effects the servo-axis twin carries.
 pub const AXIS_EFFECTS: [&str; 3] = ["coulomb-friction", "presliding-hysteresis", "force-ripple"];
 
-/// Not an effect but the servo-axis twin alone (controller, slide and structural mode,
-/// simulated from the command, no nonlinear effect): the twin for a machine's whole speed
-/// range, whose correction the firmware learns from the command rather than from the
-/// accelerometer's view of the compensated motion. `fit --effect servo-axis`.
-pub const SERVO_AXIS: &str = "servo-axis";
+pub use sts_model::SERVO_AXIS;
 
 /// Whether `name` is carried by the servo-axis twin.
 fn is_axis(name: &str) -> bool {
@@ -820,7 +816,17 @@ pub fn fit_with(
 /// Sets the `effects` field of a written model file.
 pub fn write_records(path: &Path, records: &[EffectRecord]) -> Result<(), FitError> {
     let text = with_records(read_json(path)?, records)?;
-    std::fs::write(path, text).map_err(|source| FitError::Write { path: path.to_path_buf(), source })
+    Ok(sts_dataset::output::write_file(path, text.as_bytes())?)
+}
+
+/// Writes `model`'s file whole or not at all ([`sts_dataset::output::write_file`]), with
+/// `records` as its `effects` field where given.
+pub fn write_model(path: &Path, model: &ModelFile, records: Option<&[EffectRecord]>) -> Result<(), FitError> {
+    let text = match records {
+        Some(records) => model_text_with_records(model, records)?,
+        None => serde_json::to_string_pretty(model)? + "\n",
+    };
+    Ok(sts_dataset::output::write_file(path, text.as_bytes())?)
 }
 
 /// The text of `model`'s file with `records` as its `effects` field: what
@@ -849,6 +855,12 @@ pub fn read_records(path: &Path) -> Result<Vec<EffectRecord>, FitError> {
 
 /// A model file as JSON, to read or add its `effects` field.
 fn read_json(path: &Path) -> Result<serde_json::Value, FitError> {
+    // Bounded as the model file's own reader bounds it.
+    let len = std::fs::metadata(path).map_err(|source| FitError::Read { path: path.to_path_buf(), source })?.len();
+    if len > sts_model::MAX_MODEL_FILE_BYTES as u64 {
+        let error = sts_model::ModelFileError::TooLarge { max_bytes: sts_model::MAX_MODEL_FILE_BYTES };
+        return Err(sts_model::ModelError::File { path: path.to_path_buf(), error }.into());
+    }
     let text = std::fs::read_to_string(path).map_err(|source| FitError::Read { path: path.to_path_buf(), source })?;
     serde_json::from_str(&text).map_err(|source| FitError::NotJson { path: path.to_path_buf(), source })
 }

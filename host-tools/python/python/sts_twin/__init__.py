@@ -18,7 +18,7 @@ from __future__ import annotations
 import io
 import json
 import os
-from typing import Any, Iterable, Optional, Union
+from typing import Any, Callable, Iterable, Optional, Union
 
 import numpy as np
 import pandas as pd
@@ -42,6 +42,9 @@ __all__ = [
 __version__ = _native.__version__
 
 PathLike = Union[str, "os.PathLike[str]"]
+
+# A long call's progress: (message, steps done, steps in all or None where not known).
+ProgressCallback = Callable[[str, int, Optional[int]], None]
 
 
 class Dataset:
@@ -105,21 +108,17 @@ class Model:
 
     @classmethod
     def load(cls, path: PathLike) -> "Model":
-        """Reads and checks a model file."""
-        with open(path, encoding="utf-8") as f:
-            text = f.read()
-        try:
-            return cls(_native.Model.from_json(text))
-        except StsTwinError as e:
-            raise StsTwinError(f"{os.fspath(path)}: {e}") from None
+        """Reads and checks a model file (at most a few MB, as the CLI reads it)."""
+        return cls(_native.Model.read(os.fspath(path)))
 
     def to_json(self) -> str:
         """The model file's text: byte for byte what the CLI writes for the same twin."""
         return self._native.to_json()
 
     def save(self, path: PathLike) -> None:
-        with open(path, "w", encoding="utf-8") as f:
-            f.write(self.to_json())
+        """Writes the model file whole or not at all (a temporary file beside it, then a
+        rename over ``path``)."""
+        self._native.save(os.fspath(path))
 
     def to_dict(self) -> dict[str, Any]:
         if self._dict is None:
@@ -193,10 +192,13 @@ def fit(
     max_complexity: Optional[int] = None,
     acc_scale: Optional[float] = None,
     skip_s: Optional[float] = None,
+    progress: Optional[ProgressCallback] = None,
 ) -> Model:
     """Fits a twin on ``data`` as ``sts-twin fit`` does, with ``effects``' per-tick terms
     (canonical names, e.g. ``["coulomb-friction", "thermal-drift"]``). ``None`` takes the
-    CLI's default; the same data, seed and settings give the same twin."""
+    CLI's default; the same data, seed and settings give the same twin. Ctrl-C stops it
+    within a second (``KeyboardInterrupt``); ``progress(message, searches_done,
+    searches_total)`` is called as the searches report (an exception from it stops the fit)."""
     native = _native.fit(
         _dataset(data)._native,
         list(effects),
@@ -208,6 +210,7 @@ def fit(
         max_complexity,
         acc_scale,
         skip_s,
+        progress,
     )
     return Model(native)
 
@@ -240,9 +243,11 @@ class Comparison(_Report):
         return f"Comparison(waveform RMS {self.waveform_rms_um * 1e3:.1f} nm over {len(self._dict['groups'])} groups)"
 
 
-def compare(data: Union[Dataset, PathLike], model: Union[Model, PathLike]) -> Comparison:
+def compare(
+    data: Union[Dataset, PathLike], model: Union[Model, PathLike], progress: Optional[ProgressCallback] = None
+) -> Comparison:
     """Compares ``model`` with ``data`` group by group, as ``sts-twin compare`` does."""
-    return Comparison(_native.compare(_dataset(data)._native, _model(model)._native))
+    return Comparison(_native.compare(_dataset(data)._native, _model(model)._native, progress))
 
 
 class Diagnosis(_Report):
@@ -260,9 +265,12 @@ class Diagnosis(_Report):
         return f"Diagnosis(verdict {self.verdict!r}: {self._dict['summary']})"
 
 
-def diagnose(data: Union[Dataset, PathLike], model: Union[Model, PathLike]) -> Diagnosis:
-    """Which physical effect ``model`` misses on ``data``, as ``sts-twin diagnose`` says."""
-    return Diagnosis(_native.diagnose(_dataset(data)._native, _model(model)._native))
+def diagnose(
+    data: Union[Dataset, PathLike], model: Union[Model, PathLike], progress: Optional[ProgressCallback] = None
+) -> Diagnosis:
+    """Which physical effect ``model`` misses on ``data``, as ``sts-twin diagnose`` says.
+    Ctrl-C raises ``KeyboardInterrupt`` within a second."""
+    return Diagnosis(_native.diagnose(_dataset(data)._native, _model(model)._native, progress))
 
 
 class Explanation(_Report):
@@ -301,9 +309,12 @@ def explain(
     max_effects: int = 4,
     seed: int = 0,
     epochs: Optional[int] = None,
+    progress: Optional[ProgressCallback] = None,
 ) -> Explanation:
     """The lab's loop, as ``sts-twin explain`` runs it: fit a twin on ``data`` (or start from
-    ``model``), diagnose, add the named effect, refit, until ``none`` or ``max_effects``."""
+    ``model``), diagnose, add the named effect, refit, until ``none`` or ``max_effects``.
+    Ctrl-C stops it within a second (``KeyboardInterrupt``); ``progress(message, step,
+    None)`` is called at each fit and diagnosis."""
     base = None if model is None else _model(model)._native
-    text, native = _native.explain(_dataset(data)._native, base, max_effects, seed, epochs)
+    text, native = _native.explain(_dataset(data)._native, base, max_effects, seed, epochs, progress)
     return Explanation(text, Model(native))

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs what sts-twin needs and a fresh machine lacks: QEMU for the HIL rig, the Rust
+# Installs what sts-twin needs and a fresh machine lacks: QEMU (Arm and RISC-V) for the HIL rig, the Rust
 # targets of the firmware, and rustup's clippy and rustfmt. Idempotent: does nothing when
 # everything is present.
 set -euo pipefail
@@ -11,6 +11,8 @@ as_root() {
 
 apt_packages=()
 command -v qemu-system-arm >/dev/null || apt_packages+=(qemu-system-arm)
+# qemu-system-riscv32, for the RISC-V firmware on QEMU virt.
+command -v qemu-system-riscv32 >/dev/null || apt_packages+=(qemu-system-misc)
 if [ "${STS_TWIN_WITH_BROWSER:-0}" = 1 ] && ! command -v chromium >/dev/null; then
     apt_packages+=(chromium)
 fi

@@ -61,6 +61,7 @@ step "formatting (the root workspace and the two firmware apps, which are worksp
 cargo fmt --all -- --check
 (cd firmware/qemu-app && cargo fmt -- --check)
 (cd firmware/stm32h7-app && cargo fmt -- --check)
+(cd firmware/riscv-virt-app && cargo fmt -- --check)
 step "layering: no import cycle between the top-level modules of any crate"
 cargo --locked xtask layering >/dev/null
 # The firmware apps build and are linted in their own target directory (firmware/target),
@@ -75,6 +76,7 @@ firmware_job() {
     (cd firmware/qemu-app && cargo clippy --locked --profile firmware -- -D warnings \
         && cargo clippy --locked --profile firmware --features bringup -- -D warnings)
     (cd firmware/stm32h7-app && cargo clippy --locked --profile firmware -- -D warnings)
+    (cd firmware/riscv-virt-app && cargo clippy --locked --profile firmware -- -D warnings)
 }
 background "the firmware images and the firmware apps' clippy" firmware_job
 # The root workspace is linted as it is built: clippy-driver is its crates' compiler
@@ -109,6 +111,7 @@ bash scripts/python-package.sh build
 # The HIL harness finds the ELFs at these places by itself; named here to be explicit.
 export STS_TWIN_FIRMWARE_ELF="$PWD/firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
 export STS_TWIN_BRINGUP_ELF="$PWD/firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
+export STS_TWIN_RISCV_FIRMWARE_ELF="$PWD/firmware/target/riscv32imac-unknown-none-elf/firmware/sts-twin-firmware-riscv"
 # The test binaries that boot QEMU; every other runs in the second group. All are selected
 # with `--workspace`, so that no crate is built again with other features.
 qemu_tests=(hil board_cli)

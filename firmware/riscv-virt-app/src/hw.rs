@@ -83,6 +83,17 @@ pub mod plic {
     }
 }
 
+const CLINT_MTIMECMP0_LOW: usize = 0x0200_4000;
+const CLINT_MTIMECMP0_HIGH: usize = 0x0200_4004;
+
+/// Parks the CLINT's timer compare at the end of time. It resets to 0, which keeps the
+/// machine timer interrupt pending (unused, masked) for ever; QEMU then leaves translated
+/// code at every block to look at it, and guest time jumps over idle periods late.
+pub fn park_clint_timer() {
+    wr(CLINT_MTIMECMP0_HIGH, u32::MAX);
+    wr(CLINT_MTIMECMP0_LOW, u32::MAX);
+}
+
 const RTC_BASE: usize = 0x0010_1000;
 const RTC_TIME_LOW: usize = RTC_BASE;
 const RTC_TIME_HIGH: usize = RTC_BASE + 0x04;

@@ -77,6 +77,7 @@ fn fail() -> ! {
 #[riscv_rt::entry]
 fn main() -> ! {
     let board = QemuBoard::RiscvVirt;
+    hw::park_clint_timer();
     defmt::info!(
         "sts-twin firmware {=str} on {=str} ({=str})",
         env!("CARGO_PKG_VERSION"),

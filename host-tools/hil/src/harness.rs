@@ -582,38 +582,23 @@ struct Waiter {
     start: Instant,
     spins: u32,
     timeout: Duration,
-    nudged: Instant,
 }
-
-/// After this long without progress the waiter wakes QEMU's main loop ([`QemuProcess::nudge`]).
-const NUDGE_AFTER: Duration = Duration::from_millis(20);
 
 impl Waiter {
     fn new(timeout: Duration) -> Self {
         fine_timer_slack();
-        let now = Instant::now();
-        Self { start: now, spins: 0, timeout, nudged: now }
+        Self { start: Instant::now(), spins: 0, timeout }
     }
 
     fn reset(&mut self) {
         self.spins = 0;
         self.start = Instant::now();
-        self.nudged = self.start;
-    }
-
-    /// Nudges QEMU when the wait has made no progress for [`NUDGE_AFTER`].
-    fn nudge_if_stalled(&mut self, qemu: &QemuProcess) {
-        if self.nudged.elapsed() >= NUDGE_AFTER {
-            qemu.nudge();
-            self.nudged = Instant::now();
-        }
     }
 
     /// Sleeps `nap`, then checks QEMU is alive and the timeout.
     fn sleep(&mut self, qemu: &mut QemuProcess, logs: &SharedLog, nap: Duration, what: &str) -> Result<(), HilError> {
         std::thread::sleep(nap);
         check_alive(qemu, logs, what)?;
-        self.nudge_if_stalled(qemu);
         let waited = self.start.elapsed();
         if waited >= self.timeout {
             return Err(HilError::Timeout { what: what.into(), seconds: waited.as_secs_f64() });
@@ -631,7 +616,6 @@ impl Waiter {
         }
         if self.spins % 256 == 0 {
             check_alive(qemu, logs, what)?;
-            self.nudge_if_stalled(qemu);
             let waited = self.start.elapsed();
             if waited >= self.timeout {
                 return Err(HilError::Timeout { what: what.into(), seconds: waited.as_secs_f64() });

@@ -139,20 +139,6 @@ impl QemuProcess {
         Ok(Self { child, status: None, pin })
     }
 
-    /// Wakes QEMU's main loop with a SIGIO, which it takes through its signalfd and
-    /// otherwise ignores. With `-icount sleep=off` guest time jumps to the next timer only
-    /// from the main loop while the guest idles; on RISC-V `virt` that jump was seen to stall
-    /// (a lockstep tick waiting over 10 s, about once in 10^5 ticks) until the loop woke for
-    /// something else.
-    pub(crate) fn nudge(&self) {
-        if self.status.is_none() {
-            // SAFETY: plain syscall to our own child, not yet reaped.
-            unsafe {
-                libc::kill(self.child.id() as libc::pid_t, libc::SIGIO);
-            }
-        }
-    }
-
     /// The process id.
     pub(crate) fn pid(&self) -> u32 {
         self.child.id()

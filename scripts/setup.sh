@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs what sts-twin needs and a fresh machine lacks: QEMU for the HIL rig, the Rust
+# Installs what sts-twin needs and a fresh machine lacks: QEMU (Arm and RISC-V) for the HIL rig, the Rust
 # targets of the firmware, and rustup's clippy and rustfmt. Idempotent: does nothing when
 # everything is present.
 set -euo pipefail
@@ -11,6 +11,13 @@ as_root() {
 
 apt_packages=()
 command -v qemu-system-arm >/dev/null || apt_packages+=(qemu-system-arm)
+# qemu-system-riscv32, for the RISC-V firmware on QEMU virt.
+command -v qemu-system-riscv32 >/dev/null || apt_packages+=(qemu-system-misc)
+# A qemu-utils from backports breaks the distribution's QEMU system packages (it requires
+# QEMU 8 or later): it is brought back to the distribution's release beside them.
+if [ ${#apt_packages[@]} -gt 0 ] && dpkg-query -W -f='${Version}' qemu-utils 2>/dev/null | grep -q '~bpo'; then
+    apt_packages+=("qemu-utils/$(. /etc/os-release && echo "$VERSION_CODENAME")")
+fi
 if [ "${STS_TWIN_WITH_BROWSER:-0}" = 1 ] && ! command -v chromium >/dev/null; then
     apt_packages+=(chromium)
 fi
@@ -21,7 +28,7 @@ if [ ${#apt_packages[@]} -gt 0 ]; then
     fi
     echo "setup: installing ${apt_packages[*]}"
     as_root apt-get update -qq
-    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${apt_packages[@]}" >/dev/null
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --allow-downgrades "${apt_packages[@]}" >/dev/null
 fi
 
 if ! command -v rustup >/dev/null; then

@@ -52,6 +52,7 @@ firmware() {
     (cd firmware/qemu-app && cargo clippy --locked --profile firmware -- -D warnings \
         && cargo clippy --locked --profile firmware --features bringup -- -D warnings)
     (cd firmware/stm32h7-app && cargo clippy --locked --profile firmware -- -D warnings)
+    (cd firmware/riscv-virt-app && cargo clippy --locked --profile firmware -- -D warnings)
 }
 beside "the firmware images and their lints" firmware
 # clippy-driver compiles the workspace's own crates (cargo's hook for a wrapper), so that one
@@ -68,6 +69,7 @@ bash scripts/python-package.sh build
 
 export STS_TWIN_FIRMWARE_ELF="$PWD/firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
 export STS_TWIN_BRINGUP_ELF="$PWD/firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
+export STS_TWIN_RISCV_FIRMWARE_ELF="$PWD/firmware/target/riscv32imac-unknown-none-elf/firmware/sts-twin-firmware-riscv"
 qemu_tests=(hil board_cli)
 other_tests=$(cargo metadata --locked --no-deps --format-version 1 | python3 -c '
 import json, sys

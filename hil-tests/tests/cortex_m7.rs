@@ -3,11 +3,11 @@
 //! the host core and the 40 Hz cut number for number, and its instructions per servo tick
 //! are the Cortex-M4F's, counted by the firmware's own timer under `-icount`.
 
-use sts_hil::board::qemu::Mps2Image;
+use sts_hil::board::qemu::QemuBoard;
 use sts_hil::{bench_instructions, HilConfig};
 
 fn on_the_m7() -> HilConfig {
-    HilConfig { board: Mps2Image::An500, ..sts_hil_tests::twin_config() }
+    HilConfig { board: QemuBoard::An500, ..sts_hil_tests::twin_config() }
 }
 
 #[test]
@@ -33,7 +33,7 @@ fn the_servo_tick_on_the_cortex_m7_executes_the_instructions_it_does_on_the_m4f(
     let m7 = bench_instructions(on_the_m7(), ticks).expect("instruction count on the M7");
     let m4 = bench_instructions(sts_hil_tests::twin_config(), ticks).expect("instruction count on the M4F");
     eprintln!("{m7}");
-    assert_eq!(m7.board, Mps2Image::An500);
+    assert_eq!(m7.board, QemuBoard::An500);
     assert_eq!(m7.underruns + m7.overruns, 0);
     for (what, a, b) in [
         ("median", m7.busy_median, m4.busy_median),

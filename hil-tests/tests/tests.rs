@@ -12,6 +12,7 @@ mod platform_determinism;
 mod platform_faults;
 mod platform_orphans;
 mod platform_underrun;
+mod riscv_virt;
 mod supervisor_hil;
 mod trial_hil;
 mod twin_bench;

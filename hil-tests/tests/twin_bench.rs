@@ -23,7 +23,7 @@
 
 use std::time::{Duration, Instant};
 
-use sts_hil::board::qemu::Mps2Image;
+use sts_hil::board::qemu::QemuBoard;
 use sts_hil::{bench_inputs, Hil, HilConfig, HilError, INSTRUCTION_BENCH_SHIFT};
 use sts_rig::request_on;
 use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple, StructuralMode};
@@ -260,7 +260,7 @@ fn the_costliest_programs_the_validator_accepts_run_within_their_cost_models_on_
         assert!(program.tick_cost() <= TICK_BUDGET_INSTRUCTIONS, "{name}: the cost model beyond the budget");
     }
     let costliest = programs.iter().max_by_key(|(_, p)| p.tick_cost()).expect("cases");
-    let m7 = HilConfig { board: Mps2Image::An500, ..sts_hil_tests::twin_config() };
+    let m7 = HilConfig { board: QemuBoard::An500, ..sts_hil_tests::twin_config() };
     let runs = programs
         .iter()
         .map(|(name, program)| (format!("{name}, Cortex-M4F"), program, sts_hil_tests::twin_config()))

@@ -185,7 +185,13 @@ fn the_linear_response_terms_are_bit_identical_to_the_host_core() {
 #[test]
 fn uploads_change_the_prediction_and_malformed_programs_are_rejected() {
     let _serial = sts_hil_tests::serial();
-    let mut hil = boot();
+    uploads_change_the_prediction_on(sts_hil_tests::twin_config());
+}
+
+/// The body of [`uploads_change_the_prediction_and_malformed_programs_are_rejected`] on the
+/// board `config` boots.
+pub(crate) fn uploads_change_the_prediction_on(config: HilConfig) {
+    let mut hil = HilCoprocessor::start(config).expect("the twin firmware boots in QEMU");
     configure(&mut hil, Some(program(21, 1.0)));
     let inputs: Vec<InputSlot> = (0..6000).map(input).collect();
     hil.hil().run_open_loop(&inputs).unwrap();
@@ -219,7 +225,13 @@ fn uploads_change_the_prediction_and_malformed_programs_are_rejected() {
 #[test]
 fn corrupted_and_truncated_frames_are_counted_and_ignored() {
     let _serial = sts_hil_tests::serial();
-    let mut hil = boot();
+    bad_frames_are_counted_and_ignored_on(sts_hil_tests::twin_config());
+}
+
+/// The body of [`corrupted_and_truncated_frames_are_counted_and_ignored`] on the board
+/// `config` boots.
+pub(crate) fn bad_frames_are_counted_and_ignored_on(config: HilConfig) {
+    let mut hil = HilCoprocessor::start(config).expect("the twin firmware boots in QEMU");
     configure(&mut hil, Some(program(31, 1.0)));
     let mut frame = [0u8; MAX_ENCODED_FRAME];
     let len = encode_frame(500, &Request::Ping { nonce: 77 }, &mut frame).unwrap();
@@ -279,7 +291,12 @@ fn a_million_ticks_without_a_fault_or_a_missed_tick() {
 #[test]
 fn offset_changes_and_enable_never_step_the_dac() {
     let _serial = sts_hil_tests::serial();
-    let mut hil = boot();
+    parameter_changes_never_step_the_dac_on(sts_hil_tests::twin_config());
+}
+
+/// The body of [`offset_changes_and_enable_never_step_the_dac`] on the board `config` boots.
+pub(crate) fn parameter_changes_never_step_the_dac_on(config: HilConfig) {
+    let mut hil = HilCoprocessor::start(config).expect("the twin firmware boots in QEMU");
     configure(&mut hil, Some(program(51, 2.0)));
     expect_ack("disable", hil.request(Request::SetEnabled(false)).unwrap()).unwrap();
     let limit = 1 + (0.05f64 / (10.0 / 32767.0)).ceil() as i32;

@@ -1,8 +1,8 @@
 //! The build tasks' library: where `cargo xtask firmware` puts the firmware ELFs, and the
 //! module-layering check of `cargo xtask layering` ([`layering`]).
 //!
-//! The firmware apps (`firmware/qemu-app`, `firmware/stm32h7-app`) are workspaces of their
-//! own that only build for [`FIRMWARE_TARGET`]; each image lands in a fixed place under its
+//! The firmware apps (`firmware/qemu-app`, `firmware/stm32h7-app` for [`FIRMWARE_TARGET`],
+//! `firmware/riscv-virt-app` for [`RISCV_TARGET`]) are workspaces of their own; each image lands in a fixed place under its
 //! app's own `target` directory, given here relative to the repository root. The HIL harness
 //! (`sts_hil`) looks for the QEMU images at the same places (the hil-tests check that
 //! the two agree).
@@ -10,8 +10,10 @@
 pub mod layering;
 pub mod size;
 
-/// The firmware's Rust target (`rustup target add thumbv7em-none-eabihf`).
+/// The Arm firmware's Rust target (`rustup target add thumbv7em-none-eabihf`).
 pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";
+/// The RISC-V firmware's Rust target (`rustup target add riscv32imac-unknown-none-elf`).
+pub const RISCV_TARGET: &str = "riscv32imac-unknown-none-elf";
 /// The cargo profile of the firmware images (defined in each app's Cargo.toml).
 pub const FIRMWARE_PROFILE: &str = "firmware";
 /// The command that builds every image, run at the repository root.
@@ -26,6 +28,8 @@ pub struct Image {
     pub what: &'static str,
     /// The app crate's directory.
     pub app_dir: &'static str,
+    /// Its Rust target.
+    pub target: &'static str,
     /// Its cargo features (`--features`), empty for none.
     pub features: &'static str,
     /// The target directory it is built in: one for every image (`firmware/target`, also the
@@ -34,7 +38,7 @@ pub struct Image {
     pub target_dir: &'static str,
     /// The binary's name.
     pub bin: &'static str,
-    /// Where cargo leaves the ELF: `<target_dir>/thumbv7em-none-eabihf/firmware/<bin>`.
+    /// Where cargo leaves the ELF: `<target_dir>/<target>/firmware/<bin>`.
     pub built: &'static str,
     /// Where the ELF is kept: `built`, or a copy of it for an image whose `built` place
     /// another image of the same target directory takes next.
@@ -48,6 +52,7 @@ pub const QEMU_TWIN: Image = Image {
     name: "qemu",
     what: "twin firmware, QEMU mps2-an386",
     app_dir: "firmware/qemu-app",
+    target: FIRMWARE_TARGET,
     features: "",
     target_dir: "firmware/target",
     bin: "sts-twin-firmware",
@@ -62,6 +67,7 @@ pub const QEMU_BRINGUP: Image = Image {
     name: "bringup",
     what: "bring-up firmware, QEMU mps2-an386",
     app_dir: "firmware/qemu-app",
+    target: FIRMWARE_TARGET,
     features: "bringup",
     target_dir: "firmware/target",
     bin: "sts-twin-firmware",
@@ -75,6 +81,7 @@ pub const STM32H7: Image = Image {
     name: "stm32h7",
     what: "firmware for the STM32H743ZI board",
     app_dir: "firmware/stm32h7-app",
+    target: FIRMWARE_TARGET,
     features: "",
     target_dir: "firmware/target",
     bin: "sts-twin-board-stm32h7",
@@ -83,9 +90,23 @@ pub const STM32H7: Image = Image {
     env: None,
 };
 
+/// The twin on QEMU RISC-V `virt` (RV32IMAC).
+pub const RISCV_VIRT_TWIN: Image = Image {
+    name: "riscv-virt",
+    what: "twin firmware, QEMU RISC-V virt",
+    app_dir: "firmware/riscv-virt-app",
+    target: RISCV_TARGET,
+    features: "",
+    target_dir: "firmware/target",
+    bin: "sts-twin-firmware-riscv",
+    built: "firmware/target/riscv32imac-unknown-none-elf/firmware/sts-twin-firmware-riscv",
+    elf: "firmware/target/riscv32imac-unknown-none-elf/firmware/sts-twin-firmware-riscv",
+    env: Some("STS_TWIN_RISCV_FIRMWARE_ELF"),
+};
+
 /// Every image, in build order: the bring-up before the twin, so that cargo's place in their
 /// shared target directory holds the twin at the end.
-pub const IMAGES: [Image; 3] = [QEMU_BRINGUP, QEMU_TWIN, STM32H7];
+pub const IMAGES: [Image; 4] = [QEMU_BRINGUP, QEMU_TWIN, STM32H7, RISCV_VIRT_TWIN];
 
 #[cfg(test)]
 mod tests {
@@ -94,7 +115,7 @@ mod tests {
     #[test]
     fn elf_paths_follow_cargo_layout() {
         for image in IMAGES {
-            let expected = format!("{}/{FIRMWARE_TARGET}/{FIRMWARE_PROFILE}/{}", image.target_dir, image.bin);
+            let expected = format!("{}/{}/{FIRMWARE_PROFILE}/{}", image.target_dir, image.target, image.bin);
             assert_eq!(image.built, expected, "{}", image.name);
             // `cargo build` in the app's directory builds into the same place.
             let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 
 use clap::{Parser, Subcommand, ValueEnum};
-use xtask::{Image, BUILD_COMMAND, FIRMWARE_PROFILE, FIRMWARE_TARGET, IMAGES, QEMU_BRINGUP, QEMU_TWIN, STM32H7};
+use xtask::{Image, BUILD_COMMAND, FIRMWARE_PROFILE, IMAGES, QEMU_BRINGUP, QEMU_TWIN, RISCV_VIRT_TWIN, STM32H7};
 
 /// Build tasks of sts-twin that plain cargo at the root cannot do.
 #[derive(Debug, Parser)]
@@ -16,7 +16,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Task {
-    /// Build the firmware ELFs: the QEMU twin, the QEMU bring-up app and the STM32H7 app.
+    /// Build the firmware ELFs: the QEMU twin, the QEMU bring-up app, the STM32H7 app and the
+    /// RISC-V twin.
     #[command(long_about = FIRMWARE_ABOUT)]
     Firmware(FirmwareArgs),
     /// Check that no crate of the root workspace has an import cycle between its top-level
@@ -28,7 +29,8 @@ enum Task {
 }
 
 const FIRMWARE_ABOUT: &str = "\
-Build the firmware ELFs (thumbv7em-none-eabihf, profile `firmware`) and print where they are.
+Build the firmware ELFs (thumbv7em-none-eabihf and riscv32imac-unknown-none-elf, profile
+`firmware`) and print where they are.
 
 The firmware apps are workspaces of their own (each with its Cargo.lock and a
 .cargo/config.toml that sets the target and the runner), so a plain `cargo build` at the root
@@ -38,8 +40,9 @@ does not build them. This task runs, in each app's directory:
                                  (then its ELF is copied to target/bringup/..., below)
   qemu     firmware/qemu-app     cargo build --profile firmware
   stm32h7  firmware/stm32h7-app  cargo build --profile firmware
+  riscv-virt firmware/riscv-virt-app cargo build --profile firmware
 
-All three share one target directory (firmware/target), and with it every dependency they
+All share one target directory (firmware/target), and with it every dependency they
 have in common; the twin is built after the bring-up (also with --only bringup) so that
 cargo's place holds it.
 
@@ -48,14 +51,16 @@ The ELFs land at fixed places (paths from the repository root):
   firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware
   firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware
   firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-board-stm32h7
+  firmware/target/riscv32imac-unknown-none-elf/firmware/sts-twin-firmware-riscv
 
 The HIL harness (sts-twin hil, the hil-tests, the demo) takes the QEMU ELFs from there unless
-STS_TWIN_FIRMWARE_ELF / STS_TWIN_BRINGUP_ELF point elsewhere. It never builds them: run this
-again after changing the firmware. Needs the Rust target: `rustup target add thumbv7em-none-eabihf`.";
+STS_TWIN_FIRMWARE_ELF / STS_TWIN_BRINGUP_ELF / STS_TWIN_RISCV_FIRMWARE_ELF point elsewhere. It
+never builds them: run this again after changing the firmware. Needs the Rust targets:
+`rustup target add thumbv7em-none-eabihf riscv32imac-unknown-none-elf`.";
 
 #[derive(Debug, clap::Args)]
 struct FirmwareArgs {
-    /// Build only this image (repeat for several); all three by default.
+    /// Build only this image (repeat for several); all by default.
     #[arg(long, value_enum, value_name = "IMAGE")]
     only: Vec<ImageName>,
     /// Pass `--locked` to cargo: fail instead of changing an app's Cargo.lock.
@@ -74,6 +79,8 @@ enum ImageName {
     Bringup,
     /// The STM32H743ZI board (firmware/stm32h7-app).
     Stm32h7,
+    /// The twin on QEMU RISC-V virt (firmware/riscv-virt-app).
+    RiscvVirt,
 }
 
 impl ImageName {
@@ -82,6 +89,7 @@ impl ImageName {
             Self::Qemu => QEMU_TWIN,
             Self::Bringup => QEMU_BRINGUP,
             Self::Stm32h7 => STM32H7,
+            Self::RiscvVirt => RISCV_VIRT_TWIN,
         }
     }
 }
@@ -120,12 +128,14 @@ fn firmware(args: &FirmwareArgs) -> Result<(), String> {
             .collect()
     };
     if !args.paths {
-        check_target_installed()?;
+        for image in &images {
+            check_target_installed(image.target)?;
+        }
         for image in &images {
             build(&root, image, args.locked)?;
         }
     }
-    println!("firmware ELFs ({FIRMWARE_TARGET}, profile `{FIRMWARE_PROFILE}`):");
+    println!("firmware ELFs (profile `{FIRMWARE_PROFILE}`):");
     for image in &images {
         let elf = root.join(image.elf);
         let note = match (elf.is_file(), image.env) {
@@ -133,22 +143,22 @@ fn firmware(args: &FirmwareArgs) -> Result<(), String> {
             (true, Some(env)) => format!("  (HIL default; {env} overrides)"),
             (true, None) => String::new(),
         };
-        println!("  {:<8} {}{note}", image.name, elf.display());
+        println!("  {:<10} {}{note}", image.name, elf.display());
     }
     Ok(())
 }
 
 fn size() -> Result<(), String> {
     let root = repo_root();
-    println!("{:<8} {:>12} {:>12}  ELF", "image", "flash bytes", "RAM bytes");
+    println!("{:<10} {:>12} {:>12}  ELF", "image", "flash bytes", "RAM bytes");
     for image in IMAGES {
         let elf = root.join(image.elf);
         if !elf.is_file() {
-            println!("{:<8} (not built: {BUILD_COMMAND} --only {})", image.name, image.name);
+            println!("{:<10} (not built: {BUILD_COMMAND} --only {})", image.name, image.name);
             continue;
         }
         let use_ = xtask::size::memory_use(&elf)?;
-        println!("{:<8} {:>12} {:>12}  {}", image.name, use_.flash_bytes, use_.ram_bytes, image.elf);
+        println!("{:<10} {:>12} {:>12}  {}", image.name, use_.flash_bytes, use_.ram_bytes, image.elf);
     }
     Ok(())
 }
@@ -198,7 +208,7 @@ fn build(root: &Path, image: &Image, locked: bool) -> Result<(), String> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let app_dir = root.join(image.app_dir);
     let target_dir = root.join(image.target_dir);
-    let mut args = vec!["build", "--profile", FIRMWARE_PROFILE, "--target", FIRMWARE_TARGET];
+    let mut args = vec!["build", "--profile", FIRMWARE_PROFILE, "--target", image.target];
     if !image.features.is_empty() {
         args.extend(["--features", image.features]);
     }
@@ -233,9 +243,9 @@ fn build(root: &Path, image: &Image, locked: bool) -> Result<(), String> {
     Ok(())
 }
 
-/// Fails early, with the command to fix it, when the standard library of the firmware's
-/// target is missing from the toolchain's sysroot.
-fn check_target_installed() -> Result<(), String> {
+/// Fails early, with the command to fix it, when the standard library of `target` is
+/// missing from the toolchain's sysroot.
+fn check_target_installed(target: &str) -> Result<(), String> {
     let rustc = std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into());
     let output = Command::new(&rustc)
         .args(["--print", "sysroot"])
@@ -246,12 +256,12 @@ fn check_target_installed() -> Result<(), String> {
         return Ok(());
     }
     let sysroot = PathBuf::from(String::from_utf8_lossy(&output.stdout).trim());
-    let lib = sysroot.join("lib").join("rustlib").join(FIRMWARE_TARGET).join("lib");
+    let lib = sysroot.join("lib").join("rustlib").join(target).join("lib");
     if lib.is_dir() {
         Ok(())
     } else {
         Err(format!(
-            "the Rust target {FIRMWARE_TARGET} is not installed (no {}): run `rustup target add {FIRMWARE_TARGET}`",
+            "the Rust target {target} is not installed (no {}): run `rustup target add {target}`",
             lib.display()
         ))
     }

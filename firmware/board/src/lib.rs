@@ -6,6 +6,7 @@ pub mod bringup;
 pub mod bus;
 pub mod config;
 pub mod qemu;
+pub mod qemu_app;
 pub mod servo;
 pub mod sync;
 pub mod twin;

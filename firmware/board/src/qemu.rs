@@ -1,11 +1,15 @@
-//! The QEMU boards' shared-memory map. Two MPS2 FPGA images run the same firmware image:
-//! `mps2-an386` (Cortex-M4F) and `mps2-an500` (Cortex-M7, the STM32H7's core). They differ,
-//! for this firmware, only in where the 16 MiB PSRAM sits ([`Mps2Image::psram_base`]); the
-//! firmware reads the board's SCC ID at boot to tell them apart. The PSRAM is a file the HIL
-//! host maps too. It holds the analogue bus ([`sts_twin_core::bus`]) at offset 0, a
-//! diagnostics block the firmware fills for the host, and the persistent config store.
+//! The QEMU boards the firmware runs on, and their shared-memory map, defined once for the
+//! firmware and the HIL host. Three boards: the MPS2 FPGA images `mps2-an386` (Cortex-M4F)
+//! and `mps2-an500` (Cortex-M7, the STM32H7's core), which run one Arm image and tell each
+//! other apart by the SCC ID register, and `virt` (RV32IMAC), which runs the RISC-V image.
+//! Each board maps a file the HIL host maps too (the shared region, [`SHARED_BYTES`] at
+//! [`QemuBoard::shared_base`]): the MPS2 boards' 16 MiB PSRAM, the upper half of `virt`'s
+//! 32 MiB RAM (the lower half holds the firmware; QEMU's device tree lies in the RAM's top
+//! 2 MiB, beyond the part of the region used). The region holds the analogue bus
+//! ([`sts_twin_core::bus`]) at offset 0, a diagnostics block the firmware fills for the host,
+//! and the persistent config store.
 //!
-//! | PSRAM offset | bytes | what | written by |
+//! | region offset | bytes | what | written by |
 //! |---|---|---|---|
 //! | `0x0000` | [`sts_twin_core::bus::BUS_BYTES`] | the analogue bus | both |
 //! | [`DIAG_OFFSET`] | `4 * DIAG_WORDS` | diagnostics words (`DIAG_*`) | firmware |
@@ -14,24 +18,28 @@
 //! The config store persists across reboots because the host keeps the backing file and
 //! hands the same file to the next QEMU; a fresh file (all zero) reads as empty.
 
-/// The MPS2 FPGA images the firmware runs on under QEMU.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The QEMU boards the firmware runs on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Mps2Image {
-    /// AN386: Cortex-M4F, PSRAM at `0x2100_0000`.
+pub enum QemuBoard {
+    /// MPS2 AN386: Cortex-M4F, PSRAM at `0x2100_0000`, CMSDK TIMER0 at 25 MHz.
     An386,
-    /// AN500: Cortex-M7 (the STM32H7's core), PSRAM at `0x6000_0000`.
+    /// MPS2 AN500: Cortex-M7 (the STM32H7's core), PSRAM at `0x6000_0000`, as the AN386
+    /// otherwise.
     An500,
+    /// RISC-V `virt` (RV32IMAC, no FPU): RAM at `0x8000_0000`, its upper half shared; the
+    /// goldfish RTC's alarm (1 ns) as the tick.
+    RiscvVirt,
 }
 
-/// Address of the serial communication controller's ID register, which names the FPGA image.
+/// Address of the serial communication controller's ID register, which names the MPS2 image.
 pub const SCC_ID_ADDR: usize = 0x4002_FFFC;
 
-impl Mps2Image {
-    /// Every image, in the order the tools list them.
-    pub const ALL: [Self; 2] = [Self::An386, Self::An500];
+impl QemuBoard {
+    /// Every board, in the order the tools list them.
+    pub const ALL: [Self; 3] = [Self::An386, Self::An500, Self::RiscvVirt];
 
-    /// The image whose SCC ID register reads `scc_id`; `None` for another board.
+    /// The MPS2 image whose SCC ID register reads `scc_id`; `None` for another board.
     pub const fn from_scc_id(scc_id: u32) -> Option<Self> {
         match scc_id {
             0x4104_3860 => Some(Self::An386),
@@ -40,11 +48,25 @@ impl Mps2Image {
         }
     }
 
-    /// Address of the PSRAM (the host-shared file).
-    pub const fn psram_base(self) -> usize {
+    /// The board's name in the tools (`--board`).
+    pub const fn name(self) -> &'static str {
         match self {
-            Self::An386 => 0x2100_0000,
-            Self::An500 => 0x6000_0000,
+            Self::An386 => "mps2-an386",
+            Self::An500 => "mps2-an500",
+            Self::RiscvVirt => "riscv-virt",
+        }
+    }
+
+    /// The board named `name` ([`QemuBoard::name`]).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|b| b.name() == name)
+    }
+
+    /// The QEMU program that emulates it.
+    pub const fn qemu_program(self) -> &'static str {
+        match self {
+            Self::An386 | Self::An500 => "qemu-system-arm",
+            Self::RiscvVirt => "qemu-system-riscv32",
         }
     }
 
@@ -53,6 +75,7 @@ impl Mps2Image {
         match self {
             Self::An386 => "mps2-an386",
             Self::An500 => "mps2-an500",
+            Self::RiscvVirt => "virt",
         }
     }
 
@@ -61,12 +84,64 @@ impl Mps2Image {
         match self {
             Self::An386 => "Cortex-M4F",
             Self::An500 => "Cortex-M7",
+            Self::RiscvVirt => "RV32IMAC",
         }
+    }
+
+    /// The Rust target of its firmware image.
+    pub const fn rust_target(self) -> &'static str {
+        match self {
+            Self::An386 | Self::An500 => "thumbv7em-none-eabihf",
+            Self::RiscvVirt => "riscv32imac-unknown-none-elf",
+        }
+    }
+
+    /// Guest address of the shared region.
+    pub const fn shared_base(self) -> usize {
+        match self {
+            Self::An386 => 0x2100_0000,
+            Self::An500 => 0x6000_0000,
+            Self::RiscvVirt => 0x8100_0000,
+        }
+    }
+
+    /// Size of the file behind the memory QEMU maps from it (`memory-backend-file`).
+    pub const fn backing_file_bytes(self) -> usize {
+        match self {
+            Self::An386 | Self::An500 => 16 * 1024 * 1024,
+            Self::RiscvVirt => 32 * 1024 * 1024,
+        }
+    }
+
+    /// Byte offset of the shared region in the backing file.
+    pub const fn shared_file_offset(self) -> usize {
+        match self {
+            Self::An386 | Self::An500 => 0,
+            Self::RiscvVirt => 16 * 1024 * 1024,
+        }
+    }
+
+    /// The clock of the servo tick's timer: the CMSDK timer's 25 MHz, the RTC's nanoseconds.
+    pub const fn timer_clock_hz(self) -> u32 {
+        match self {
+            Self::An386 | Self::An500 => 25_000_000,
+            Self::RiscvVirt => 1_000_000_000,
+        }
+    }
+
+    /// Timer counts per servo period.
+    pub const fn servo_period_counts(self) -> u32 {
+        self.timer_clock_hz() / SERVO_RATE_HZ
+    }
+
+    /// Nanoseconds per timer count.
+    pub const fn count_ns(self) -> u32 {
+        1_000_000_000 / self.timer_clock_hz()
     }
 }
 
-/// Size of the PSRAM (and of the host's backing file).
-pub const PSRAM_BYTES: usize = 16 * 1024 * 1024;
+/// Size of the shared region (within every board's backing file).
+pub const SHARED_BYTES: usize = 1024 * 1024;
 
 /// Byte offset of the diagnostics block.
 pub const DIAG_OFFSET: usize = 0x4000;
@@ -118,12 +193,8 @@ pub const CONFIG_OFFSET: usize = 0x1_0000;
 /// Bytes per config slot (two slots).
 pub const CONFIG_SLOT_BYTES: usize = 32 * 1024;
 
-/// The CMSDK timer clock of the board.
-pub const TIMER_CLOCK_HZ: u32 = 25_000_000;
 /// The servo rate.
 pub const SERVO_RATE_HZ: u32 = sts_twin_core::SERVO_RATE_HZ;
-/// Timer counts per servo period.
-pub const SERVO_PERIOD_COUNTS: u32 = TIMER_CLOCK_HZ / SERVO_RATE_HZ;
 
 /// Polls of `HOST_SEQ` before a tick gives up waiting (an underrun). A poll is a handful
 /// of guest instructions; QEMU runs 16 million of them in roughly a second of host time
@@ -133,22 +204,37 @@ pub const BUS_SPIN_BOUND: u32 = 16_000_000;
 
 const _: () = assert!(sts_twin_core::bus::BUS_BYTES <= DIAG_OFFSET);
 const _: () = assert!(DIAG_OFFSET + 4 * DIAG_WORDS <= CONFIG_OFFSET);
-const _: () = assert!(CONFIG_OFFSET + 2 * CONFIG_SLOT_BYTES <= PSRAM_BYTES);
+const _: () = assert!(CONFIG_OFFSET + 2 * CONFIG_SLOT_BYTES <= SHARED_BYTES);
+// Every board's region lies inside its backing file (and, on `virt`, below the device tree).
+const _: () = {
+    let mut i = 0;
+    while i < QemuBoard::ALL.len() {
+        let b = QemuBoard::ALL[i];
+        assert!(b.shared_file_offset() + SHARED_BYTES <= b.backing_file_bytes() - 2 * 1024 * 1024);
+        assert!(b.timer_clock_hz() % SERVO_RATE_HZ == 0);
+        i += 1;
+    }
+};
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn each_image_is_known_by_its_scc_id_and_has_its_own_psram() {
-        assert_eq!(Mps2Image::from_scc_id(0x4104_3860), Some(Mps2Image::An386));
-        assert_eq!(Mps2Image::from_scc_id(0x4104_5000), Some(Mps2Image::An500));
-        assert_eq!(Mps2Image::from_scc_id(0x4104_5050), None);
-        assert_ne!(Mps2Image::An386.psram_base(), Mps2Image::An500.psram_base());
-        for image in Mps2Image::ALL {
-            // The PSRAM must not meet the linker's RAM (memory.x: 4 MiB at 0x2000_0000).
-            assert!(image.psram_base() >= 0x2040_0000);
-            assert!(image.qemu_machine().starts_with("mps2-an"));
+    fn each_board_is_known_by_its_name_and_has_its_own_shared_region() {
+        assert_eq!(QemuBoard::from_scc_id(0x4104_3860), Some(QemuBoard::An386));
+        assert_eq!(QemuBoard::from_scc_id(0x4104_5000), Some(QemuBoard::An500));
+        assert_eq!(QemuBoard::from_scc_id(0x4104_5050), None);
+        assert_ne!(QemuBoard::An386.shared_base(), QemuBoard::An500.shared_base());
+        for board in QemuBoard::ALL {
+            assert_eq!(QemuBoard::from_name(board.name()), Some(board));
+            assert_eq!(board.servo_period_counts() * SERVO_RATE_HZ, board.timer_clock_hz());
         }
+        // The PSRAM must not meet the Arm linker's RAM (memory.x: 4 MiB at 0x2000_0000).
+        assert!(QemuBoard::An386.shared_base() >= 0x2040_0000);
+        // On virt the region is the RAM's upper half: RAM starts at 0x8000_0000.
+        let virt = QemuBoard::RiscvVirt;
+        assert_eq!(virt.shared_base(), 0x8000_0000 + virt.shared_file_offset());
+        assert_eq!(virt.shared_file_offset() * 2, virt.backing_file_bytes());
     }
 }

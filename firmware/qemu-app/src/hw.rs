@@ -5,7 +5,7 @@ use core::ptr::{read_volatile, write_volatile};
 
 use cortex_m::interrupt::InterruptNumber;
 use cortex_m::peripheral::NVIC;
-use sts_twin_board::qemu::SERVO_PERIOD_COUNTS;
+use sts_twin_board::qemu::QemuBoard;
 use sts_twin_board::sync::ByteQueue;
 use sts_twin_board::{ControlLink, TickSource};
 
@@ -87,6 +87,9 @@ fn wr(addr: usize, value: u32) {
     // SAFETY: as in `rd`.
     unsafe { write_volatile(addr as *mut u32, value) }
 }
+
+/// Timer counts per servo period (the same on both MPS2 images).
+pub const SERVO_PERIOD_COUNTS: u32 = QemuBoard::An386.servo_period_counts();
 
 const TIMER0_BASE: usize = 0x4000_0000;
 const TIMER_CTRL: usize = 0x00;

@@ -5,12 +5,13 @@ use std::time::Instant;
 
 use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
 
-use sts_twin_board::qemu::Mps2Image;
+use sts_twin_board::qemu::QemuBoard;
 
 use super::{Hil, HilConfig, HilError};
 
 /// The `-icount` shift the instruction benchmark runs at: one instruction is 64 ns of guest
-/// time and one 25 MHz timer count 40 ns, so a count resolves 0.625 instructions.
+/// time, and one timer count 40 ns (the MPS2 boards' 25 MHz timer: 0.625 instructions) or
+/// 1 ns (the RISC-V board's RTC).
 pub const INSTRUCTION_BENCH_SHIFT: u32 = 6;
 
 /// A deterministic test stream: a 1 kHz-ish accelerometer tone with pseudo-random noise and
@@ -43,7 +44,7 @@ pub struct InstructionReport {
     /// The ELF measured.
     pub elf: String,
     /// The board it ran on.
-    pub board: Mps2Image,
+    pub board: QemuBoard,
     /// Ticks measured.
     pub ticks: u32,
     /// The `-icount` shift used.
@@ -133,7 +134,7 @@ pub fn bench_instructions_prepared(
     let board = config.board;
     let mut hil = Hil::start(config)?;
     prepare(&mut hil)?;
-    let per_count = 40.0 / f64::from(1u32 << INSTRUCTION_BENCH_SHIFT);
+    let per_count = f64::from(board.count_ns()) / f64::from(1u32 << INSTRUCTION_BENCH_SHIFT);
     let mut busy: Vec<u32> = Vec::with_capacity(ticks as usize);
     let mut handler: Vec<u32> = Vec::with_capacity(ticks as usize);
     for (k, input) in bench_inputs(ticks).into_iter().enumerate() {

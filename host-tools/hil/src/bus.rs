@@ -1,4 +1,4 @@
-//! The host side of the virtual analogue bus: the PSRAM backing file, mapped.
+//! The host side of the virtual analogue bus: the board's backing file, mapped.
 
 use std::fs::{File, OpenOptions};
 use std::os::fd::AsRawFd;
@@ -6,12 +6,13 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{fence, AtomicU32, AtomicU64, Ordering};
 
 use memmap2::MmapRaw;
-use sts_twin_board::qemu::{self as map, DIAG_WORDS};
+use sts_twin_board::qemu::{self as map, QemuBoard, DIAG_WORDS};
 use sts_twin_core::bus::{self as layout, InputSlot, OutputSlot, OUTPUT_SLOT_WORDS};
 
 use super::HilError;
 
-/// The file behind QEMU's PSRAM (16 MiB), mapped by the host.
+/// The file behind the board's shared memory (the MPS2 PSRAM, `virt`'s RAM), mapped by the
+/// host; the shared region lies at [`QemuBoard::shared_file_offset`] in it.
 ///
 /// By default the file is created in `/dev/shm` and unlinked at once: QEMU opens it
 /// through `/proc/self/fd/N` (the descriptor is inherited), so no file is ever left
@@ -23,6 +24,7 @@ pub struct BusFile {
     file: File,
     map: MmapRaw,
     path: Option<PathBuf>,
+    board: QemuBoard,
 }
 
 // SAFETY: the mapping is plain shared memory; all access goes through atomics.
@@ -30,8 +32,8 @@ unsafe impl Send for BusFile {}
 unsafe impl Sync for BusFile {}
 
 impl BusFile {
-    /// A fresh, anonymous (already unlinked) bus file, all zero.
-    pub fn anonymous() -> Result<Self, HilError> {
+    /// A fresh, anonymous (already unlinked) bus file for `board`, all zero.
+    pub fn anonymous(board: QemuBoard) -> Result<Self, HilError> {
         static COUNTER: AtomicU64 = AtomicU64::new(0);
         let dir = if Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
         let nanos =
@@ -45,14 +47,14 @@ impl BusFile {
             .open(&path)
             .map_err(|e| HilError::io(format!("creating {}", path.display()), e))?;
         let unlinked = std::fs::remove_file(&path);
-        let bus = Self::from_file(file, None);
+        let bus = Self::from_file(file, None, board);
         unlinked.map_err(|e| HilError::io(format!("unlinking {}", path.display()), e))?;
         bus
     }
 
-    /// A named bus file at `path`, created (all zero) if missing and kept afterwards, so the
-    /// config store survives across processes.
-    pub fn persistent(path: &Path) -> Result<Self, HilError> {
+    /// A named bus file for `board` at `path`, created (all zero) if missing and kept
+    /// afterwards, so the config store survives across processes.
+    pub fn persistent(path: &Path, board: QemuBoard) -> Result<Self, HilError> {
         let file = OpenOptions::new()
             .read(true)
             .write(true)
@@ -60,16 +62,22 @@ impl BusFile {
             .truncate(false)
             .open(path)
             .map_err(|e| HilError::io(format!("opening {}", path.display()), e))?;
-        Self::from_file(file, Some(path.to_path_buf()))
+        Self::from_file(file, Some(path.to_path_buf()), board)
     }
 
-    fn from_file(file: File, path: Option<PathBuf>) -> Result<Self, HilError> {
+    fn from_file(file: File, path: Option<PathBuf>, board: QemuBoard) -> Result<Self, HilError> {
         let len = file.metadata().map_err(|e| HilError::io("reading the bus file size", e))?.len();
-        if len != map::PSRAM_BYTES as u64 {
-            file.set_len(map::PSRAM_BYTES as u64).map_err(|e| HilError::io("sizing the bus file", e))?;
+        let bytes = board.backing_file_bytes() as u64;
+        if len != bytes {
+            file.set_len(bytes).map_err(|e| HilError::io("sizing the bus file", e))?;
         }
         let map = MmapRaw::map_raw(&file).map_err(|e| HilError::io("mapping the bus file", e))?;
-        Ok(Self { file, map, path })
+        Ok(Self { file, map, path, board })
+    }
+
+    /// The board the file is laid out for.
+    pub fn board(&self) -> QemuBoard {
+        self.board
     }
 
     /// The `mem-path` QEMU is given: the inherited descriptor, or the named file.
@@ -89,9 +97,11 @@ impl BusFile {
         }
     }
 
+    /// Word `index` from `byte_offset` of the shared region.
     fn word(&self, byte_offset: usize, index: usize) -> &AtomicU32 {
-        let at = byte_offset + 4 * index;
-        assert!(at + 4 <= map::PSRAM_BYTES);
+        let in_region = byte_offset + 4 * index;
+        assert!(in_region + 4 <= map::SHARED_BYTES);
+        let at = self.board.shared_file_offset() + in_region;
         // SAFETY: in bounds, 4-aligned (page-aligned mapping), shared memory of the mapping's
         // lifetime; all access to it is atomic.
         unsafe { AtomicU32::from_ptr(self.map.as_mut_ptr().add(at).cast()) }
@@ -210,7 +220,8 @@ pub struct BusCounters {
 }
 
 /// The firmware's diagnostics block (see [`sts_twin_board::qemu`]). Timer counts are of the
-/// 25 MHz CMSDK timer: under `-icount shift=N` one count is `40 / 2^N` guest instructions.
+/// board's tick timer ([`QemuBoard::count_ns`]: the CMSDK timer's 40 ns, the RTC's 1 ns):
+/// under `-icount shift=N` one count is `count_ns / 2^N` guest instructions.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Diagnostics {
     /// The firmware booted and initialised the block.

@@ -6,11 +6,33 @@ use std::process::ExitStatus;
 /// Everything that can go wrong between the host and the firmware under QEMU.
 #[derive(Debug, thiserror::Error)]
 pub enum HilError {
-    /// `qemu-system-arm` is not installed (or not where `STS_TWIN_QEMU` points).
-    #[error("`{program}` not found: install QEMU for Arm (Debian/Ubuntu: `sudo apt-get install qemu-system-arm`) or point STS_TWIN_QEMU at it")]
+    /// The board's QEMU is not installed (or not where its environment variable points).
+    #[error("`{program}` not found: install QEMU for {arch} (Debian/Ubuntu: `sudo apt-get install {package}`) or point {env} at it")]
     QemuMissing {
         /// The program that was looked for.
         program: String,
+        /// The architecture it emulates.
+        arch: &'static str,
+        /// The Debian package that has it.
+        package: &'static str,
+        /// The environment variable that names it.
+        env: &'static str,
+    },
+    /// No such firmware image is built for the board (the bring-up app is Arm-only).
+    #[error("there is no {variant} firmware for {board}")]
+    NoSuchFirmware {
+        /// Which application.
+        variant: &'static str,
+        /// The board's name.
+        board: &'static str,
+    },
+    /// A bus file laid out for one board was given to another.
+    #[error("the bus file is laid out for {file}, not for {board}")]
+    BoardMismatch {
+        /// The bus file's board.
+        file: &'static str,
+        /// The board being started.
+        board: &'static str,
     },
     /// No firmware ELF: its environment variable is not set and the default place has none.
     #[error("no {variant} firmware ELF: {env} is not set and {path} does not exist; build the firmware with `{command}` at the repository root (or set {env} to an ELF)")]

@@ -3,12 +3,17 @@
 
 use std::path::{Path, PathBuf};
 
+use sts_twin_board::qemu::QemuBoard;
+
 use super::HilError;
 
-/// Environment variable naming a prebuilt firmware ELF, used instead of the default place.
+/// Environment variable naming a prebuilt firmware ELF (the Arm twin), used instead of the
+/// default place.
 pub const FIRMWARE_ELF_ENV: &str = "STS_TWIN_FIRMWARE_ELF";
 /// Environment variable naming a prebuilt bring-up firmware ELF (the platform tests' app).
 pub const BRINGUP_ELF_ENV: &str = "STS_TWIN_BRINGUP_ELF";
+/// Environment variable naming a prebuilt RISC-V twin ELF (QEMU `virt`).
+pub const RISCV_FIRMWARE_ELF_ENV: &str = "STS_TWIN_RISCV_FIRMWARE_ELF";
 
 /// The command that builds the firmware ELFs into their default places, at the repository
 /// root.
@@ -21,14 +26,19 @@ pub enum FirmwareVariant {
     #[default]
     Twin,
     /// The bring-up application of the board seam (feature `bringup`), for platform tests.
+    /// Built for the Arm boards only.
     BringUp,
 }
 
 impl FirmwareVariant {
-    fn env(self) -> &'static str {
-        match self {
-            Self::Twin => FIRMWARE_ELF_ENV,
-            Self::BringUp => BRINGUP_ELF_ENV,
+    /// The environment variable naming this variant's ELF for `board`; `None` where it is
+    /// not built.
+    pub fn env(self, board: QemuBoard) -> Option<&'static str> {
+        match (self, is_riscv(board)) {
+            (Self::Twin, false) => Some(FIRMWARE_ELF_ENV),
+            (Self::BringUp, false) => Some(BRINGUP_ELF_ENV),
+            (Self::Twin, true) => Some(RISCV_FIRMWARE_ELF_ENV),
+            (Self::BringUp, true) => None,
         }
     }
 
@@ -39,22 +49,29 @@ impl FirmwareVariant {
         }
     }
 
-    /// Where `cargo xtask firmware` puts this variant's ELF, relative to the repository root
-    /// (the same paths as the xtask crate's `QEMU_TWIN.elf` / `QEMU_BRINGUP.elf`).
-    pub fn default_elf_relative(self) -> &'static str {
-        match self {
-            Self::Twin => "firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
-            Self::BringUp => "firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware",
+    /// Where `cargo xtask firmware` puts this variant's ELF for `board`, relative to the
+    /// repository root (the xtask crate's `QEMU_TWIN.elf`, `QEMU_BRINGUP.elf`,
+    /// `RISCV_VIRT_TWIN.elf`); `None` where it is not built.
+    pub fn default_elf_relative(self, board: QemuBoard) -> Option<&'static str> {
+        match (self, is_riscv(board)) {
+            (Self::Twin, false) => Some("firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"),
+            (Self::BringUp, false) => Some("firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware"),
+            (Self::Twin, true) => Some("firmware/target/riscv32imac-unknown-none-elf/firmware/sts-twin-firmware-riscv"),
+            (Self::BringUp, true) => None,
         }
     }
 
     /// [`Self::default_elf_relative`] in the repository this library was built in.
-    pub fn default_elf(self) -> PathBuf {
-        repo_root().join(self.default_elf_relative())
+    pub fn default_elf(self, board: QemuBoard) -> Option<PathBuf> {
+        self.default_elf_relative(board).map(|p| repo_root().join(p))
     }
 }
 
-/// The firmware's Rust target.
+fn is_riscv(board: QemuBoard) -> bool {
+    board == QemuBoard::RiscvVirt
+}
+
+/// The Arm firmware's Rust target (every board's: [`QemuBoard::rust_target`]).
 pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";
 
 /// The repository root this library was built in (it lives in `<root>/host-tools/cli`).
@@ -63,28 +80,26 @@ fn repo_root() -> PathBuf {
     manifest.ancestors().nth(2).unwrap_or(manifest).to_path_buf()
 }
 
-/// The twin's ELF; see [`firmware_elf_of`].
+/// The twin's ELF for the Arm boards; see [`firmware_elf_of`].
 pub fn firmware_elf() -> Result<PathBuf, HilError> {
-    firmware_elf_of(FirmwareVariant::Twin)
+    firmware_elf_of(QemuBoard::An386, FirmwareVariant::Twin)
 }
 
-/// The ELF of `variant`: the file its environment variable (`STS_TWIN_FIRMWARE_ELF`,
-/// `STS_TWIN_BRINGUP_ELF`) names if set, else [`FirmwareVariant::default_elf`] if it
-/// exists, else [`HilError::FirmwareNotBuilt`], which says how to build it.
-pub fn firmware_elf_of(variant: FirmwareVariant) -> Result<PathBuf, HilError> {
-    if let Some(path) = std::env::var_os(variant.env()) {
+/// The ELF of `variant` for `board`: the file its environment variable
+/// (`STS_TWIN_FIRMWARE_ELF`, `STS_TWIN_BRINGUP_ELF`, `STS_TWIN_RISCV_FIRMWARE_ELF`) names if
+/// set, else [`FirmwareVariant::default_elf`] if it exists, else
+/// [`HilError::FirmwareNotBuilt`], which says how to build it.
+pub fn firmware_elf_of(board: QemuBoard, variant: FirmwareVariant) -> Result<PathBuf, HilError> {
+    let (Some(env), Some(path)) = (variant.env(board), variant.default_elf(board)) else {
+        return Err(HilError::NoSuchFirmware { variant: variant.describe(), board: board.name() });
+    };
+    if let Some(path) = std::env::var_os(env) {
         let path = PathBuf::from(path);
         return if path.is_file() { Ok(path) } else { Err(HilError::ElfMissing(path)) };
     }
-    let path = variant.default_elf();
     if path.is_file() {
         Ok(path)
     } else {
-        Err(HilError::FirmwareNotBuilt {
-            variant: variant.describe(),
-            env: variant.env(),
-            path,
-            command: BUILD_COMMAND,
-        })
+        Err(HilError::FirmwareNotBuilt { variant: variant.describe(), env, path, command: BUILD_COMMAND })
     }
 }

@@ -6,7 +6,7 @@ use std::process::{Command, ExitStatus, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use sts_twin_board::qemu::Mps2Image;
+use sts_twin_board::qemu::QemuBoard;
 use sts_twin_core::bus::{InputSlot, OutputSlot, RING_SLOTS};
 
 use super::bus::{BusCounters, BusFile, Diagnostics};
@@ -23,9 +23,9 @@ pub struct HilConfig {
     pub elf: Option<PathBuf>,
     /// Which application, when `elf` is `None`.
     pub variant: firmware::FirmwareVariant,
-    /// The emulated board: AN386 (Cortex-M4F) or AN500 (Cortex-M7, the STM32H7's core). The
-    /// same firmware image runs on both.
-    pub board: Mps2Image,
+    /// The emulated board: AN386 (Cortex-M4F), AN500 (Cortex-M7, the STM32H7's core; the
+    /// same image as the AN386's) or RISC-V `virt` (its own image).
+    pub board: QemuBoard,
     /// Keep the bus paused whenever no tick call ([`Hil::step`], the streams) is under way,
     /// so that the host's own work between ticks (the plant, control requests) is never
     /// counted as an underrun. Off: a host that stops feeding is seen as one.
@@ -57,7 +57,7 @@ impl Default for HilConfig {
         Self {
             elf: None,
             variant: firmware::FirmwareVariant::Twin,
-            board: Mps2Image::An386,
+            board: QemuBoard::An386,
             idle_paused: true,
             icount_shift: 2,
             boot_timeout: Duration::from_secs(20),
@@ -96,19 +96,22 @@ impl Hil {
     /// Starts QEMU with the firmware on a fresh bus and waits until it serves the bus.
     pub fn start(config: HilConfig) -> Result<Self, HilError> {
         let bus = match &config.bus_path {
-            Some(p) => BusFile::persistent(p)?,
-            None => BusFile::anonymous()?,
+            Some(p) => BusFile::persistent(p, config.board)?,
+            None => BusFile::anonymous(config.board)?,
         };
         Self::start_on(config, Arc::new(bus))
     }
 
     /// Starts QEMU on an existing bus file (e.g. to reboot with the same config store).
     pub fn start_on(config: HilConfig, bus: Arc<BusFile>) -> Result<Self, HilError> {
-        let program = process::qemu_program()?;
+        if bus.board() != config.board {
+            return Err(HilError::BoardMismatch { file: bus.board().name(), board: config.board.name() });
+        }
+        let program = process::qemu_program(config.board)?;
         let elf = match &config.elf {
             Some(p) if p.is_file() => p.clone(),
             Some(p) => return Err(HilError::ElfMissing(p.clone())),
-            None => firmware::firmware_elf_of(config.variant)?,
+            None => firmware::firmware_elf_of(config.board, config.variant)?,
         };
         log::check_table(&elf)?;
         if config.handle_signals {
@@ -456,36 +459,50 @@ impl Hil {
     }
 }
 
-/// The QEMU command line (without the program).
+/// The QEMU command line (without the program): the board with its memory from the bus
+/// file, no display or monitor, the control link, semihosting for the logs and the exit
+/// status, guest time from the instruction count.
 pub(crate) fn qemu_args(
-    board: Mps2Image,
+    board: QemuBoard,
     icount_shift: u32,
     mem_path: &str,
     serial: &str,
     elf: &std::path::Path,
 ) -> Vec<String> {
-    [
-        "-machine",
-        &format!("{},memory-backend=psram", board.qemu_machine()),
-        "-object",
-        &format!("memory-backend-file,id=psram,size=16M,mem-path={mem_path},share=on"),
-        "-display",
-        "none",
-        "-monitor",
-        "none",
-        "-serial",
-        serial,
-        "-semihosting-config",
-        "enable=on,target=native",
-        "-icount",
-        &format!("shift={icount_shift},sleep=off"),
-        "-no-reboot",
-        "-kernel",
-        &elf.display().to_string(),
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .collect()
+    let memory = format!(
+        "memory-backend-file,id=shared,size={}M,mem-path={mem_path},share=on",
+        board.backing_file_bytes() >> 20
+    );
+    let mut args = vec![
+        "-machine".to_string(),
+        format!("{},memory-backend=shared", board.qemu_machine()),
+        "-object".into(),
+        memory,
+    ];
+    if board == QemuBoard::RiscvVirt {
+        // No firmware before ours (the reset vector jumps to the RAM's start), and the RTC,
+        // the servo tick, on guest time: QEMU's default is the host's clock.
+        args.extend(["-bios", "none", "-rtc", "clock=vm"].map(String::from));
+    }
+    args.extend(
+        [
+            "-display",
+            "none",
+            "-monitor",
+            "none",
+            "-serial",
+            serial,
+            "-semihosting-config",
+            "enable=on,target=native",
+            "-icount",
+            &format!("shift={icount_shift},sleep=off"),
+            "-no-reboot",
+            "-kernel",
+            &elf.display().to_string(),
+        ]
+        .map(String::from),
+    );
+    args
 }
 
 fn exited(status: ExitStatus, logs: &SharedLog, during: &str) -> HilError {

@@ -14,11 +14,16 @@ use std::sync::mpsc;
 use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
+use sts_twin_board::qemu::QemuBoard;
+
 use super::placement::CpuPin;
 use super::HilError;
 
-/// Environment variable naming the QEMU binary (default `qemu-system-arm`).
+/// Environment variable naming the QEMU binary of the Arm boards (default `qemu-system-arm`).
 pub const QEMU_ENV: &str = "STS_TWIN_QEMU";
+/// Environment variable naming the QEMU binary of the RISC-V board (default
+/// `qemu-system-riscv32`).
+pub const QEMU_RISCV32_ENV: &str = "STS_TWIN_QEMU_RISCV32";
 
 static LIVE: Mutex<Vec<u32>> = Mutex::new(Vec::new());
 
@@ -201,11 +206,16 @@ impl Drop for QemuProcess {
     }
 }
 
-/// The QEMU program to run, checked to exist.
-pub(crate) fn qemu_program() -> Result<String, HilError> {
-    let program = std::env::var(QEMU_ENV).unwrap_or_else(|_| "qemu-system-arm".into());
+/// The QEMU program that runs `board` ([`QemuBoard::qemu_program`], or its environment
+/// variable's), checked to exist.
+pub(crate) fn qemu_program(board: QemuBoard) -> Result<String, HilError> {
+    let (env, arch, package) = match board {
+        QemuBoard::An386 | QemuBoard::An500 => (QEMU_ENV, "Arm", "qemu-system-arm"),
+        QemuBoard::RiscvVirt => (QEMU_RISCV32_ENV, "RISC-V", "qemu-system-misc"),
+    };
+    let program = std::env::var(env).unwrap_or_else(|_| board.qemu_program().into());
     match Command::new(&program).arg("--version").output() {
         Ok(out) if out.status.success() => Ok(program),
-        _ => Err(HilError::QemuMissing { program }),
+        _ => Err(HilError::QemuMissing { program, arch, package, env }),
     }
 }

@@ -291,7 +291,12 @@ mod tests {
 
     #[test]
     fn a_harness_error_is_the_cause_of_its_context() {
-        let missing = || HilError::QemuMissing { program: "qemu-system-arm".into() };
+        let missing = || HilError::QemuMissing {
+            program: "qemu-system-arm".into(),
+            arch: "Arm",
+            package: "qemu-system-arm",
+            env: "STS_TWIN_QEMU",
+        };
         assert_eq!(
             chain(&RigError::Start(missing())),
             "cannot start the firmware under QEMU: `qemu-system-arm` not found: install QEMU for Arm (Debian/Ubuntu: `sudo apt-get install qemu-system-arm`) or point STS_TWIN_QEMU at it"

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 
 use crate::cmd::machine::MachineArgs;
+use sts_hil::board::qemu::QemuBoard;
 use sts_hil::HilConfig;
 use sts_rig::calibrate::{
     calibrate, calibrate_lab, CalibrationConfig, CommandInstruments, HilBoard, LabConfig, PromptInstruments,
@@ -26,6 +27,10 @@ pub struct Args {
     /// Seed of the machine's noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// The QEMU board the firmware runs on: `mps2-an386` (Cortex-M4F), `mps2-an500`
+    /// (Cortex-M7) or `riscv-virt` (RV32IMAC).
+    #[arg(long, default_value = "mps2-an386", value_parser = super::hil::parse_board, conflicts_with = "port")]
+    pub board: QemuBoard,
     /// The QEMU board's memory file, which holds its config store: created if missing and
     /// kept, so that the calibration outlives the command (default: a file that ends with it).
     #[arg(long, conflicts_with = "sim")]
@@ -97,7 +102,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let mut board = SimCoprocessor::boot(&[]);
         calibrate(&mut board, &plant, &effects, args.seed, &config, &mut progress)?
     } else {
-        let hil_config = HilConfig { bus_path: args.bus.clone(), ..HilConfig::default() };
+        let hil_config = HilConfig { bus_path: args.bus.clone(), board: args.board, ..HilConfig::default() };
         let mut board = HilBoard::start(hil_config)?;
         let result = calibrate(&mut board, &plant, &effects, args.seed, &config, &mut progress);
         let stopped = board.shutdown();

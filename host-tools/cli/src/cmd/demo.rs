@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use sts_emulator::{MeasureConfig, PlantParams};
 
 use sts_fit::{fit, FitConfig};
+use sts_hil::board::qemu::QemuBoard;
 use sts_rig::trial::{calibrated, run_trial, TrialConfig};
 
 use super::machine::{coprocessor, print_path, print_report};
@@ -37,6 +38,10 @@ pub struct Args {
     /// Run the core on the host instead of the firmware in QEMU.
     #[arg(long)]
     pub sim: bool,
+    /// The QEMU board the firmware runs on: `mps2-an386` (Cortex-M4F), `mps2-an500`
+    /// (Cortex-M7) or `riscv-virt` (RV32IMAC).
+    #[arg(long, default_value = "mps2-an386", value_parser = super::hil::parse_board)]
+    pub board: QemuBoard,
     /// Seed of the measurement, the fit and the cut.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -105,7 +110,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut reports = Vec::new();
     for (name, twin) in cuts {
         println!("{name}:");
-        let mut cop = coprocessor(args.sim)?;
+        let mut cop = coprocessor(args.sim, args.board)?;
         // Calibrated first, as a lab does: offset and K_dv, and the analogue path for a twin.
         let (params, points) = calibrated(cop.as_mut(), &plant, &[], args.seed, twin.is_some() && !args.no_path)?;
         if !points.is_empty() {

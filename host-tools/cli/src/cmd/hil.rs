@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use sts_twin_core::wire::{Request, Response};
 
-use sts_hil::board::qemu::Mps2Image;
+use sts_hil::board::qemu::QemuBoard;
 use sts_hil::{bench_instructions_prepared, bench_throughput, FirmwareVariant, HilConfig, QemuPlacement};
 use sts_rig::{request_on, Coprocessor, HilCoprocessor};
 
@@ -24,10 +24,10 @@ pub struct Args {
     /// Print the firmware's decoded log lines as they arrive.
     #[arg(long, global = true)]
     pub logs: bool,
-    /// The emulated board: `an386` (Cortex-M4F) or `an500` (Cortex-M7, the STM32H7's core).
-    /// The same firmware image runs on both.
-    #[arg(long, global = true, value_enum, default_value_t = Board::An386)]
-    pub board: Board,
+    /// The emulated board: `mps2-an386` (Cortex-M4F), `mps2-an500` (Cortex-M7, the
+    /// STM32H7's core; the same image as the AN386's) or `riscv-virt` (RV32IMAC, its own image).
+    #[arg(long, global = true, default_value = "mps2-an386", value_parser = parse_board)]
+    pub board: QemuBoard,
     /// Where QEMU's threads run: `one` (all on one CPU of this process's set: the default),
     /// `any` (wherever the kernel puts them) or a CPU number.
     #[arg(long, global = true, default_value = "one", value_parser = parse_placement)]
@@ -42,22 +42,18 @@ fn parse_placement(text: &str) -> Result<QemuPlacement, String> {
     }
 }
 
-/// The QEMU boards the firmware runs on.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Board {
-    /// MPS2 AN386: Cortex-M4F.
-    An386,
-    /// MPS2 AN500: Cortex-M7.
-    An500,
-}
-
-impl From<Board> for Mps2Image {
-    fn from(board: Board) -> Self {
-        match board {
-            Board::An386 => Mps2Image::An386,
-            Board::An500 => Mps2Image::An500,
-        }
-    }
+/// A QEMU board by its name ([`QemuBoard::name`]; `an386` and `an500` also name the MPS2
+/// images).
+pub fn parse_board(text: &str) -> Result<QemuBoard, String> {
+    let alias = match text {
+        "an386" => Some(QemuBoard::An386),
+        "an500" => Some(QemuBoard::An500),
+        _ => None,
+    };
+    alias.or_else(|| QemuBoard::from_name(text)).ok_or_else(|| {
+        let names: Vec<&str> = QemuBoard::ALL.iter().map(|b| b.name()).collect();
+        format!("`{text}` is not a QEMU board: one of {}", names.join(", "))
+    })
 }
 
 /// `sts-twin hil` actions.
@@ -99,7 +95,7 @@ fn config(args: &Args) -> HilConfig {
         elf: args.firmware.clone(),
         variant: if args.bringup { FirmwareVariant::BringUp } else { FirmwareVariant::Twin },
         echo_logs: args.logs || HilConfig::default().echo_logs,
-        board: args.board.into(),
+        board: args.board,
         placement: args.qemu_cpu,
         ..HilConfig::default()
     }
@@ -126,8 +122,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 println!("{diagnostics:#?}");
                 return Ok(());
             }
-            let board = Mps2Image::from(args.board);
-            println!("board: QEMU {} ({})", board.qemu_machine(), board.core());
+            println!("board: QEMU {} ({})", args.board.name(), args.board.core());
             super::status::print_status(&status);
             Ok(())
         }
@@ -138,11 +133,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let mut hil =
                 sts_hil::Hil::start(HilConfig { bus_path: bus_file.clone(), control_pty: true, ..config(args) })?;
             let pty = hil.control_pty().map(|p| p.display().to_string()).unwrap_or_default();
-            let board = Mps2Image::from(args.board);
             println!(
                 "the twin firmware runs on QEMU {} ({}); its control link is {pty}",
-                board.qemu_machine(),
-                board.core()
+                args.board.name(),
+                args.board.core()
             );
             println!("try: sts-twin board --port {pty} status");
             let started = std::time::Instant::now();

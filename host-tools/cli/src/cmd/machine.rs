@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use sts_emulator::{EffectSpec, PlantParams};
 
+use sts_hil::board::qemu::QemuBoard;
 use sts_hil::HilConfig;
 use sts_model::ModelFile;
 use sts_rig::calibrate::PathPoint;
@@ -37,6 +38,10 @@ pub struct Args {
     /// Run the core on the host instead of the firmware in QEMU (bit-identical, faster).
     #[arg(long)]
     pub sim: bool,
+    /// The QEMU board the firmware runs on: `mps2-an386` (Cortex-M4F), `mps2-an500`
+    /// (Cortex-M7) or `riscv-virt` (RV32IMAC).
+    #[arg(long, default_value = "mps2-an386", value_parser = super::hil::parse_board)]
+    pub board: QemuBoard,
     /// Offset voltage set in the co-processor, V, in place of the one the calibration before
     /// the cut measures (offset, K_dv and, for a twin, the analogue path, as
     /// `calibrate-offset` does).
@@ -101,13 +106,18 @@ pub fn load_plant(plant: Option<&PathBuf>, effects: &[String]) -> anyhow::Result
     Ok((params, effects))
 }
 
-/// Boots the co-processor the user asked for.
-pub fn coprocessor(sim: bool) -> anyhow::Result<Box<dyn Coprocessor>> {
-    Ok(if sim { Box::new(SimCoprocessor::boot(&[])) } else { Box::new(HilCoprocessor::start(HilConfig::default())?) })
+/// Boots the co-processor the user asked for: the core on the host, or the firmware on
+/// `board` in QEMU.
+pub fn coprocessor(sim: bool, board: QemuBoard) -> anyhow::Result<Box<dyn Coprocessor>> {
+    Ok(if sim {
+        Box::new(SimCoprocessor::boot(&[]))
+    } else {
+        Box::new(HilCoprocessor::start(HilConfig { board, ..HilConfig::default() })?)
+    })
 }
 
-/// Boots the firmware in QEMU on an existing board memory file (its config store).
-fn stored_calibration_board(bus: &std::path::Path) -> anyhow::Result<Box<dyn Coprocessor>> {
+/// Boots the firmware on `board` in QEMU on an existing board memory file (its config store).
+fn stored_calibration_board(bus: &std::path::Path, board: QemuBoard) -> anyhow::Result<Box<dyn Coprocessor>> {
     if !bus.is_file() {
         anyhow::bail!(
             "--bus {}: no such board memory file; calibrate first: sts-twin calibrate-offset --bus {}",
@@ -115,7 +125,7 @@ fn stored_calibration_board(bus: &std::path::Path) -> anyhow::Result<Box<dyn Cop
             bus.display()
         );
     }
-    Ok(Box::new(HilCoprocessor::start(HilConfig { bus_path: Some(bus.to_path_buf()), ..HilConfig::default() })?))
+    Ok(Box::new(HilCoprocessor::start(HilConfig { bus_path: Some(bus.to_path_buf()), board, ..HilConfig::default() })?))
 }
 
 /// Prints a measured analogue path for people.
@@ -187,8 +197,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let window_samples = args.window_s.map(|s| ((s * f64::from(SERVO_RATE_HZ)) as u32 / 16) * 16);
     let config = TrialConfig { freq_hz: args.freq, seed: args.seed, window_samples, ..TrialConfig::default() };
     let mut cop = match &args.bus {
-        Some(bus) => stored_calibration_board(bus)?,
-        None => coprocessor(args.sim)?,
+        Some(bus) => stored_calibration_board(bus, args.board)?,
+        None => coprocessor(args.sim, args.board)?,
     };
     let params = if let Some(bus) = &args.bus {
         let stored = stored_params(cop.as_mut()).with_context(|| format!("--bus {}", bus.display()))?;

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use serde::Serialize;
 
+use sts_hil::board::qemu::QemuBoard;
 use sts_model::ModelFile;
 use sts_rig::trial::{calibrated, run_trial, TrialConfig, TrialReport};
 
@@ -32,6 +33,10 @@ pub struct Args {
     /// Run the core on the host instead of the firmware in QEMU (bit-identical, faster).
     #[arg(long)]
     pub sim: bool,
+    /// The QEMU board the firmware runs on: `mps2-an386` (Cortex-M4F), `mps2-an500`
+    /// (Cortex-M7) or `riscv-virt` (RV32IMAC).
+    #[arg(long, default_value = "mps2-an386", value_parser = super::hil::parse_board)]
+    pub board: QemuBoard,
     /// Seed of the machine's noise (and of the fit, without `--twin`).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -85,11 +90,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let config = TrialConfig { freq_hz, seed: args.seed, ..TrialConfig::default() };
         // Each cut on a freshly booted co-processor, calibrated first as a lab does.
         eprintln!("{freq_hz} Hz: calibration, then the bare machine ...");
-        let mut cop = coprocessor(args.sim)?;
+        let mut cop = coprocessor(args.sim, args.board)?;
         let (bare_params, _) = calibrated(cop.as_mut(), &plant, &effects, args.seed, false)?;
         let bare = run_trial(cop.as_mut(), &plant, &effects, None, bare_params, &config)?;
         eprintln!("{freq_hz} Hz: calibration with the analogue path, then the twin ...");
-        let mut cop = coprocessor(args.sim)?;
+        let mut cop = coprocessor(args.sim, args.board)?;
         let (twin_params, _) = calibrated(cop.as_mut(), &plant, &effects, args.seed, true)?;
         let twin = run_trial(cop.as_mut(), &plant, &effects, Some(&model), twin_params, &config)?;
         let reduction_pct = 100.0 * (1.0 - twin.form_error_pv_um / bare.form_error_pv_um);

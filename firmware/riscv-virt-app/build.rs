@@ -12,9 +12,4 @@ fn main() {
     println!("cargo:rustc-link-arg-bins=-Tmemory.x");
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
-    // defmt keeps only error logs unless DEFMT_LOG says otherwise; this crate's logs are
-    // info and up by default (a DEFMT_LOG in the environment wins).
-    let level = std::env::var("DEFMT_LOG").unwrap_or_else(|_| "info".into());
-    println!("cargo:rustc-env=DEFMT_LOG={level}");
-    println!("cargo:rerun-if-env-changed=DEFMT_LOG");
 }

@@ -17,7 +17,4 @@ fn main() {
     println!("cargo:rustc-link-arg-bins=--nmagic");
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
-    let level = std::env::var("DEFMT_LOG").unwrap_or_else(|_| "info".into());
-    println!("cargo:rustc-env=DEFMT_LOG={level}");
-    println!("cargo:rerun-if-env-changed=DEFMT_LOG");
 }

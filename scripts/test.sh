@@ -61,8 +61,6 @@ export RUSTFLAGS="-D warnings" RUSTC_WORKSPACE_WRAPPER
 RUSTC_WORKSPACE_WRAPPER=$(rustup which clippy-driver)
 step "the root workspace's test build, linted (every target)"
 cargo test --workspace --all-targets --locked --profile ci --no-run
-step "the core library for RISC-V (riscv32imac-unknown-none-elf), linted"
-cargo build --locked -p sts-twin-core --target riscv32imac-unknown-none-elf --release
 finish "the firmware images and their lints"
 step "the Python package's wheel (maturin), from the test build's crates"
 bash scripts/python-package.sh build

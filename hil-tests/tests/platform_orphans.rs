@@ -1,12 +1,14 @@
 //! Platform: no QEMU ever outlives its harness. A child process (this test binary, re-run
 //! with an environment variable) starts the firmware and then dies in various ways; its
-//! QEMU must be gone within a bounded time. Also the timeout path in-process.
+//! QEMU must be gone within a bounded time, on the Arm boards and on RISC-V. Also the timeout
+//! path in-process.
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use sts_hil::board::qemu::QemuBoard;
 use sts_hil::{bench_inputs, live_qemu_pids, Hil, HilConfig, HilError};
 
 const MODE_ENV: &str = "STS_HIL_ORPHAN_CHILD_MODE";
@@ -17,7 +19,12 @@ const GONE_WITHIN: Duration = Duration::from_secs(5);
 fn orphan_child() {
     let _serial = sts_hil_tests::serial();
     let Ok(mode) = std::env::var(MODE_ENV) else { return };
-    let mut hil = Hil::start(sts_hil_tests::bringup_config()).expect("child boots the firmware");
+    // `MODE-riscv`: the twin on QEMU RISC-V virt (another QEMU program) instead of the Arm bring-up.
+    let (mode, config) = match mode.strip_suffix("-riscv") {
+        Some(mode) => (mode.to_string(), HilConfig { board: QemuBoard::RiscvVirt, ..sts_hil_tests::twin_config() }),
+        None => (mode, sts_hil_tests::bringup_config()),
+    };
+    let mut hil = Hil::start(config).expect("child boots the firmware");
     for input in bench_inputs(10) {
         hil.step(input).unwrap();
     }
@@ -139,6 +146,24 @@ fn sigint_and_sigterm_to_the_harness_take_qemu_down() {
         assert_eq!(status.code(), Some(128 + number), "the handler exits with 128 + signal");
         assert_gone(qemu);
     }
+}
+
+/// The same exits with `qemu-system-riscv32`: SIGKILL, a panic and SIGTERM.
+#[test]
+fn every_exit_of_a_risc_v_harness_takes_its_qemu_down() {
+    let _serial = sts_hil_tests::serial();
+    let (mut harness, qemu) = child("sleep-riscv");
+    harness.kill().unwrap();
+    harness.wait().unwrap();
+    assert_gone(qemu);
+    assert_no_bus_file_of(harness.id());
+    let (mut harness, qemu) = child("panic-riscv");
+    assert!(!harness.wait().unwrap().success());
+    assert_gone(qemu);
+    let (mut harness, qemu) = child("sleep-riscv");
+    send_signal(harness.id(), "TERM");
+    assert_eq!(harness.wait().unwrap().code(), Some(128 + 15), "the handler exits with 128 + signal");
+    assert_gone(qemu);
 }
 
 #[test]

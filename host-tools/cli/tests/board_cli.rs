@@ -1,7 +1,8 @@
 //! `sts-twin board --port` as a lab runs it, against the twin firmware in QEMU with its UART
 //! on a pseudo-terminal (`-serial pty`): status, upload, params, enable, save, a reboot and
 //! the status read back; a missing port, a busy one and a twin the board refuses get clear
-//! errors that name the port, and the refused twin changes nothing.
+//! errors that name the port, and the refused twin changes nothing; `machine` on the RISC-V
+//! board cuts as on the Cortex-M4F.
 //! Needs the firmware ELF (`cargo xtask firmware`).
 
 use std::path::{Path, PathBuf};
@@ -185,4 +186,24 @@ fn calibrate_offset_on_a_serial_port_stores_what_the_labs_instruments_read() {
         "{back}"
     );
     hil.shutdown().unwrap();
+}
+
+/// `sts-twin machine --board riscv-virt --freq 40 --twin T` as a lab types it: the RISC-V
+/// firmware (its own image, software floating point) cuts as the Cortex-M4F's does, the form
+/// error and the phase equal bit for bit, each after its own calibration.
+#[test]
+fn machine_on_risc_v_prints_the_cortex_m4fs_form_error_and_phase() {
+    let _board = one_board_at_a_time();
+    let twin = fixture("twin-default-machine.json");
+    let cut = |board: &str| -> serde_json::Value {
+        let stdout = ok(&["machine", "--board", board, "--freq", "40", "--twin", twin.to_str().unwrap(), "--json"]);
+        serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("--board {board}: {e}:\n{stdout}"))
+    };
+    let (m4f, riscv) = (cut("mps2-an386"), cut("riscv-virt"));
+    for field in ["form_error_pv_um", "phase_error_deg"] {
+        let (a, b) = (m4f[field].as_f64().unwrap(), riscv[field].as_f64().unwrap());
+        assert_eq!(a.to_bits(), b.to_bits(), "{field}: Cortex-M4F {a}, RISC-V {b}");
+    }
+    assert!(m4f["form_error_pv_um"].as_f64().unwrap() < 0.2, "{m4f}");
+    assert_eq!(riscv["fault_count"], 0, "{riscv}");
 }

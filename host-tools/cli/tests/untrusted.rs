@@ -134,6 +134,17 @@ fn a_measurement_killed_part_way_leaves_the_old_dataset_whole() {
     assert!(contents(&data) == before, "the dataset changed under a killed measurement");
     let read = sts_dataset::read(&data).expect("the old dataset reads");
     assert_eq!(read.groups.len(), 8);
+    // The next measurement into it removes what the killed one left beside it.
+    let left_behind = || {
+        std::fs::read_dir(dir.path()).unwrap().flatten().any(|e| e.file_name().to_string_lossy().starts_with(".data."))
+    };
+    assert!(left_behind(), "the killed measurement left no staging directory to clear");
+    let out = Command::new(env!("CARGO_BIN_EXE_sts-twin"))
+        .args(["measure", "--out", s(&data), "--force", "--freqs", "10", "--amps", "1", "--quiet"])
+        .output()
+        .expect("sts-twin runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(!left_behind(), "a killed measurement's staging directory outlived the next measurement");
 }
 
 #[test]

@@ -6,7 +6,8 @@
 //! - [`StagedDir`]: a dataset directory is written into a fresh temporary directory beside the
 //!   target, then moved into place in one step (on Linux an atomic exchange with the old one).
 //!   Dropped before [`StagedDir::commit`], it removes what it wrote; a process killed before
-//!   the commit leaves the old dataset as it was and a `.NAME.partial-*` directory beside it.
+//!   the commit leaves the old dataset as it was and a `.NAME.partial-PID-N` directory beside
+//!   it, which the next write of that dataset removes once process PID is gone (on Linux).
 //! - [`check_file`], [`check_files`], [`check_dataset_dir`]: what a command may write,
 //!   checked before any long work: an existing file or dataset only with `force`; never an
 //!   input, a path inside an input directory or a file inside any dataset directory, whatever
@@ -167,10 +168,12 @@ pub struct StagedDir {
 }
 
 impl StagedDir {
-    /// Creates the temporary directory beside `target` (and `target`'s parent if needed).
+    /// Creates the temporary directory beside `target` (and `target`'s parent if needed),
+    /// after removing those that killed writers of `target` left.
     pub fn new(target: &Path) -> Result<Self, DatasetError> {
         let parent = parent_of(target);
         std::fs::create_dir_all(parent).map_err(io(parent))?;
+        remove_left_behind(target, "partial");
         let staging = beside(target, "partial");
         std::fs::create_dir(&staging).map_err(io(target))?;
         Ok(Self { target: target.to_path_buf(), staging, committed: false })
@@ -217,6 +220,27 @@ impl Drop for StagedDir {
     fn drop(&mut self) {
         if !self.committed {
             let _ = std::fs::remove_dir_all(&self.staging);
+        }
+    }
+}
+
+/// Removes the `.NAME.TAG-PID-N` entries beside `target` whose process has ended (best
+/// effort). Only where the system says which processes run (`/proc`); a PID in use again
+/// keeps its entry.
+fn remove_left_behind(target: &Path, tag: &str) {
+    let proc_fs = Path::new("/proc/self");
+    let Some(name) = target.file_name().map(|n| n.to_string_lossy().into_owned()) else { return };
+    let Ok(entries) = std::fs::read_dir(parent_of(target)) else { return };
+    if !proc_fs.exists() {
+        return;
+    }
+    let prefix = format!(".{name}.{tag}-");
+    for entry in entries.flatten() {
+        let file_name = entry.file_name().to_string_lossy().into_owned();
+        let Some(rest) = file_name.strip_prefix(&prefix) else { continue };
+        let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<u32>().ok()) else { continue };
+        if pid != std::process::id() && !Path::new("/proc").join(pid.to_string()).exists() {
+            let _ = std::fs::remove_dir_all(entry.path());
         }
     }
 }

@@ -101,6 +101,12 @@ fn a_lab_uploads_sets_enables_and_saves_a_twin_on_a_board_on_a_serial_port() {
     let watched = run(&["board", "watch", "--hz", "20", "--count", "3"]);
     assert_eq!(watched.lines().count(), 4, "a header and three lines: {watched}");
     assert!(watched.lines().nth(1).unwrap().contains(" on "), "{watched}");
+    // The columns line up under the header, whatever the supervisor's state says.
+    let ticks_end = watched.lines().next().unwrap().find("ticks").unwrap() + "ticks".len();
+    for line in watched.lines().skip(1) {
+        let (head, tail) = line.split_at(ticks_end);
+        assert!(head.ends_with(|c: char| c.is_ascii_digit()) && tail.starts_with("  "), "{watched}");
+    }
 
     // Refused: parameters out of range, and a twin that is not a twin. Nothing changes.
     let refused = fail(&["board", "params", "--k-dv-um-per-v", "0"]);

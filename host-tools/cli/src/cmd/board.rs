@@ -270,14 +270,18 @@ fn watch(board: &mut Board<SerialLink>, hz: f64, count: u32) -> anyhow::Result<(
     let period = Duration::from_secs_f64(1.0 / hz);
     let start = Instant::now();
     let mut last: Option<Status> = None;
-    println!("    t s  comp  gain   amp um  phase deg   freq Hz  supervisor        ticks  new faults");
+    // As wide as the longest state, "tripped: worse than bare".
+    const SUPERVISOR_WIDTH: usize = 24;
+    println!(
+        "{:>7}  {:>4}  {:>5}  {:>7}  {:>9}  {:>8}  {:<SUPERVISOR_WIDTH$}  {:>6}  new faults",
+        "t s", "comp", "gain", "amp um", "phase deg", "freq Hz", "supervisor", "ticks"
+    );
     for line in 0.. {
         if count > 0 && line >= count {
             break;
         }
         let s = status(board)?;
-        let faults = |st: &Status| st.counters.frame_errors + st.counters.model_faults + st.counters.supervisor_trips;
-        let new_faults = last.as_ref().map_or(0, |l| faults(&s).saturating_sub(faults(l)));
+        let new_faults = last.as_ref().map_or(0, |l| s.counters.fault_sum().wrapping_sub(l.counters.fault_sum()));
         let supervisor = match (s.supervisor.tripped, s.supervisor.gated) {
             (Some(trip), _) => format!("tripped: {}", super::status::trip_text(trip)),
             (None, true) => "gated".to_string(),
@@ -285,7 +289,7 @@ fn watch(board: &mut Board<SerialLink>, hz: f64, count: u32) -> anyhow::Result<(
             (None, false) => "off".to_string(),
         };
         println!(
-            "{:7.1}  {:>4}  {:.3}  {:7.4}  {:9.3}  {:8.2}  {:<16}  {:>6}  {}",
+            "{:7.1}  {:>4}  {:5.3}  {:7.4}  {:9.3}  {:8.2}  {:<SUPERVISOR_WIDTH$}  {:>6}  {}",
             start.elapsed().as_secs_f64(),
             if s.enabled { "on" } else { "off" },
             s.gain,

@@ -1,6 +1,7 @@
 #![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
+pub mod absorbed;
 pub mod compare;
 pub mod diagnose;
 mod error;

@@ -205,7 +205,7 @@ fn run_suite(suite: &Suite) {
     let mut confusion = vec![vec![0usize; labels.len()]; rows.len()];
     // Lab workflow: `none` where the twin fitted on the data already predicts it within
     // [`ABSORBED_WITHIN`] of the clean twin's error and a refit with the hidden effect gains
-    // less than [`ABSORBED_MAX_GAIN`] (the formulas absorbed the effect), per hidden effect.
+    // less than `sts_assess::absorbed::ABSORBED_MAX_GAIN` (the formulas absorbed the effect), per hidden effect.
     let mut absorbed = vec![0usize; rows.len()];
     // Verdicts naming an effect the machine does not have, per hidden effect.
     let mut wrong = vec![0usize; rows.len()];

@@ -13,17 +13,7 @@ use sts_model::ModelFile;
 /// The step dependence above which a machine hunts, nm: the probe's noise.
 pub const HUNTING_STEP_NM: f64 = 5.0;
 
-/// A hidden effect the tools did not name counts as absorbed by the twin only where the data
-/// shows it: the twin within this factor of the clean twin's error...
-pub const ABSORBED_WITHIN: f64 = 1.2;
-/// ...and a refit with the effect lowering that error by less than this fraction.
-pub const ABSORBED_MAX_GAIN: f64 = 0.1;
-
-/// Whether a refit with a missed effect (`refit_um`) leaves the twin's error (`twin_um`) as it
-/// was, within [`ABSORBED_MAX_GAIN`].
-pub fn refit_gains_nothing(refit_um: f64, twin_um: f64) -> bool {
-    refit_um >= (1.0 - ABSORBED_MAX_GAIN) * twin_um
-}
+pub use sts_assess::absorbed::{refit_gains_nothing, ABSORBED_WITHIN};
 
 /// The RMS change of the encoder reading when the emulator integrates with 16 sub-steps per
 /// tick instead of its 4, per group of the slow groups (1 and 5 Hz, 3 s): the group's

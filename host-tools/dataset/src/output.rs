@@ -228,18 +228,18 @@ impl Drop for StagedDir {
 /// effort). Only where the system says which processes run (`/proc`); a PID in use again
 /// keeps its entry.
 fn remove_left_behind(target: &Path, tag: &str) {
-    let proc_fs = Path::new("/proc/self");
-    let Some(name) = target.file_name().map(|n| n.to_string_lossy().into_owned()) else { return };
-    let Ok(entries) = std::fs::read_dir(parent_of(target)) else { return };
-    if !proc_fs.exists() {
+    let proc_fs = Path::new("/proc");
+    if !proc_fs.join("self").exists() {
         return;
     }
+    let Some(name) = target.file_name().map(|n| n.to_string_lossy().into_owned()) else { return };
+    let Ok(entries) = std::fs::read_dir(parent_of(target)) else { return };
     let prefix = format!(".{name}.{tag}-");
     for entry in entries.flatten() {
         let file_name = entry.file_name().to_string_lossy().into_owned();
         let Some(rest) = file_name.strip_prefix(&prefix) else { continue };
         let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<u32>().ok()) else { continue };
-        if pid != std::process::id() && !Path::new("/proc").join(pid.to_string()).exists() {
+        if pid != std::process::id() && !proc_fs.join(pid.to_string()).exists() {
             let _ = std::fs::remove_dir_all(entry.path());
         }
     }

@@ -40,28 +40,22 @@ finish() {
 }
 trap 'for pid in "${job_pid[@]}"; do kill -- "-$pid" 2>/dev/null || true; done' EXIT
 
+# clippy-driver compiles each workspace's own crates (cargo's hook for a wrapper), so that one
+# build both lints them and makes the test binaries or the firmware images; `cargo clippy`
+# would check them once more. Exported before the first cargo build, so nothing builds twice.
+export RUSTFLAGS="-D warnings" RUSTC_WORKSPACE_WRAPPER
+RUSTC_WORKSPACE_WRAPPER=$(rustup which clippy-driver)
+
 step "formatting (the root workspace and each firmware app, a workspace of its own)"
 cargo fmt --all -- --check
 for app in firmware/*-app; do (cd "$app" && cargo fmt -- --check); done
 step "layering: no import cycle between the top-level modules of any crate"
 cargo --locked xtask layering >/dev/null
 
-firmware() {
-    cargo --locked xtask firmware --locked
-    # In the images' profile, so that the build scripts and proc macros just built serve the lints.
-    (cd firmware/qemu-app && cargo clippy --locked --profile firmware -- -D warnings \
-        && cargo clippy --locked --profile firmware --features bringup -- -D warnings)
-    (cd firmware/stm32h7-app && cargo clippy --locked --profile firmware -- -D warnings)
-    (cd firmware/riscv-virt-app && cargo clippy --locked --profile firmware -- -D warnings)
-}
-beside "the firmware images and their lints" firmware
-# clippy-driver compiles the workspace's own crates (cargo's hook for a wrapper), so that one
-# build both lints them and makes the test binaries; `cargo clippy` would check them once more.
-export RUSTFLAGS="-D warnings" RUSTC_WORKSPACE_WRAPPER
-RUSTC_WORKSPACE_WRAPPER=$(rustup which clippy-driver)
+beside "the firmware images, linted" cargo --locked xtask firmware --locked
 step "the root workspace's test build, linted (every target)"
 cargo test --workspace --all-targets --locked --profile ci --no-run
-finish "the firmware images and their lints"
+finish "the firmware images, linted"
 step "the Python package's wheel (maturin), from the test build's crates"
 bash scripts/python-package.sh build
 

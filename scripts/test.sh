@@ -3,10 +3,12 @@
 #   1. formatting and the layering check;
 #   2. the root workspace built for its tests and linted, the firmware apps built and linted beside it;
 #   3. the Python package's wheel;
-#   4. the tests that boot the firmware in QEMU, alone: each lockstep tick is a hand-off between
-#      the host and QEMU's threads, and any other load on the 2 cores delays those many times over;
-#   5. every other test (unit, integration, doc), pytest beside them.
-# Every test binary of the workspace runs in step 4 or 5: step 5 takes all that step 4 does not name.
+#   4. the tests that boot the firmware in QEMU, one at a time: each lockstep tick is a hand-off
+#      between the host and QEMU's threads, which any load of the same priority on the 2 cores
+#      delays many times over. Beside them at idle priority (SCHED_IDLE), so that they take only
+#      the CPU QEMU leaves: every other test binary (unit, integration) and pytest;
+#   5. the doc tests, then the logs of the tests beside.
+# Every test binary of the workspace runs in step 4: those step 4 does not name run beside it.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 step() { printf '\n== %s (%s)\n' "$*" "$(date -u +%H:%M:%S)"; }
@@ -69,11 +71,37 @@ qemu = set(sys.argv[1:])
 names = {t["name"] for p in json.load(sys.stdin)["packages"] for t in p["targets"] if "test" in t["kind"]}
 assert qemu <= names, f"no test binary named {sorted(qemu - names)}"
 print(" ".join("--test=" + name for name in sorted(names - qemu)))' "${qemu_tests[@]}")
-step "the tests that boot the firmware in QEMU, alone, one at a time"
-cargo test --workspace --locked --profile ci "${qemu_tests[@]/#/--test=}" -- --test-threads=1
-beside "pytest: the Python package against the CLI, docs/python-loop.py" bash scripts/python-package.sh test
-step "every other test: unit, integration, doc"
+# Every other test binary (unit and integration), as built above, with its package's folder, where
+# cargo would run it. They run without cargo, which would hold its lock on target/ until they end.
 # shellcheck disable=SC2086 # one word per test binary
-cargo test --workspace --locked --profile ci --lib --bins $other_tests
+other_runs=$(cargo test --workspace --locked --profile ci --lib --bins $other_tests --no-run --message-format=json \
+    | python3 -c '
+import json, os, sys
+for line in sys.stdin:
+    m = json.loads(line)
+    # A target with `test = false` (the Python extension) is built by --lib but holds no tests.
+    if m.get("reason") == "compiler-artifact" and m.get("executable") and m["profile"]["test"] and m["target"]["test"]:
+        print(os.path.dirname(m["manifest_path"]), m["executable"], sep="\t")')
+[ -n "$other_runs" ] || { echo "error: no test binary to run" >&2; exit 1; }
+other_binaries() {
+    # Idle priority: they take only the CPU the QEMU tests leave, so each lockstep hand-off
+    # still finds a core (measured: the QEMU tests as fast as alone, the rest on the idle core).
+    chrt --idle --pid 0 "$BASHPID"
+    local dir exe
+    while IFS=$'\t' read -r dir exe; do
+        printf '\n     Running %s\n' "${exe#"$PWD/"}"
+        (cd "$dir" && CARGO_MANIFEST_DIR=$dir "$exe") || return
+    done <<<"$other_runs"
+}
+python_tests() {
+    chrt --idle --pid 0 "$BASHPID"
+    bash scripts/python-package.sh test
+}
+beside "every other test binary: unit, integration" other_binaries
+beside "pytest: the Python package against the CLI, docs/python-loop.py" python_tests
+step "the tests that boot the firmware in QEMU, one at a time, the others beside them at idle priority"
+cargo test --workspace --locked --profile ci "${qemu_tests[@]/#/--test=}" -- --test-threads=1
+step "the doc tests"
 cargo test --workspace --locked --profile ci --doc
+finish "every other test binary: unit, integration"
 finish "pytest: the Python package against the CLI, docs/python-loop.py"

@@ -83,15 +83,25 @@ for line in sys.stdin:
     if m.get("reason") == "compiler-artifact" and m.get("executable") and m["profile"]["test"] and m["target"]["test"]:
         print(os.path.dirname(m["manifest_path"]), m["executable"], sep="\t")')
 [ -n "$other_runs" ] || { echo "error: no test binary to run" >&2; exit 1; }
+# One test binary ("folder<TAB>executable"), run as cargo would run it; its output printed
+# whole when it ends, under a lock, so that two binaries' outputs never interleave.
+run_binary() {
+    local dir=${1%%$'\t'*} exe=${1#*$'\t'} log status=0
+    log=$(mktemp)
+    (cd "$dir" && CARGO_MANIFEST_DIR=$dir "$exe") >"$log" 2>&1 || status=$?
+    { printf '\n     Running %s\n' "${exe#"$PWD/"}" && cat "$log"; } | flock "$RUN_BINARY_LOCK" cat
+    rm -f "$log"
+    [ "$status" -eq 0 ] || { echo "error: ${exe#"$PWD/"} failed (exit status $status)" | flock "$RUN_BINARY_LOCK" cat >&2; return 1; }
+}
+RUN_BINARY_LOCK=$(mktemp)
+export -f run_binary
+export RUN_BINARY_LOCK
 other_binaries() {
     # Idle priority: they take only the CPU the QEMU tests leave, so each lockstep hand-off
-    # still finds a core (measured: the QEMU tests as fast as alone, the rest on the idle core).
+    # still finds a core (measured: the QEMU tests about as fast as alone, the rest on the
+    # idle core). Two binaries at a time, so that both cores stay busy after QEMU ends.
     chrt --idle --pid 0 "$BASHPID"
-    local dir exe
-    while IFS=$'\t' read -r dir exe; do
-        printf '\n     Running %s\n' "${exe#"$PWD/"}"
-        (cd "$dir" && CARGO_MANIFEST_DIR=$dir "$exe") || return
-    done <<<"$other_runs"
+    printf '%s\n' "$other_runs" | xargs -d '\n' -P 2 -I{} bash -c 'run_binary "$1"' run_binary {}
 }
 python_tests() {
     chrt --idle --pid 0 "$BASHPID"
@@ -105,3 +115,4 @@ step "the doc tests"
 cargo test --workspace --locked --profile ci --doc
 finish "every other test binary: unit, integration"
 finish "pytest: the Python package against the CLI, docs/python-loop.py"
+rm -f "$RUN_BINARY_LOCK"

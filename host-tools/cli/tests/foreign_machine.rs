@@ -2,17 +2,24 @@
 //! cascaded servo with LuGre friction (`foreign`), exported as a lab would (its own CSV
 //! writer, column order, line ends and grid: 7 frequencies x 5 amplitudes, 35 groups), driven
 //! through the `sts-twin` command as a user drives it: fit the clean machine, then for each
-//! changed machine compare, diagnose, fit with the verdict, and see the error fall.
+//! changed machine compare, diagnose, fit with the verdict, and see the error fall: in the
+//! held-out figures, and with the refitted twin on the board (the firmware's core, simulated)
+//! in the machine's own loop, its analogue path measured first as `calibrate` measures it.
 //!
 //! Prints the table of each run.
 
 use crate::foreign::{self, Foreign, Lugre, ToolMode};
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use sts_analysis::sine::{fit_sine, wrap_deg};
 use sts_model::replay::turns_u32;
 use sts_model::ModelFile;
+use sts_rig::calibrate::{path_table, PathConfig, PathPoint};
+use sts_rig::trial::cut_window_samples;
 use sts_rig::{expect_ack, Coprocessor, SimCoprocessor};
-use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID};
+use sts_twin_core::analogue_path::AnaloguePath;
+use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID, OUT_FLAG_DEGRADED, OUT_FLAG_MODEL_ACTIVE};
+use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::TickTerm;
 use sts_twin_core::wire::Request;
 
@@ -105,6 +112,103 @@ fn on_the_board(model: &Path, data: &Path, freq_hz: f64, amp_um: f64) -> OnTheBo
         drift_rms_um: rms(&mut last.iter().zip(before).map(|(a, b)| a - b)),
         fault_count,
     }
+}
+
+/// The foreign machine's tool error with a twin on the board in its loop.
+struct OnTheMachine {
+    /// RMS of the tool's true position minus the command over the last second, um.
+    error_rms_um: f64,
+    fault_count: u32,
+    /// Ticks of the last second at which the board compensated (the model active, not held
+    /// off by the supervisor).
+    compensating_ticks: usize,
+}
+
+/// The analogue path's response `H(f)` of `machine`, measured as `sts-twin calibrate` measures
+/// it on a machine (`sts_rig::calibrate::path`): the command at zero, a sine of the
+/// calibration's amplitude through the controller's analogue input (acting one tick late, as
+/// the board's output does) at each of the calibration's frequencies, and the tool's response
+/// fitted over whole periods after the settling time.
+fn analogue_path(machine: &Foreign) -> AnaloguePath {
+    let config = PathConfig::default();
+    let points: Vec<PathPoint> = config
+        .freqs_hz
+        .iter()
+        .map(|&freq_hz| {
+            let w = std::f64::consts::TAU * freq_hz;
+            let seconds = config.settle_s + config.measure_s;
+            let [_, _, tool, _] =
+                machine.run_with_analogue(freq_hz, 0.0, seconds, 11, &mut |r| -config.amp_um * (w * r.next_t_s).sin());
+            let first = (config.settle_s * foreign::RATE_HZ) as usize;
+            let periods = (config.measure_s * freq_hz).floor();
+            let last = first + (periods / freq_hz * foreign::RATE_HZ).round() as usize;
+            let t_s: Vec<f64> = (first..last).map(|k| k as f64 / foreign::RATE_HZ).collect();
+            let fit = fit_sine(&t_s, &tool[first..last], freq_hz).unwrap();
+            // The request is -amp sin(wt): amplitude amp at phase pi.
+            let phase_deg = wrap_deg((fit.phase_rad - std::f64::consts::PI).to_degrees());
+            PathPoint { freq_hz, gain: fit.amp / config.amp_um, phase_deg }
+        })
+        .collect();
+    path_table(&points, config.amp_um).unwrap()
+}
+
+/// Runs `machine` at `freq_hz`, `amp_um` for 4 s with the co-processor (the firmware's core,
+/// simulated) on its controller's analogue input: the default feedforward parameters (1 um
+/// per volt) with the machine's [`analogue_path`], `model`'s features over the cut's window and its program, compensation enabled,
+/// as a lab wires it. The
+/// board reads the accelerometer and the next tick's command at every servo tick; its DAC
+/// output reaches the controller's command one tick later. `None`: the bare machine, the
+/// same run without a board.
+fn cut_on_the_machine(model: Option<&Path>, machine: &Foreign, freq_hz: f64, amp_um: f64) -> OnTheMachine {
+    const SECONDS: f64 = 4.0;
+    let last_second_from = ((SECONDS - 1.0) * foreign::RATE_HZ) as usize;
+    let mut fault_count = 0;
+    let mut compensating_ticks = 0;
+    let columns = match model {
+        None => machine.run_with_analogue(freq_hz, amp_um, SECONDS, 7, &mut |_| 0.0),
+        Some(model) => {
+            let model = ModelFile::read(model).unwrap();
+            let params = FeedforwardParams { analogue_path: analogue_path(machine), ..FeedforwardParams::default() };
+            let mut board = SimCoprocessor::boot(&[]);
+            expect_ack("params", board.request(Request::SetParams(params)).unwrap()).unwrap();
+            // The cut's feature window (four periods), as `trial-table` cuts: the supervisor
+            // takes its bare baseline over the first windows before it lets the ramp in.
+            let mut features = model.feature_config;
+            features.window_samples = cut_window_samples(freq_hz, f64::from(features.sample_rate_hz));
+            expect_ack("features", board.request(Request::SetFeatureConfig(features)).unwrap()).unwrap();
+            let program = model.firmware_program().unwrap();
+            expect_ack("program", board.request(Request::UploadProgram { program, activate: true }).unwrap()).unwrap();
+            expect_ack("enable", board.request(Request::SetEnabled(true)).unwrap()).unwrap();
+            let scale = f64::from(model.feature_config.acc_mps2_per_lsb);
+            let um_per_code = f64::from(params.dac_full_scale_v) / 32767.0 * f64::from(params.k_dv_um_per_v);
+            machine.run_with_analogue(freq_hz, amp_um, SECONDS, 7, &mut |r| {
+                let out = board
+                    .tick(&InputSlot {
+                        tick: r.tick as u32,
+                        acc_code: sts_analysis::features::acc_code(r.acc_mps2, scale),
+                        flags: IN_FLAG_PHASE_VALID,
+                        cmd_phase_turns: turns_u32(freq_hz * r.next_t_s),
+                        cmd_pos_nm: (r.next_cmd_um * 1e3).round() as i32,
+                        x_acc_um_per_s2: 0,
+                        spindle_turns: 0,
+                    })
+                    .unwrap();
+                fault_count = out.fault_count;
+                if r.tick >= last_second_from
+                    && out.flags & OUT_FLAG_MODEL_ACTIVE != 0
+                    && out.flags & OUT_FLAG_DEGRADED == 0
+                {
+                    compensating_ticks += 1;
+                }
+                f64::from(out.dac_code) * um_per_code
+            })
+        }
+    };
+    let [cmd, _, tool, _] = columns;
+    let first = cmd.len() - foreign::RATE_HZ as usize;
+    let error_rms_um =
+        ((first..cmd.len()).map(|i| (tool[i] - cmd[i]).powi(2)).sum::<f64>() / (cmd.len() - first) as f64).sqrt();
+    OnTheMachine { error_rms_um, fault_count, compensating_ticks }
 }
 
 struct Case {
@@ -224,7 +328,8 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
         // Upload: the board takes the refitted twin and runs it on the machine's steady motion
         // at 40 Hz, 10 um without a fault. A twin of formulas predicts the error there as
         // `compare` does; an axis twin's output is its learned correction instead (it
-        // compensates, docs/diagnose.md), which must settle, bounded, not run away.
+        // compensates, docs/diagnose.md), which must settle, bounded, not run away. Then the
+        // board in the machine's own loop, where the tool's error must fall.
         if verdict != "none" {
             let old = on_the_board(&m0, &data, 40.0, 10.0);
             let new = on_the_board(&refit, &data, 40.0, 10.0);
@@ -235,6 +340,21 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
                 .terms
                 .iter()
                 .any(|t| matches!(t, TickTerm::Axis(_)));
+            // In the machine's loop: the refitted twin must leave less error than the bare
+            // machine and than the clean machine's twin.
+            let bare = cut_on_the_machine(None, &case.machine, 40.0, 10.0);
+            let with_clean_twin = cut_on_the_machine(Some(&m0), &case.machine, 40.0, 10.0);
+            let with_refit = cut_on_the_machine(Some(&refit), &case.machine, 40.0, 10.0);
+            println!(
+                "{:<15} in the machine's loop (40 Hz, 10 um): tool error {:.1} nm bare, {:.1} nm with the clean twin, {:.1} nm with the refit ({} of {} ticks compensating), {} faults",
+                "",
+                bare.error_rms_um * 1e3,
+                with_clean_twin.error_rms_um * 1e3,
+                with_refit.error_rms_um * 1e3,
+                with_refit.compensating_ticks,
+                foreign::RATE_HZ,
+                with_refit.fault_count
+            );
             if axis {
                 println!(
                     "{:<15} on the board (40 Hz, 10 um): the axis twin's correction settles at {:.2} um peak (changing {:.1} nm RMS from one second to the next), {} faults",
@@ -261,6 +381,27 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
                     new.peak_um,
                     new.drift_rms_um * 1e3,
                     new.fault_count
+                ));
+            }
+            // Every refit removes most of the error in the loop; the axis twin, which learns
+            // what the clean machine's formulas cannot carry, also beats them by half.
+            let in_loop_ok = with_refit.fault_count == 0
+                && with_refit.compensating_ticks == foreign::RATE_HZ as usize
+                && if axis {
+                    with_refit.error_rms_um < 0.1 * bare.error_rms_um
+                        && with_refit.error_rms_um < 0.5 * with_clean_twin.error_rms_um
+                } else {
+                    with_refit.error_rms_um < 0.2 * bare.error_rms_um
+                };
+            if !in_loop_ok {
+                failures.push(format!(
+                    "{}: in the machine's loop: {:.1} nm bare, {:.1} nm with the clean twin, {:.1} nm with the refit ({} ticks compensating, {} faults)",
+                    case.name,
+                    bare.error_rms_um * 1e3,
+                    with_clean_twin.error_rms_um * 1e3,
+                    with_refit.error_rms_um * 1e3,
+                    with_refit.compensating_ticks,
+                    with_refit.fault_count
                 ));
             }
         }

@@ -199,6 +199,33 @@ impl Foreign {
     /// One group: the command `amp_um sin(2 pi freq_hz t)` for `duration_s` from rest,
     /// recorded at `record_hz`. Columns: command, encoder, probe, accelerometer.
     pub fn run(&self, freq_hz: f64, amp_um: f64, duration_s: f64, seed: u64) -> [Vec<f64>; 4] {
+        self.simulate(freq_hz, amp_um, duration_s, seed, None)
+    }
+
+    /// [`Self::run`] with a co-processor on the controller's analogue input: at every servo
+    /// tick `analogue` gets the tick's [`ServoReading`] and returns the input, in micrometres
+    /// of position command, that the controller adds to the command from the next tick on.
+    /// The recorded probe column is the true tool position (no probe noise): the error a cut
+    /// leaves.
+    pub fn run_with_analogue(
+        &self,
+        freq_hz: f64,
+        amp_um: f64,
+        duration_s: f64,
+        seed: u64,
+        analogue: &mut dyn FnMut(&ServoReading) -> f64,
+    ) -> [Vec<f64>; 4] {
+        self.simulate(freq_hz, amp_um, duration_s, seed, Some(analogue))
+    }
+
+    fn simulate(
+        &self,
+        freq_hz: f64,
+        amp_um: f64,
+        duration_s: f64,
+        seed: u64,
+        mut analogue: Option<&mut dyn FnMut(&ServoReading) -> f64>,
+    ) -> [Vec<f64>; 4] {
         let grid_hz = RATE_HZ * SUBSTEPS as f64;
         let record_every = (grid_hz / self.record_hz).round() as usize;
         assert!((grid_hz / record_every as f64 - self.record_hz).abs() < 1e-9, "record_hz must divide {grid_hz} Hz");
@@ -217,20 +244,22 @@ impl Foreign {
         // The sensors' noise has a density: per sample it grows with the recorder's bandwidth
         // (the noise figures are per sample at the servo's 8 kHz).
         let noise_scale = (self.record_hz / RATE_HZ).sqrt();
+        let probe_noise_um = if analogue.is_some() { 0.0 } else { self.probe_noise_um };
+        let mut analogue_um = 0.0;
         for i in 0..records * record_every {
             let t = i as f64 * dt;
             if i % record_every == 0 {
                 out[0].push(command(t) * 1e6);
                 out[1].push(encoder(s.x1) * 1e6);
                 let tool_m = s.x2 + self.mode_share() * s.r;
-                out[2].push(self.probe_gain * tool_m * 1e6 + noise_scale * self.probe_noise_um * noise.gaussian());
+                out[2].push(self.probe_gain * tool_m * 1e6 + noise_scale * probe_noise_um * noise.gaussian());
                 let d = self.derivative(&s, pending[0]);
                 let tool_mps2 = d.v2 + self.mode_share() * d.vr;
                 out[3].push(tool_mps2 + noise_scale * self.acc_noise_mps2 * noise.gaussian());
             }
             if i % SUBSTEPS == 0 {
                 // The controller: velocity from the encoder's difference, filtered.
-                let (cmd, enc) = (command(t - self.setpoint_delay_s), encoder(s.x1));
+                let (cmd, enc) = (command(t - self.setpoint_delay_s) + analogue_um * 1e-6, encoder(s.x1));
                 vel_est += alpha * ((enc - enc_prev) / ts - vel_est);
                 enc_prev = enc;
                 let vel_cmd = self.kpp_per_s * (cmd - enc) + self.vff * (cmd - cmd_prev) / ts;
@@ -239,6 +268,16 @@ impl Foreign {
                 let force_cmd = self.kvp_ns_per_m * (vel_cmd - vel_est) + self.kvi_n_per_m * integral;
                 pending.rotate_left(1);
                 *pending.last_mut().unwrap() = force_cmd;
+                if let Some(analogue) = analogue.as_mut() {
+                    let d = self.derivative(&s, pending[0]);
+                    let tick = i / SUBSTEPS;
+                    analogue_um = analogue(&ServoReading {
+                        tick,
+                        acc_mps2: d.v2 + self.mode_share() * d.vr + self.acc_noise_mps2 * noise.gaussian(),
+                        next_t_s: (tick + 1) as f64 / RATE_HZ,
+                        next_cmd_um: command((tick + 1) as f64 / RATE_HZ) * 1e6,
+                    });
+                }
             }
             s = self.rk4(&s, pending[0], dt);
         }
@@ -252,6 +291,15 @@ impl Foreign {
             self.run(f, a, duration_s, seed * 1000 + i as u64)
         });
     }
+}
+
+/// What the co-processor reads at a servo tick of [`Foreign::run_with_analogue`]: the
+/// accelerometer now, and the command the controller is sent at the next tick.
+pub struct ServoReading {
+    pub tick: usize,
+    pub acc_mps2: f64,
+    pub next_t_s: f64,
+    pub next_cmd_um: f64,
 }
 
 /// Writes groups as a lab would export them: one CSV file per group by hand (columns in

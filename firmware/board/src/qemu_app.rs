@@ -60,6 +60,39 @@ impl Region {
     }
 }
 
+/// The boot's first steps on every QEMU board: the banner naming the image (`version`) and the
+/// board, then the shared region, whose bus header the HIL harness must have written (else
+/// `fail`), with the boot diagnostics published in it: the tick period and, measured only
+/// once the bus is there, `paper_eval_counts`.
+///
+/// # Safety
+/// As [`Region::of`]: the firmware runs on `board`, and nothing else in the program uses its
+/// shared region.
+pub unsafe fn open_region(
+    board: QemuBoard,
+    version: &str,
+    period_counts: u32,
+    paper_eval_counts: impl FnOnce() -> u32,
+    fail: fn() -> !,
+) -> Region {
+    #[cfg(feature = "defmt")]
+    defmt::info!("sts-twin firmware {=str} on {=str} ({=str})", version, board.qemu_machine(), board.core());
+    #[cfg(not(feature = "defmt"))]
+    let _ = version;
+    // SAFETY: the caller's promise.
+    let region = unsafe { Region::of(board) };
+    if !region.bus().header_valid() {
+        #[cfg(feature = "defmt")]
+        defmt::error!(
+            "no analogue bus at {=usize:#x} (magic/version): start QEMU through the sts-twin HIL harness",
+            region.base()
+        );
+        fail();
+    }
+    region.diag().boot(period_counts, paper_eval_counts());
+    region
+}
+
 /// The diagnostics block in the shared region. Copyable: it is only a pointer.
 #[derive(Clone, Copy, Debug)]
 pub struct Diag(*mut u32);

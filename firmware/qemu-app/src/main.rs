@@ -33,7 +33,7 @@ use embassy_executor::InterruptExecutor;
 use sts_twin_board::bringup::{BringUpBackground, BringUpServo, BringUpShared};
 use sts_twin_board::qemu::{self, QemuBoard};
 use sts_twin_board::qemu_app::{
-    paper_eval_counts, BackgroundDiag, Diag, QemuConfigStore, Region, RxBytes, ServoContext,
+    open_region, paper_eval_counts, BackgroundDiag, Diag, QemuConfigStore, RxBytes, ServoContext,
 };
 use sts_twin_board::servo::{background_loop, BackgroundApp, BackgroundCtx, ServoCounters, EVENT_CONTROL_RX};
 use sts_twin_board::sync::{BootCell, Events, SharedCell};
@@ -117,24 +117,18 @@ fn main() -> ! {
         defmt::error!("not an MPS2 AN386 or AN500 (SCC ID): this image runs on QEMU mps2-an386 or mps2-an500");
         fail();
     };
-    defmt::info!(
-        "sts-twin firmware {=str} on {=str} ({=str})",
-        env!("CARGO_PKG_VERSION"),
-        board.qemu_machine(),
-        board.core()
-    );
     // SAFETY: this is the board; the PSRAM is not used by the linker (memory.x).
-    let region = unsafe { Region::of(board) };
+    let region = unsafe {
+        open_region(
+            board,
+            env!("CARGO_PKG_VERSION"),
+            board.servo_period_counts(),
+            || paper_eval_counts(|f| Timer0::count(f).1),
+            fail,
+        )
+    };
     let bus = region.bus();
-    if !bus.header_valid() {
-        defmt::error!(
-            "no analogue bus at PSRAM {=usize:#x} (magic/version): start QEMU through the sts-twin HIL harness",
-            region.base()
-        );
-        fail();
-    }
     let diag = region.diag();
-    diag.boot(board.servo_period_counts(), paper_eval_counts(|f| Timer0::count(f).1));
 
     let (app, background, shared) = make_app();
     // SAFETY: no interrupt is enabled yet.

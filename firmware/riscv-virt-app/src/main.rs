@@ -29,7 +29,7 @@ use embassy_executor::raw::Executor;
 use riscv::interrupt::Interrupt;
 use sts_twin_board::qemu::{self, QemuBoard};
 use sts_twin_board::qemu_app::{
-    paper_eval_counts, BackgroundDiag, Diag, QemuConfigStore, Region, RxBytes, ServoContext,
+    open_region, paper_eval_counts, BackgroundDiag, Diag, QemuConfigStore, RxBytes, ServoContext,
 };
 use sts_twin_board::servo::{background_loop, BackgroundApp, BackgroundCtx, ServoCounters, EVENT_CONTROL_RX};
 use sts_twin_board::sync::{BootCell, Events, SharedCell};
@@ -78,24 +78,18 @@ fn fail() -> ! {
 fn main() -> ! {
     let board = QemuBoard::RiscvVirt;
     hw::park_clint_timer();
-    defmt::info!(
-        "sts-twin firmware {=str} on {=str} ({=str})",
-        env!("CARGO_PKG_VERSION"),
-        board.qemu_machine(),
-        board.core()
-    );
     // SAFETY: this is the board; memory.x links nothing into the RAM's upper half.
-    let region = unsafe { Region::of(board) };
+    let region = unsafe {
+        open_region(
+            board,
+            env!("CARGO_PKG_VERSION"),
+            hw::SERVO_PERIOD_COUNTS,
+            || paper_eval_counts(|f| RtcTick::count(f).1),
+            fail,
+        )
+    };
     let bus = region.bus();
-    if !bus.header_valid() {
-        defmt::error!(
-            "no analogue bus at {=usize:#x} (magic/version): start QEMU through the sts-twin HIL harness",
-            region.base()
-        );
-        fail();
-    }
     let diag = region.diag();
-    diag.boot(hw::SERVO_PERIOD_COUNTS, paper_eval_counts(|f| RtcTick::count(f).1));
 
     // SAFETY: no interrupt is enabled yet.
     let (shared, (background, config), executor) = unsafe {

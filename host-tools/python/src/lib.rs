@@ -360,11 +360,8 @@ fn compare(
     model: &PyModel,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
-    let (data, model) = (Arc::clone(&dataset.dataset), model.model.clone());
-    run_long(py, progress.as_ref(), StopFlag::new(), move |report| {
-        report("comparing".into(), 0, Some(1));
-        let (c, _) = sts_assess::compare::compare(&data, &model)?;
-        report("compared".into(), 1, Some(1));
+    one_step(py, dataset, model, progress, ("comparing", "compared"), |data, model| {
+        let (c, _) = sts_assess::compare::compare(data, model)?;
         Ok(serde_json::to_string(&sts_assess::json::comparison(&c)?)?)
     })
 }
@@ -379,12 +376,29 @@ fn diagnose(
     model: &PyModel,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
+    one_step(py, dataset, model, progress, ("diagnosing", "diagnosed"), |data, model| {
+        let d = sts_assess::diagnose::diagnose(data, model)?;
+        Ok(serde_json::to_string(&sts_assess::json::diagnosis(&d, data))?)
+    })
+}
+
+/// One step on `dataset` and `model` whose result is JSON (compare, diagnose), in the
+/// background as every long call is ([`run_long`]): `progress` hears `stage.0` before it and
+/// `stage.1` after.
+fn one_step(
+    py: Python<'_>,
+    dataset: &PyDataset,
+    model: &PyModel,
+    progress: Option<Bound<'_, PyAny>>,
+    stage: (&'static str, &'static str),
+    work: impl FnOnce(&sts_dataset::Dataset, &ModelFile) -> anyhow::Result<String> + Send + 'static,
+) -> PyResult<String> {
     let (data, model) = (Arc::clone(&dataset.dataset), model.model.clone());
     run_long(py, progress.as_ref(), StopFlag::new(), move |report| {
-        report("diagnosing".into(), 0, Some(1));
-        let d = sts_assess::diagnose::diagnose(&data, &model)?;
-        report("diagnosed".into(), 1, Some(1));
-        Ok(serde_json::to_string(&sts_assess::json::diagnosis(&d, &data))?)
+        report(stage.0.into(), 0, Some(1));
+        let json = work(&data, &model)?;
+        report(stage.1.into(), 1, Some(1));
+        Ok(json)
     })
 }
 

@@ -89,7 +89,7 @@ run_binary() {
     local dir=${1%%$'\t'*} exe=${1#*$'\t'} log status=0
     log=$(mktemp)
     (cd "$dir" && CARGO_MANIFEST_DIR=$dir "$exe") >"$log" 2>&1 || status=$?
-    { printf '\n     Running %s\n' "${exe#"$PWD/"}" && cat "$log"; } | flock "$RUN_BINARY_LOCK" cat
+    { printf '\n     Running %s in %s\n' "${exe#"$PWD/"}" "${dir#"$PWD/"}" && cat "$log"; } | flock "$RUN_BINARY_LOCK" cat
     rm -f "$log"
     [ "$status" -eq 0 ] || { echo "error: ${exe#"$PWD/"} failed (exit status $status)" | flock "$RUN_BINARY_LOCK" cat >&2; return 1; }
 }

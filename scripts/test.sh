@@ -5,10 +5,11 @@
 #   3. the Python package's wheel;
 #   4. the tests that boot the firmware in QEMU, one at a time: each lockstep tick is a hand-off
 #      between the host and QEMU's threads, which any load of the same priority on the 2 cores
-#      delays many times over. Beside them at idle priority (SCHED_IDLE), so that they take only
-#      the CPU QEMU leaves: every other test binary (unit, integration) and pytest;
+#      delays many times over. The command's board tests alone, then the HIL tests with, beside
+#      them at idle priority (SCHED_IDLE) so that they take only the CPU QEMU leaves, every
+#      other test binary (unit, integration) and pytest;
 #   5. the doc tests, then the logs of the tests beside.
-# Every test binary of the workspace runs in step 4: those step 4 does not name run beside it.
+# Every test binary of the workspace runs in step 4: those the QEMU steps do not name run beside.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 step() { printf '\n== %s (%s)\n' "$*" "$(date -u +%H:%M:%S)"; }
@@ -107,10 +108,15 @@ python_tests() {
     chrt --idle --pid 0 "$BASHPID"
     bash scripts/python-package.sh test
 }
+# board_cli steps a board tick by tick from the test while the CLI waits on its ticks (a lab's
+# calibration on a serial port): even load at idle priority slows that lockstep 2-5 times
+# (measured: 9 s alone, 17-45 s beside two SCHED_IDLE busy loops), so it runs alone first.
+step "the command's tests on a board in QEMU (board_cli), alone"
+cargo test --workspace --locked --profile ci --test=board_cli -- --test-threads=1
 beside "every other test binary: unit, integration" other_binaries
 beside "pytest: the Python package against the CLI, docs/python-loop.py" python_tests
-step "the tests that boot the firmware in QEMU, one at a time, the others beside them at idle priority"
-cargo test --workspace --locked --profile ci "${qemu_tests[@]/#/--test=}" -- --test-threads=1
+step "the HIL tests in QEMU (hil), one at a time, the others beside them at idle priority"
+cargo test --workspace --locked --profile ci --test=hil -- --test-threads=1
 step "the doc tests"
 cargo test --workspace --locked --profile ci --doc
 finish "every other test binary: unit, integration"

@@ -153,22 +153,27 @@ fn analogue_path(machine: &Foreign) -> AnaloguePath {
 }
 
 /// Runs `machine` at `freq_hz`, `amp_um` for 4 s with the co-processor (the firmware's core,
-/// simulated) on its controller's analogue input: the default feedforward parameters (1 um
-/// per volt) with the machine's [`analogue_path`], `model`'s features over the cut's window and its program, compensation enabled,
-/// as a lab wires it. The
-/// board reads the accelerometer and the next tick's command at every servo tick; its DAC
-/// output reaches the controller's command one tick later. `None`: the bare machine, the
-/// same run without a board.
-fn cut_on_the_machine(model: Option<&Path>, machine: &Foreign, freq_hz: f64, amp_um: f64) -> OnTheMachine {
+/// simulated) on its controller's analogue input, as a lab wires it: the default feedforward
+/// parameters (1 um per volt) with the machine's analogue path `path` (from
+/// [`analogue_path`]), `model`'s features over the cut's window and its program, compensation
+/// enabled. The board reads the accelerometer and the next tick's command at every servo
+/// tick; its DAC output reaches the controller's command one tick later. `None`: the bare
+/// machine, the same run without a board.
+fn cut_on_the_machine(
+    twin: Option<(&Path, &AnaloguePath)>,
+    machine: &Foreign,
+    freq_hz: f64,
+    amp_um: f64,
+) -> OnTheMachine {
     const SECONDS: f64 = 4.0;
     let last_second_from = ((SECONDS - 1.0) * foreign::RATE_HZ) as usize;
     let mut fault_count = 0;
     let mut compensating_ticks = 0;
-    let columns = match model {
+    let columns = match twin {
         None => machine.run_with_analogue(freq_hz, amp_um, SECONDS, 7, &mut |_| 0.0),
-        Some(model) => {
+        Some((model, path)) => {
             let model = ModelFile::read(model).unwrap();
-            let params = FeedforwardParams { analogue_path: analogue_path(machine), ..FeedforwardParams::default() };
+            let params = FeedforwardParams { analogue_path: *path, ..FeedforwardParams::default() };
             let mut board = SimCoprocessor::boot(&[]);
             expect_ack("params", board.request(Request::SetParams(params)).unwrap()).unwrap();
             // The cut's feature window (four periods), as `trial-table` cuts: the supervisor
@@ -341,10 +346,11 @@ fn the_loop_works_on_a_machine_that_is_not_the_emulator() {
                 .iter()
                 .any(|t| matches!(t, TickTerm::Axis(_)));
             // The board in the machine's own loop: bare, with the clean machine's twin, with
-            // the refit.
+            // the refit; the machine's analogue path measured once, as a lab calibrates once.
+            let path = analogue_path(&case.machine);
             let bare = cut_on_the_machine(None, &case.machine, 40.0, 10.0);
-            let with_clean_twin = cut_on_the_machine(Some(&m0), &case.machine, 40.0, 10.0);
-            let with_refit = cut_on_the_machine(Some(&refit), &case.machine, 40.0, 10.0);
+            let with_clean_twin = cut_on_the_machine(Some((&m0, &path)), &case.machine, 40.0, 10.0);
+            let with_refit = cut_on_the_machine(Some((&refit, &path)), &case.machine, 40.0, 10.0);
             let in_loop = format!(
                 "in the machine's loop (40 Hz, 10 um): tool error {:.1} nm bare, {:.1} nm with the clean twin, {:.1} nm with the refit ({} of {} ticks compensating), {} faults",
                 bare.error_rms_um * 1e3,

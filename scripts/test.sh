@@ -41,7 +41,9 @@ finish() {
     rm -f "${job_log[$name]}"
     [ "$status" -eq 0 ] || { echo "error: $name failed (exit status $status)" >&2; exit "$status"; }
 }
-trap 'for pid in "${job_pid[@]}"; do kill -- "-$pid" 2>/dev/null || true; done' EXIT
+# The lock under which the test binaries run beside print their outputs (run_binary).
+RUN_BINARY_LOCK=$(mktemp)
+trap 'rm -f "$RUN_BINARY_LOCK"; for pid in "${job_pid[@]}"; do kill -- "-$pid" 2>/dev/null || true; done' EXIT
 
 # clippy-driver compiles each workspace's own crates (cargo's hook for a wrapper), so that one
 # build both lints them and makes the test binaries or the firmware images; `cargo clippy`
@@ -65,13 +67,18 @@ bash scripts/python-package.sh build
 export STS_TWIN_FIRMWARE_ELF="$PWD/firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
 export STS_TWIN_BRINGUP_ELF="$PWD/firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
 export STS_TWIN_RISCV_FIRMWARE_ELF="$PWD/firmware/target/riscv32imac-unknown-none-elf/firmware/sts-twin-firmware-riscv"
-qemu_tests=(hil board_cli)
+# The test binaries that boot the firmware in QEMU. board_cli steps a board tick by tick from
+# the test while the CLI waits on its ticks (a lab's calibration on a serial port): even load at
+# idle priority slows that lockstep 2-5 times (measured: 9 s alone, 17-45 s beside two
+# SCHED_IDLE busy loops), so it runs alone, before the rest starts beside the HIL tests.
+qemu_alone=(board_cli)
+qemu_with_rest_beside=(hil)
 other_tests=$(cargo metadata --locked --no-deps --format-version 1 | python3 -c '
 import json, sys
 qemu = set(sys.argv[1:])
 names = {t["name"] for p in json.load(sys.stdin)["packages"] for t in p["targets"] if "test" in t["kind"]}
 assert qemu <= names, f"no test binary named {sorted(qemu - names)}"
-print(" ".join("--test=" + name for name in sorted(names - qemu)))' "${qemu_tests[@]}")
+print(" ".join("--test=" + name for name in sorted(names - qemu)))' "${qemu_alone[@]}" "${qemu_with_rest_beside[@]}")
 # Every other test binary (unit and integration), as built above, with its package's folder, where
 # cargo would run it. They run without cargo, which would hold its lock on target/ until they end.
 # shellcheck disable=SC2086 # one word per test binary
@@ -94,7 +101,6 @@ run_binary() {
     rm -f "$log"
     [ "$status" -eq 0 ] || { echo "error: ${exe#"$PWD/"} failed (exit status $status)" | flock "$RUN_BINARY_LOCK" cat >&2; return 1; }
 }
-RUN_BINARY_LOCK=$(mktemp)
 export -f run_binary
 export RUN_BINARY_LOCK
 other_binaries() {
@@ -104,21 +110,14 @@ other_binaries() {
     chrt --idle --pid 0 "$BASHPID"
     printf '%s\n' "$other_runs" | xargs -d '\n' -P 2 -I{} bash -c 'run_binary "$1"' run_binary {}
 }
-python_tests() {
-    chrt --idle --pid 0 "$BASHPID"
-    bash scripts/python-package.sh test
-}
-# board_cli steps a board tick by tick from the test while the CLI waits on its ticks (a lab's
-# calibration on a serial port): even load at idle priority slows that lockstep 2-5 times
-# (measured: 9 s alone, 17-45 s beside two SCHED_IDLE busy loops), so it runs alone first.
-step "the command's tests on a board in QEMU (board_cli), alone"
-cargo test --workspace --locked --profile ci --test=board_cli -- --test-threads=1
+step "the QEMU tests that run alone (${qemu_alone[*]})"
+cargo test --workspace --locked --profile ci "${qemu_alone[@]/#/--test=}" -- --test-threads=1
 beside "every other test binary: unit, integration" other_binaries
-beside "pytest: the Python package against the CLI, docs/python-loop.py" python_tests
-step "the HIL tests in QEMU (hil), one at a time, the others beside them at idle priority"
-cargo test --workspace --locked --profile ci --test=hil -- --test-threads=1
+beside "pytest: the Python package against the CLI, docs/python-loop.py" \
+    chrt --idle 0 bash scripts/python-package.sh test
+step "the QEMU tests (${qemu_with_rest_beside[*]}), one at a time, the others beside them at idle priority"
+cargo test --workspace --locked --profile ci "${qemu_with_rest_beside[@]/#/--test=}" -- --test-threads=1
 step "the doc tests"
 cargo test --workspace --locked --profile ci --doc
 finish "every other test binary: unit, integration"
 finish "pytest: the Python package against the CLI, docs/python-loop.py"
-rm -f "$RUN_BINARY_LOCK"

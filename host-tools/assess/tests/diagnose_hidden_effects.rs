@@ -42,9 +42,9 @@ use sts_fit::effects::prepare;
 use sts_fit::{fit, FitConfig};
 use sts_model::ModelFile;
 
-use crate::support::{
-    clean_twin, measure, plant_from_env, refit_gains_nothing, step_dependence_nm, ABSORBED_WITHIN, HUNTING_STEP_NM,
-};
+use sts_assess::absorbed::{refit_gains_nothing, ABSORBED_WITHIN};
+
+use crate::support::{clean_twin, measure, plant_from_env, step_dependence_nm, HUNTING_STEP_NM};
 
 /// Which twin a case is diagnosed against.
 #[derive(Clone, Copy, PartialEq)]
@@ -207,7 +207,8 @@ fn run_suite(suite: &Suite) -> usize {
     let mut confusion = vec![vec![0usize; labels.len()]; rows.len()];
     // Lab workflow: `none` where the twin fitted on the data already predicts it within
     // [`ABSORBED_WITHIN`] of the clean twin's error and a refit with the hidden effect gains
-    // less than `sts_assess::absorbed::ABSORBED_MAX_GAIN` (the formulas absorbed the effect), per hidden effect.
+    // less than `ABSORBED_MAX_GAIN` of `sts_assess::absorbed` (the formulas absorbed the
+    // effect), per hidden effect.
     let mut absorbed = vec![0usize; rows.len()];
     // Verdicts naming an effect the machine does not have, per hidden effect.
     let mut wrong = vec![0usize; rows.len()];

@@ -38,7 +38,9 @@ use sts_fit::effects::fit_with;
 use sts_fit::FitConfig;
 use sts_model::Validation;
 
-use crate::support::{clean_twin, hunting_groups, measure, plant_from_env, refit_gains_nothing, ABSORBED_WITHIN};
+use sts_assess::absorbed::{refit_gains_nothing, ABSORBED_WITHIN};
+
+use crate::support::{clean_twin, hunting_groups, measure, plant_from_env};
 
 struct Sets {
     /// The sets, each with its draw index (its position in the full list, so that a set run

@@ -13,8 +13,6 @@ use sts_model::ModelFile;
 /// The step dependence above which a machine hunts, nm: the probe's noise.
 pub const HUNTING_STEP_NM: f64 = 5.0;
 
-pub use sts_assess::absorbed::{refit_gains_nothing, ABSORBED_WITHIN};
-
 /// The RMS change of the encoder reading when the emulator integrates with 16 sub-steps per
 /// tick instead of its 4, per group of the slow groups (1 and 5 Hz, 3 s): the group's
 /// frequency (Hz), amplitude (um), the change's sum of squares (um^2) and its sample count. Large only where

@@ -33,13 +33,13 @@ pub fn delay(phi: f64) -> Complex {
 /// A signal's component at the command frequency over a window as a phasor (its mean
 /// fitted too); zero where the window cannot tell sine from cosine.
 pub fn phasor(theta: &[f64], x: &[f64]) -> Complex {
-    let rows: Vec<[f64; 3]> = theta
-        .iter()
-        .map(|t| {
-            let (s, c) = t.sin_cos();
-            [s, c, 1.0]
-        })
-        .collect();
+    let (sin, cos): (Vec<f64>, Vec<f64>) = theta.iter().map(|t| t.sin_cos()).unzip();
+    phasor_of(&sin, &cos, x)
+}
+
+/// [`phasor`] with the sine and cosine of the phase given (computed once for many signals).
+pub fn phasor_of(sin_theta: &[f64], cos_theta: &[f64], x: &[f64]) -> Complex {
+    let rows: Vec<[f64; 3]> = sin_theta.iter().zip(cos_theta).map(|(&s, &c)| [s, c, 1.0]).collect();
     least_squares(&rows, x).map_or((0.0, 0.0), |f| (f.coefficients[1], -f.coefficients[0]))
 }
 

@@ -6,7 +6,7 @@ use rayon::prelude::*;
 
 use sts_analysis::bases::{laguerre, LAGUERRE_POLE};
 use sts_analysis::lsq::{solve, Stats};
-use sts_analysis::response::{delay, mode_grid, mode_high_pass, mul, phasor, sine_weights, velocity_bank, Complex};
+use sts_analysis::response::{delay, mode_grid, mode_high_pass, mul, phasor_of, sine_weights, velocity_bank, Complex};
 use sts_analysis::sine::line_amp;
 use sts_model::EFFECTS;
 
@@ -313,13 +313,7 @@ fn hysteresis(ctx: &[GroupCtx], columns: &[Vec<Vec<Vec<f64>>>], folds: usize) ->
 /// every variant of a candidate that lives at the command frequency is mixed
 /// ([`Stats::mixed`]).
 fn fundamental_stats(ctx: &[GroupCtx]) -> Vec<Stats> {
-    ctx.par_iter()
-        .map(|c| {
-            let s: Vec<f64> = c.theta.iter().map(|t| t.sin()).collect();
-            let co: Vec<f64> = c.theta.iter().map(|t| t.cos()).collect();
-            c.stats(&[s, co])
-        })
-        .collect()
+    ctx.par_iter().map(|c| c.stats(&[c.sin_theta.clone(), c.cos_theta.clone()])).collect()
 }
 
 /// Highest command frequency of the test, Hz.
@@ -339,7 +333,8 @@ fn mode(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     let top_hz = band_top_hz(ctx);
     let variants = mode_grid(top_hz);
     let base = fundamental_stats(ctx);
-    let slide: Vec<Complex> = ctx.par_iter().map(|c| phasor(&c.theta, &c.data.z_enc_um[c.start..])).collect();
+    let slide: Vec<Complex> =
+        ctx.par_iter().map(|c| phasor_of(&c.sin_theta, &c.cos_theta, &c.data.z_enc_um[c.start..])).collect();
     // The weights on `[sin, cos]` of the mode's motion of the tool on a slide of phasor `p`.
     let mode_weights = |c: &GroupCtx, (f_mode, zeta): (f64, f64), p: Complex| {
         let h = mode_high_pass(c.sample.info.freq_hz, f_mode, zeta);
@@ -371,7 +366,7 @@ fn mode(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     let bank: Vec<Vec<Vec<f64>>> = ctx
         .par_iter()
         .map(|c| {
-            let x = phasor(&c.theta, &c.data.z_cmd_um[c.start..]);
+            let x = phasor_of(&c.sin_theta, &c.cos_theta, &c.data.z_cmd_um[c.start..]);
             let stages: [Complex; LAGUERRE_STAGES] = velocity_bank(c.sample.info.freq_hz, x, 1e3, LAGUERRE_POLE);
             stages
                 .iter()
@@ -455,9 +450,10 @@ fn loop_delay(ctx: &[GroupCtx], folds: usize) -> Evaluated {
         .map(|c| {
             let w = c.sample.info.freq_hz / F_REF_HZ;
             let a = cmd_amp(c);
-            let s: Vec<f64> = c.theta.iter().map(|t| t.sin()).collect();
-            let co: Vec<f64> = c.theta.iter().map(|t| t.cos()).collect();
-            vec![co.iter().map(|v| a * w.powi(3) * v).collect(), s.iter().map(|v| a * w.powi(4) * v).collect()]
+            vec![
+                c.cos_theta.iter().map(|v| a * w.powi(3) * v).collect(),
+                c.sin_theta.iter().map(|v| a * w.powi(4) * v).collect(),
+            ]
         })
         .collect();
     let stats: Vec<Vec<Stats>> = vec![ctx.iter().zip(&columns).map(|(c, cols)| c.stats(cols)).collect()];
@@ -486,7 +482,8 @@ fn loop_delay(ctx: &[GroupCtx], folds: usize) -> Evaluated {
 fn setpoint_delay(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     let delays_us: Vec<f64> = (0..32).map(|i| 20.0 * 1.18f64.powi(i)).collect();
     let base = fundamental_stats(ctx);
-    let tool: Vec<Complex> = ctx.par_iter().map(|c| phasor(&c.theta, &c.data.z_tcp_um[c.start..])).collect();
+    let tool: Vec<Complex> =
+        ctx.par_iter().map(|c| phasor_of(&c.sin_theta, &c.cos_theta, &c.data.z_tcp_um[c.start..])).collect();
     let stats: Vec<Vec<Stats>> = delays_us
         .par_iter()
         .map(|tau_us| {

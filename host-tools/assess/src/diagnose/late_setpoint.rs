@@ -22,7 +22,7 @@
 
 use crate::AssessError;
 use sts_analysis::repeat::NOT_REPEATING_MIN_UM;
-use sts_analysis::response::phasor;
+use sts_analysis::response::phasor_of;
 use sts_model::ModelFile;
 use sts_twin_core::program::{TermInput, TickTerm};
 
@@ -85,7 +85,7 @@ pub(super) fn look(
     }
     // The twin's residual at the command frequency per group, against what the bank leaves.
     let Some(gain) = PhasorGain::of(ctx.iter().map(|c| {
-        let r = phasor(&c.theta, &c.residual);
+        let r = phasor_of(&c.sin_theta, &c.cos_theta, &c.residual);
         (r.0 * r.0 + r.1 * r.1, evidence.bank_only_ss_um2[c.sample.index])
     })) else {
         return Ok(None);

@@ -172,6 +172,10 @@ pub struct GroupCtx<'a> {
     pub residual: Vec<f64>,
     /// Command phase (radians) over the window.
     pub theta: Vec<f64>,
+    /// `sin` of [`GroupCtx::theta`], computed once for every candidate that needs it.
+    pub sin_theta: Vec<f64>,
+    /// `cos` of [`GroupCtx::theta`].
+    pub cos_theta: Vec<f64>,
     /// Sample rate, Hz.
     pub sample_rate_hz: f64,
     /// Set when the residual has the group's fundamental taken out: candidates' columns lose
@@ -195,9 +199,8 @@ pub struct Fundamental {
 }
 
 impl Fundamental {
-    fn new(theta: &[f64]) -> Option<Self> {
-        let sin: Vec<f64> = theta.iter().map(|t| t.sin()).collect();
-        let cos: Vec<f64> = theta.iter().map(|t| t.cos()).collect();
+    fn new(sin: &[f64], cos: &[f64]) -> Option<Self> {
+        let (sin, cos) = (sin.to_vec(), cos.to_vec());
         let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
         let (ss, sc, cc) = (dot(&sin, &sin), dot(&sin, &cos), dot(&cos, &cos));
         let det = ss * cc - sc * sc;
@@ -236,7 +239,7 @@ impl GroupCtx<'_> {
     /// The same group with the fundamental taken out of its residual (`None` where the window
     /// is too short to tell sine from cosine).
     fn fundamental_free(&self) -> Option<Self> {
-        let f = Fundamental::new(&self.theta)?;
+        let f = Fundamental::new(&self.sin_theta, &self.cos_theta)?;
         Some(Self {
             sample: self.sample,
             data: self.data,
@@ -244,6 +247,8 @@ impl GroupCtx<'_> {
             start: self.start,
             residual: f.remove(&self.residual),
             theta: self.theta.clone(),
+            sin_theta: self.sin_theta.clone(),
+            cos_theta: self.cos_theta.clone(),
             sample_rate_hz: self.sample_rate_hz,
             without_fundamental: Some(f),
             // The floor is read on the groups as they are.
@@ -389,9 +394,10 @@ pub fn contexts<'a>(
             let aperiodic_um = (!aperiodic.is_empty()).then(|| terms_output(&aperiodic, data, s.info.start_s, fs));
             let start = s.targets.window_start;
             let residual = (start..data.len()).map(|k| data.z_tcp_um[k] - data.z_cmd_um[k] - predicted_um[k]).collect();
-            let theta = (start..data.len())
+            let theta: Vec<f64> = (start..data.len())
                 .map(|k| 2.0 * PI * s.targets.freq_hz * data.t_s[k] + s.targets.cmd.phase_rad)
                 .collect();
+            let (sin_theta, cos_theta) = theta.iter().map(|t| t.sin_cos()).unzip();
             GroupCtx {
                 sample: s,
                 data,
@@ -399,6 +405,8 @@ pub fn contexts<'a>(
                 start,
                 residual,
                 theta,
+                sin_theta,
+                cos_theta,
                 sample_rate_hz: fs,
                 without_fundamental: None,
                 aperiodic_um,

@@ -1,5 +1,6 @@
-//! Linear least squares for every fit of the host, on `nalgebra`'s Householder QR (never the
-//! normal equations, whose squared condition number costs half the digits):
+//! Linear least squares for every fit of the host, on Householder QR (never the normal
+//! equations, whose squared condition number costs half the digits): the triangular factors by
+//! hand ([`triangular`], the fits' hot loop), `Q` where one is needed from `nalgebra`:
 //!
 //! - [`Stats`]: one group's regression reduced to the triangular factor of `[X | r]`, which
 //!   folds of groups stack and reduce again ([`solve`]), so cross-validation by group never
@@ -15,7 +16,10 @@
 //! window), so [`solve`] adds a ridge of [`RIDGE`] relative to each column's norm: a finite,
 //! nearly minimal answer instead of a blow-up.
 
+mod triangular;
+
 use nalgebra::{DMatrix, DVector};
+use triangular::{dot, triangular_factor, Triangular};
 
 /// The ridge of [`solve`] and [`solve_damped`], relative to each column's squared norm.
 pub const RIDGE: f64 = 1e-9;
@@ -37,24 +41,20 @@ impl Stats {
     /// The factor of regressor columns `x` (each over the window) and residual `r`.
     pub fn from_columns(x: &[Vec<f64>], r: &[f64]) -> Self {
         let cols = x.len() + 1;
-        let value = |i: usize, j: usize| if j < cols - 1 { x[j][i] } else { r[i] };
-        // Tall and skinny: reduced block by block ([R; next rows] -> R), so each QR works on
-        // a matrix that stays in cache; the same factor as one QR of all rows.
-        let mut factor = DMatrix::zeros(0, cols);
-        let mut start = 0;
-        while start < r.len() {
+        // Tall and skinny: added to the factor block by block, so each reduction works on rows
+        // that stay in cache; the same factor as one QR of all rows.
+        let mut factor = Triangular::zeros(cols);
+        let mut block = vec![0.0; r.len().min(QR_BLOCK_ROWS) * cols];
+        for start in (0..r.len()).step_by(QR_BLOCK_ROWS) {
             let rows = (r.len() - start).min(QR_BLOCK_ROWS);
-            let top = factor.nrows();
-            let block =
-                DMatrix::from_fn(
-                    top + rows,
-                    cols,
-                    |i, j| if i < top { factor[(i, j)] } else { value(start + i - top, j) },
-                );
-            factor = block.qr().r();
-            start += rows;
+            let block = &mut block[..rows * cols];
+            for (j, column) in block.chunks_exact_mut(rows).enumerate() {
+                let samples = if j + 1 < cols { &x[j][start..start + rows] } else { &r[start..start + rows] };
+                column.copy_from_slice(samples);
+            }
+            factor.absorb(block, rows);
         }
-        Self { r_factor: pad_square(factor) }
+        Self { r_factor: factor.into_matrix() }
     }
 
     /// Number of regressors.
@@ -97,23 +97,6 @@ impl Stats {
 
 /// Rows of one block of [`Stats::from_columns`]'s reduction.
 const QR_BLOCK_ROWS: usize = 256;
-
-/// The QR decomposition's `R` of `m`, padded with zero rows to square when `m` has fewer rows
-/// than columns.
-fn triangular_factor(m: DMatrix<f64>) -> DMatrix<f64> {
-    pad_square(m.qr().r())
-}
-
-/// `r` with zero rows added below to make it square.
-fn pad_square(r: DMatrix<f64>) -> DMatrix<f64> {
-    let cols = r.ncols();
-    if r.nrows() == cols {
-        return r;
-    }
-    let mut square = DMatrix::zeros(cols, cols);
-    square.rows_mut(0, r.nrows()).copy_from(&r);
-    square
-}
 
 /// Ridge least-squares coefficients over a set of groups' stats: the groups' factors stacked
 /// and reduced again, each column scaled to unit norm with a ridge of [`RIDGE`].
@@ -200,21 +183,6 @@ impl Projection {
         }
         out
     }
-}
-
-/// `a . b` in four interleaved sums, which the compiler vectorises (one running sum cannot
-/// be reordered, and its additions wait on each other): the pitch search takes tens of
-/// thousands of them.
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut sums = [0.0f64; 4];
-    let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
-    let tail: f64 = a4.remainder().iter().zip(b4.remainder()).map(|(x, y)| x * y).sum();
-    for (x, y) in a4.zip(b4) {
-        for l in 0..4 {
-            sums[l] += x[l] * y[l];
-        }
-    }
-    (sums[0] + sums[1]) + (sums[2] + sums[3]) + tail
 }
 
 /// A least-squares fit: the coefficients and the RMS of the residuals.

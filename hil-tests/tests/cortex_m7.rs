@@ -19,7 +19,7 @@ fn dac_codes_on_the_cortex_m7_are_bit_identical_to_the_host_core() {
 #[test]
 fn the_40_hz_cut_on_the_cortex_m7_is_the_host_cores_and_removes_over_90_percent() {
     let _serial = sts_hil_tests::serial();
-    crate::trial_hil::the_40_hz_cut_removes_over_90_percent_on(on_the_m7());
+    crate::trial_hil::the_40_hz_cut_removes_over_90_percent_on(on_the_m7(), false);
 }
 
 /// The same image executes the same instructions on both cores: the per-tick counts on the

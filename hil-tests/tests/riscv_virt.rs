@@ -26,7 +26,7 @@ fn dac_codes_on_risc_v_are_bit_identical_to_the_host_core() {
 #[test]
 fn the_40_hz_cut_on_risc_v_is_the_host_cores_and_removes_over_90_percent() {
     let _serial = sts_hil_tests::serial();
-    crate::trial_hil::the_40_hz_cut_removes_over_90_percent_on(on_riscv());
+    crate::trial_hil::the_40_hz_cut_removes_over_90_percent_on(on_riscv(), false);
 }
 
 /// Same outputs, same model updates and the same place in the ticks where each completed

@@ -26,7 +26,7 @@ fn repeatability(effects: Vec<EffectSpec>) -> (Repeatability, Vec<f64>) {
 fn a_hunting_axis_is_flagged_and_a_calm_one_is_not() {
     // The suite's draw (2.0 N Coulomb, 3.3 N static, Stribeck velocity 72 um/s).
     let mut rng = ChaCha8Rng::seed_from_u64(0x5eed_0000);
-    let hunting = EffectSpec::random("coulomb-friction", &mut rng).expect("effect");
+    let hunting = EffectSpec::random("coulomb-friction".parse().expect("an effect"), &mut rng).expect("effect");
     let (r, amps) = repeatability(vec![hunting]);
     let flagged: Vec<f64> = r.not_repeating.iter().map(|&i| amps[i]).collect();
     assert!(flagged.contains(&9.0) && flagged.contains(&11.0) && !flagged.contains(&1.0), "{r:?}");

@@ -12,9 +12,9 @@
 use serde::Serialize;
 use sts_analysis::repeat::rms_without;
 use sts_dataset::Dataset;
-use sts_fit::effects::{fit_with, EffectRecord, AXIS_EFFECTS};
+use sts_fit::effects::{fit_with, EffectRecord};
 use sts_fit::{fit, FitConfig, FitError};
-use sts_model::ModelFile;
+use sts_model::{Effect, ModelFile};
 
 use crate::compare::{compare, Comparison};
 use crate::diagnose::{diagnose, groups_needed, Diagnosis};
@@ -226,11 +226,6 @@ const SECOND_MODE_MIN_GAIN: f64 = 0.2;
 /// the named effect alone brought no gain ([`best_partner`]).
 const PARTNER_MIN_GAIN: f64 = 0.2;
 
-/// The effects whose terms reach beyond the command frequency (the others are carried by the
-/// formulas, or by the terms of these).
-const OWN_TERM_EFFECTS: [&str; 5] =
-    ["coulomb-friction", "presliding-hysteresis", "thermal-drift", "force-ripple", "axis-coupling"];
-
 /// Where the strongest named effect (`named`, of the ranking) did not lower the error when
 /// refitted alone: refits it beside each of the [`MAX_TRIES`] strongest other candidates with
 /// a term of their own, significant or not, and returns the partner and the refit of the pair
@@ -251,7 +246,8 @@ fn best_partner(
         .filter(|&j| j != named && d.ranking[j].explained_fraction > 0.0)
         .filter(|&j| {
             let effect = &d.ranking[j].effect;
-            OWN_TERM_EFFECTS.contains(&effect.as_str()) && !carried.contains(effect)
+            // Only effects with terms of their own (the others are carried by the formulas).
+            Effect::from_name(effect).is_some_and(Effect::beyond_the_fundamental) && !carried.contains(effect)
         })
         .collect();
     // Strongest first (the ranking's order on a tie).
@@ -280,9 +276,10 @@ fn best_partner(
 /// the command's harmonics, right when they act, so its residual looks like the carried
 /// effect's or like no candidate's.
 fn second_mode_try(d: &Diagnosis, carried: &[String]) -> Option<usize> {
-    let mode = "structural-mode".to_string();
-    let has_axis = carried.iter().any(|c| AXIS_EFFECTS.contains(&c.as_str()));
-    let axis_named_again = AXIS_EFFECTS.contains(&d.verdict.as_str()) && carried.contains(&d.verdict);
+    let mode = Effect::StructuralMode.name().to_string();
+    let axis_carried = |name: &str| Effect::from_name(name).is_some_and(Effect::carried_by_the_axis_twin);
+    let has_axis = carried.iter().any(|c| axis_carried(c));
+    let axis_named_again = axis_carried(&d.verdict) && carried.contains(&d.verdict);
     let unexplained = d.verdict == "none" && d.unexplained.is_some();
     (has_axis && !carried.contains(&mode) && (axis_named_again || unexplained))
         .then(|| d.ranking.iter().position(|r| r.effect == mode))

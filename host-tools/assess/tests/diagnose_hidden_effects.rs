@@ -37,9 +37,10 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sts_assess::compare::compare;
 use sts_assess::diagnose::diagnose;
-use sts_emulator::{EffectSpec, MeasureConfig, PlantParams, EFFECT_NAMES};
+use sts_emulator::{EffectSpec, MeasureConfig, PlantParams};
 use sts_fit::effects::prepare;
 use sts_fit::{fit, FitConfig};
+use sts_model::Effect;
 use sts_model::ModelFile;
 
 use sts_assess::absorbed::{refit_gains_nothing, ABSORBED_WITHIN};
@@ -125,7 +126,7 @@ fn run_case(
         }
         Some(name) => {
             let mut rng = ChaCha8Rng::seed_from_u64(0x5eed_0000 + seed);
-            vec![EffectSpec::random(name, &mut rng).expect("known effect")]
+            vec![EffectSpec::random(name.parse().expect("an effect"), &mut rng).expect("a draw")]
         }
         None => Vec::new(),
     };
@@ -199,9 +200,9 @@ fn run_suite(suite: &Suite) -> usize {
 
     // Rows: the hidden effects (a structural mode above the band and one inside it);
     // columns: the verdicts.
-    let mut labels: Vec<&str> = EFFECT_NAMES.to_vec();
+    let mut labels: Vec<&str> = Effect::ALL.map(Effect::name).to_vec();
     labels.push("none");
-    let mut rows: Vec<&str> = EFFECT_NAMES.to_vec();
+    let mut rows: Vec<&str> = Effect::ALL.map(Effect::name).to_vec();
     rows.insert(3, IN_BAND_MODE);
     rows.push("none");
     let mut confusion = vec![vec![0usize; labels.len()]; rows.len()];

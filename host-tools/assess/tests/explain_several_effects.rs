@@ -33,9 +33,10 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sts_analysis::repeat::rms_without;
 use sts_assess::explain::{explain, ExplainConfig, Stop};
-use sts_emulator::{EffectSpec, PlantParams, EFFECT_NAMES};
+use sts_emulator::{EffectSpec, PlantParams};
 use sts_fit::effects::fit_with;
 use sts_fit::FitConfig;
+use sts_model::Effect;
 use sts_model::Validation;
 
 use sts_assess::absorbed::{refit_gains_nothing, ABSORBED_WITHIN};
@@ -66,16 +67,17 @@ fn env_list(name: &str) -> Option<Vec<String>> {
 /// Every pair of the effects, then `triples` distinct triples drawn with a fixed seed.
 fn pairs_and_triples(triples: usize) -> Vec<Vec<&'static str>> {
     let mut sets = Vec::new();
-    for (i, a) in EFFECT_NAMES.iter().enumerate() {
-        for b in &EFFECT_NAMES[i + 1..] {
+    let names = Effect::ALL.map(Effect::name);
+    for (i, a) in names.iter().enumerate() {
+        for b in &names[i + 1..] {
             sets.push(vec![*a, *b]);
         }
     }
     let mut rng = ChaCha8Rng::seed_from_u64(0x0721_91e5);
     let mut drawn: Vec<Vec<&'static str>> = Vec::new();
     while drawn.len() < triples {
-        let mut t: Vec<&'static str> = EFFECT_NAMES.sample(&mut rng, 3).copied().collect();
-        t.sort_by_key(|n| EFFECT_NAMES.iter().position(|e| e == n));
+        let mut t: Vec<&'static str> = names.sample(&mut rng, 3).copied().collect();
+        t.sort_by_key(|n| names.iter().position(|e| e == n));
         if !drawn.contains(&t) {
             drawn.push(t);
         }
@@ -113,7 +115,8 @@ fn rms_over_others(validation: &Validation, skip: &[String]) -> f64 {
 
 fn run_set(s: &Sets, set: &[&str], set_index: usize, seed: u64, clean_rms_um: f64) -> Outcome {
     let mut rng = ChaCha8Rng::seed_from_u64(0x5e75_0000 + seed * 256 + set_index as u64);
-    let effects: Vec<EffectSpec> = set.iter().map(|n| EffectSpec::random(n, &mut rng).expect("known effect")).collect();
+    let effects: Vec<EffectSpec> =
+        set.iter().map(|n| EffectSpec::random(n.parse().expect("an effect"), &mut rng).expect("a draw")).collect();
     let data = measure(&s.plant, s.paper_grid, effects.clone(), 500 + seed);
     let hunting =
         if set.contains(&"coulomb-friction") { hunting_groups(&s.plant, &effects, 500 + seed) } else { Vec::new() };
@@ -162,7 +165,7 @@ fn run_sets(s: &Sets) {
     let (mut cases, mut all_named, mut named_or_absorbed, mut within_2x) = (0usize, 0usize, 0usize, 0usize);
     let mut with_wrong_name = 0usize;
     // Per effect: in how many sets it was hidden, and named.
-    let mut per_effect = vec![(0usize, 0usize); EFFECT_NAMES.len()];
+    let mut per_effect = vec![(0usize, 0usize); Effect::ALL.len()];
     for seed in s.first_seed..s.first_seed + s.seeds {
         for (index, set) in &s.sets {
             let o = run_set(s, set, *index, seed, clean_rms_um);
@@ -190,7 +193,7 @@ fn run_sets(s: &Sets) {
             named_or_absorbed += usize::from(missed.is_empty() || absorbed);
             within_2x += usize::from(ratio <= 2.0);
             for e in set.iter() {
-                let i = EFFECT_NAMES.iter().position(|n| n == e).unwrap_or(0);
+                let i = Effect::ALL.iter().position(|n| n.name() == *e).unwrap_or(0);
                 per_effect[i].0 += 1;
                 per_effect[i].1 += usize::from(o.named.iter().any(|n| n == e));
             }
@@ -241,7 +244,7 @@ fn run_sets(s: &Sets) {
         }
     }
     println!("\nper effect: named in how many of the sets that hid it");
-    for (name, (hidden, named)) in EFFECT_NAMES.iter().zip(&per_effect) {
+    for (name, (hidden, named)) in Effect::ALL.map(Effect::name).iter().zip(&per_effect) {
         if *hidden > 0 {
             println!("  {name:<22} {named:>3} of {hidden:>3}");
         }

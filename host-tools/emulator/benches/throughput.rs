@@ -55,9 +55,8 @@ fn main() {
     if std::env::args().any(|a| a == "--quick") {
         return;
     }
-    for name in sts_emulator::EFFECT_NAMES {
-        let spec = EffectSpec::new(sts_emulator::EffectKind::from_name(name).expect("name"));
-        single_core(&[spec], name);
+    for effect in sts_model::Effect::ALL {
+        single_core(&[EffectSpec::new(effect)], effect.name());
     }
 
     let config = MeasureConfig::default();

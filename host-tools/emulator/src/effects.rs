@@ -16,42 +16,7 @@ use rand::{Rng, RngExt};
 use std::fmt;
 use std::str::FromStr;
 
-/// The canonical effect names, used by the whole tool.
-pub const EFFECT_NAMES: [&str; 9] = [
-    "coulomb-friction",
-    "presliding-hysteresis",
-    "structural-mode",
-    "loop-delay",
-    "setpoint-delay",
-    "thermal-drift",
-    "force-ripple",
-    "axis-coupling",
-    "sensor-gain",
-];
-
-/// One of the nine physical effects.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum EffectKind {
-    /// `coulomb-friction`: Coulomb friction with a Stribeck peak on the Z slide.
-    CoulombFriction,
-    /// `presliding-hysteresis`: Dahl presliding friction (a hysteretic spring at reversals).
-    PreslidingHysteresis,
-    /// `structural-mode`: an additional structural mode between the slide and the TCP.
-    StructuralMode,
-    /// `loop-delay`: extra delay in the servo loop's force output.
-    LoopDelay,
-    /// `setpoint-delay`: the position command reaches the servo loop late (the whole response
-    /// late, the loop itself unchanged).
-    SetpointDelay,
-    /// `thermal-drift`: thermal growth of the tool side, drifting with machine time.
-    ThermalDrift,
-    /// `force-ripple`: a position-periodic error (encoder interpolation error).
-    ForceRipple,
-    /// `axis-coupling`: X-axis acceleration and spindle axial error motion into Z at the TCP.
-    AxisCoupling,
-    /// `sensor-gain`: scale error of the accelerometer or of the capacitance probe.
-    SensorGain,
-}
+use sts_model::{Effect, UnknownEffect};
 
 /// One parameter of an effect.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -112,52 +77,27 @@ const GAIN: &[ParamDef] = &[
     p("probe_gain", 1.0, 0.1, 10.0, "capacitance probe scale (1 = correct)"),
 ];
 
-impl EffectKind {
-    /// All effects, in the order of [`EFFECT_NAMES`].
-    pub const ALL: [EffectKind; 9] = [
-        EffectKind::CoulombFriction,
-        EffectKind::PreslidingHysteresis,
-        EffectKind::StructuralMode,
-        EffectKind::LoopDelay,
-        EffectKind::SetpointDelay,
-        EffectKind::ThermalDrift,
-        EffectKind::ForceRipple,
-        EffectKind::AxisCoupling,
-        EffectKind::SensorGain,
-    ];
-
-    /// The canonical name.
-    pub fn name(self) -> &'static str {
-        EFFECT_NAMES[Self::ALL.iter().position(|k| *k == self).unwrap_or(0)]
-    }
-
-    /// The effect with this canonical name.
-    pub fn from_name(name: &str) -> Option<Self> {
-        EFFECT_NAMES.iter().position(|n| *n == name).map(|i| Self::ALL[i])
-    }
-
-    /// The effect's parameters.
-    pub fn params(self) -> &'static [ParamDef] {
-        match self {
-            EffectKind::CoulombFriction => FRICTION,
-            EffectKind::PreslidingHysteresis => HYSTERESIS,
-            EffectKind::StructuralMode => MODE,
-            EffectKind::LoopDelay => DELAY,
-            EffectKind::SetpointDelay => SETPOINT_DELAY,
-            EffectKind::ThermalDrift => THERMAL,
-            EffectKind::ForceRipple => RIPPLE,
-            EffectKind::AxisCoupling => COUPLING,
-            EffectKind::SensorGain => GAIN,
-        }
+/// The emulator's parameters of `effect`, in the order `NAME:key=value` lists them.
+pub fn effect_params(effect: Effect) -> &'static [ParamDef] {
+    match effect {
+        Effect::CoulombFriction => FRICTION,
+        Effect::PreslidingHysteresis => HYSTERESIS,
+        Effect::StructuralMode => MODE,
+        Effect::LoopDelay => DELAY,
+        Effect::SetpointDelay => SETPOINT_DELAY,
+        Effect::ThermalDrift => THERMAL,
+        Effect::ForceRipple => RIPPLE,
+        Effect::AxisCoupling => COUPLING,
+        Effect::SensorGain => GAIN,
     }
 }
 
 /// Why an effect specification was rejected.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum EffectError {
-    /// Not one of [`EFFECT_NAMES`].
-    #[error("unknown effect `{0}` (known: {known})", known = EFFECT_NAMES.join(", "))]
-    UnknownEffect(String),
+    /// Not an effect's name.
+    #[error(transparent)]
+    UnknownEffect(#[from] UnknownEffect),
     /// Not a parameter of that effect.
     #[error("effect `{effect}`: unknown parameter `{key}` (known: {known})")]
     UnknownKey {
@@ -186,18 +126,18 @@ pub enum EffectError {
 /// An enabled effect and its parameter values.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EffectSpec {
-    kind: EffectKind,
+    kind: Effect,
     values: Vec<f64>,
 }
 
 impl EffectSpec {
     /// The effect with its default (typical) parameters.
-    pub fn new(kind: EffectKind) -> Self {
-        Self { kind, values: kind.params().iter().map(|d| d.default).collect() }
+    pub fn new(kind: Effect) -> Self {
+        Self { kind, values: effect_params(kind).iter().map(|d| d.default).collect() }
     }
 
     /// The effect.
-    pub fn kind(&self) -> EffectKind {
+    pub fn kind(&self) -> Effect {
         self.kind
     }
 
@@ -208,12 +148,12 @@ impl EffectSpec {
 
     /// A parameter's value (0 for a key the effect does not have).
     pub fn get(&self, key: &str) -> f64 {
-        self.kind.params().iter().position(|d| d.key == key).map_or(0.0, |i| self.values[i])
+        effect_params(self.kind).iter().position(|d| d.key == key).map_or(0.0, |i| self.values[i])
     }
 
     /// Sets a parameter, checking the key and the range.
     pub fn set(&mut self, key: &str, value: f64) -> Result<(), EffectError> {
-        let defs = self.kind.params();
+        let defs = effect_params(self.kind);
         let Some(i) = defs.iter().position(|d| d.key == key) else {
             return Err(EffectError::UnknownKey {
                 effect: self.name().into(),
@@ -235,14 +175,14 @@ impl EffectSpec {
 
     /// Parameter keys and values, in table order.
     pub fn values(&self) -> impl Iterator<Item = (&'static str, f64)> + '_ {
-        self.kind.params().iter().zip(&self.values).map(|(d, v)| (d.key, *v))
+        effect_params(self.kind).iter().zip(&self.values).map(|(d, v)| (d.key, *v))
     }
 
     /// Draws a structural mode inside the band `lo_hz..hi_hz` of the measurement test: a
     /// resonance of the error against frequency, with a small modal gain (a large one would
     /// make the machine useless at that frequency).
     pub fn random_in_band_mode<R: Rng + ?Sized>(lo_hz: f64, hi_hz: f64, rng: &mut R) -> Result<Self, EffectError> {
-        let mut spec = Self::new(EffectKind::StructuralMode);
+        let mut spec = Self::new(Effect::StructuralMode);
         let mut u = |lo: f64, hi: f64| lo + (hi - lo) * rng.random::<f64>();
         let draws = [
             ("freq_hz", u(lo_hz, hi_hz)),
@@ -256,44 +196,43 @@ impl EffectSpec {
         Ok(spec)
     }
 
-    /// Draws plausible hidden-effect parameters for the named effect: strong enough to leave
-    /// a signature in the measurement test, within what real machines show.
-    pub fn random<R: Rng + ?Sized>(name: &str, rng: &mut R) -> Result<Self, EffectError> {
-        let kind = EffectKind::from_name(name).ok_or_else(|| EffectError::UnknownEffect(name.into()))?;
+    /// Draws plausible hidden-effect parameters for `kind`: strong enough to leave a signature
+    /// in the measurement test, within what real machines show.
+    pub fn random<R: Rng + ?Sized>(kind: Effect, rng: &mut R) -> Result<Self, EffectError> {
         let mut spec = Self::new(kind);
         let mut u = |lo: f64, hi: f64| lo + (hi - lo) * rng.random::<f64>();
         let draws: Vec<(&str, f64)> = match kind {
-            EffectKind::CoulombFriction => {
+            Effect::CoulombFriction => {
                 let coulomb = u(0.8, 4.0);
                 vec![("coulomb_n", coulomb), ("static_n", coulomb * u(1.2, 1.8)), ("stribeck_mps", u(5e-5, 5e-4))]
             }
-            EffectKind::PreslidingHysteresis => {
+            Effect::PreslidingHysteresis => {
                 vec![("force_n", u(0.8, 4.0)), ("stiffness_n_per_um", u(1.0, 5.0))]
             }
-            EffectKind::StructuralMode => vec![
+            Effect::StructuralMode => vec![
                 ("freq_hz", u(120.0, 320.0)),
                 ("damping", u(0.015, 0.06)),
                 ("tcp_gain", u(0.5, 1.5)),
                 ("acc_shape", u(0.6, 1.2)),
             ],
-            EffectKind::LoopDelay => vec![("delay_us", u(150.0, 450.0))],
-            EffectKind::SetpointDelay => vec![("delay_us", u(100.0, 500.0))],
-            EffectKind::ThermalDrift => {
+            Effect::LoopDelay => vec![("delay_us", u(150.0, 450.0))],
+            Effect::SetpointDelay => vec![("delay_us", u(100.0, 500.0))],
+            Effect::ThermalDrift => {
                 let sign = if u(0.0, 1.0) < 0.5 { -1.0 } else { 1.0 };
                 vec![("rise_k", u(0.5, 1.5)), ("tau_s", u(300.0, 1800.0)), ("um_per_k", sign * u(0.6, 1.5))]
             }
-            EffectKind::ForceRipple => vec![
+            Effect::ForceRipple => vec![
                 ("amp_nm", u(25.0, 80.0)),
                 ("period_um", u(2.0, 8.0)),
                 ("harmonic2_nm", u(0.0, 15.0)),
                 ("phase_deg", u(-180.0, 180.0)),
             ],
-            EffectKind::AxisCoupling => vec![
+            Effect::AxisCoupling => vec![
                 ("x_um_per_mps2", u(0.5, 2.0) * if u(0.0, 1.0) < 0.5 { -1.0 } else { 1.0 }),
                 ("spindle_um", u(0.0, 0.1)),
                 ("spindle_phase_deg", u(-180.0, 180.0)),
             ],
-            EffectKind::SensorGain => {
+            Effect::SensorGain => {
                 let gain = 1.0 + u(0.04, 0.12) * if u(0.0, 1.0) < 0.5 { -1.0 } else { 1.0 };
                 if u(0.0, 1.0) < 0.5 {
                     vec![("acc_gain", gain), ("probe_gain", 1.0)]
@@ -318,7 +257,7 @@ impl FromStr for EffectSpec {
             Some((name, rest)) => (name.trim(), Some(rest)),
             None => (text.trim(), None),
         };
-        let kind = EffectKind::from_name(name).ok_or_else(|| EffectError::UnknownEffect(name.into()))?;
+        let kind: Effect = name.parse()?;
         let mut spec = EffectSpec::new(kind);
         let mut seen: Vec<&str> = Vec::new();
         for pair in rest.into_iter().flat_map(|r| r.split(',')).filter(|s| !s.trim().is_empty()) {

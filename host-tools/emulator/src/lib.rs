@@ -9,7 +9,7 @@ pub mod measure;
 pub mod paper;
 pub mod params;
 
-pub use effects::{EffectError, EffectKind, EffectSpec, ParamDef, EFFECT_NAMES};
+pub use effects::{effect_params, EffectError, EffectSpec, ParamDef};
 pub use machine::{Machine, MachineError, MachineOptions, StepInput, StepOutput};
 pub use measure::{MeasureConfig, MeasureError, XMotion};
 pub use params::{ParamsError, PlantParams, DEFAULT_PLANT_TOML};

@@ -9,13 +9,14 @@
 // Small dense matrix-vector products read clearest with indices.
 #![allow(clippy::needless_range_loop)]
 
-use crate::effects::{check_unique, EffectError, EffectKind, EffectSpec};
+use crate::effects::{check_unique, EffectError, EffectSpec};
 use crate::linalg::{discretize, NU, NX};
 use crate::params::{ParamsError, PlantParams};
 use crate::G_MPS2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::PI;
+use sts_model::Effect;
 use sts_twin_core::{SERVO_RATE_HZ, TICK_S};
 
 const HISTORY: usize = 128;
@@ -200,7 +201,7 @@ impl Machine {
         let mut setpoint_delay_ticks = 0.0;
         for e in effects {
             match e.kind() {
-                EffectKind::CoulombFriction => {
+                Effect::CoulombFriction => {
                     fx.friction = Some(Friction {
                         coulomb_n: e.get("coulomb_n"),
                         static_n: e.get("static_n"),
@@ -208,20 +209,20 @@ impl Machine {
                         smooth_mps: e.get("smooth_mps"),
                     })
                 }
-                EffectKind::PreslidingHysteresis => {
+                Effect::PreslidingHysteresis => {
                     fx.hysteresis = Some(Hysteresis {
                         force_n: e.get("force_n"),
                         stiffness_n_per_m: e.get("stiffness_n_per_um") * 1e6,
                         state_n: 0.0,
                     })
                 }
-                EffectKind::StructuralMode => {
+                Effect::StructuralMode => {
                     extra_mode = Some((e.get("freq_hz"), e.get("damping"), e.get("tcp_gain"), e.get("acc_shape")))
                 }
-                EffectKind::LoopDelay => extra_delay_us = e.get("delay_us"),
-                EffectKind::SetpointDelay => setpoint_delay_ticks = e.get("delay_us") * 1e-6 / TICK_S,
-                EffectKind::ThermalDrift => fx.thermal = Some((e.get("rise_k"), e.get("tau_s"), e.get("um_per_k"))),
-                EffectKind::ForceRipple => {
+                Effect::LoopDelay => extra_delay_us = e.get("delay_us"),
+                Effect::SetpointDelay => setpoint_delay_ticks = e.get("delay_us") * 1e-6 / TICK_S,
+                Effect::ThermalDrift => fx.thermal = Some((e.get("rise_k"), e.get("tau_s"), e.get("um_per_k"))),
+                Effect::ForceRipple => {
                     fx.ripple = Some((
                         e.get("amp_nm"),
                         e.get("period_um"),
@@ -229,11 +230,11 @@ impl Machine {
                         e.get("phase_deg").to_radians(),
                     ))
                 }
-                EffectKind::AxisCoupling => {
+                Effect::AxisCoupling => {
                     fx.coupling =
                         Some((e.get("x_um_per_mps2"), e.get("spindle_um"), e.get("spindle_phase_deg").to_radians()))
                 }
-                EffectKind::SensorGain => {
+                Effect::SensorGain => {
                     fx.acc_gain = e.get("acc_gain");
                     fx.probe_gain = e.get("probe_gain");
                 }

@@ -69,7 +69,7 @@ fn same_seed_same_bytes_whatever_the_threads() {
     }
     // The manifest does not name the effects used.
     let manifest = String::from_utf8(fa.iter().find(|f| f.0 == "manifest.json").unwrap().1.clone()).unwrap();
-    for name in sts_emulator::EFFECT_NAMES {
+    for name in sts_model::Effect::ALL.map(sts_model::Effect::name) {
         assert!(!manifest.contains(name) && !manifest.contains(&name.replace('-', "_")), "{manifest}");
     }
 }

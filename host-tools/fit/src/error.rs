@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use sts_analysis::targets::TargetError;
 use sts_analysis::AnalysisError;
-use sts_model::{ModelError, EFFECTS};
+use sts_model::{Effect, ModelError};
 use sts_symreg::SymregError;
 use sts_twin_core::axis::{AxisError, AxisParams};
 use sts_twin_core::program::{
@@ -77,7 +77,10 @@ pub enum FitError {
         error: postcard::Error,
     },
     /// `--effect` names an effect that is not known.
-    #[error("--effect: unknown effect {name:?} (known: {}, and servo-axis: the servo-axis twin alone)", EFFECTS.join(", "))]
+    #[error(
+        "--effect: unknown effect {name:?} (known: {}, and servo-axis: the servo-axis twin alone)",
+        Effect::names()
+    )]
     UnknownEffect {
         /// The name given.
         name: String,

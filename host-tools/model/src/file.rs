@@ -12,21 +12,7 @@ use sts_symreg::{Expr, FloatType};
 use sts_twin_core::features::{FeatureConfig, FEATURE_LABELS};
 use sts_twin_core::program::Program;
 
-use crate::{ModelError, ModelFileError};
-
-/// The names of the physical effects a model can carry and diagnose can name, in the
-/// library's order (the `--effect` names of `fit` and `measure`).
-pub const EFFECTS: [&str; 9] = [
-    "coulomb-friction",
-    "presliding-hysteresis",
-    "structural-mode",
-    "loop-delay",
-    "setpoint-delay",
-    "thermal-drift",
-    "force-ripple",
-    "axis-coupling",
-    "sensor-gain",
-];
+use crate::{Effect, ModelError, ModelFileError};
 
 /// Not an effect but the servo-axis twin alone (controller, slide and structural mode,
 /// simulated from the command, no nonlinear effect): the twin for a machine's whole speed
@@ -369,13 +355,10 @@ fn check_effects(value: &serde_json::Value) -> Result<(), ModelFileError> {
     let Some(effects) = value.get("effects").and_then(|e| e.as_array()) else { return Ok(()) };
     for (i, record) in effects.iter().enumerate() {
         let name = record.get("effect").and_then(|n| n.as_str()).unwrap_or_default();
-        if name != SERVO_AXIS && !EFFECTS.contains(&name) {
+        if name != SERVO_AXIS && Effect::from_name(name).is_none() {
             return Err(ModelFileError::Value {
                 field: format!("effects[{i}].effect"),
-                message: format!(
-                    "is {name:?}, not an effect this release knows ({SERVO_AXIS}, {})",
-                    EFFECTS.join(", ")
-                ),
+                message: format!("is {name:?}, not an effect this release knows ({SERVO_AXIS}, {})", Effect::names()),
             });
         }
     }

@@ -453,6 +453,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(compare, m)?)?;
     m.add_function(wrap_pyfunction!(diagnose, m)?)?;
     m.add_function(wrap_pyfunction!(explain, m)?)?;
+    m.add("EFFECTS", sts_model::Effect::ALL.map(sts_model::Effect::name))?;
+    m.add("SERVO_AXIS", sts_model::SERVO_AXIS)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

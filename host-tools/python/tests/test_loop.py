@@ -116,8 +116,10 @@ def test_bad_input_is_an_error_that_names_it(machine, tmp_path):
     bad_model.write_text('{"format": "sts-twin-model/1",\n "amplitude": }')
     with pytest.raises(sts_twin.StsTwinError, match=r"bad\.json:2:15: expected value"):
         sts_twin.Model.load(bad_model)
-    with pytest.raises(sts_twin.StsTwinError, match="no-such-effect"):
+    with pytest.raises(sts_twin.StsTwinError, match="no-such-effect.*known: coulomb-friction"):
         sts_twin.fit(machine, effects=["no-such-effect"], epochs=1)
+    assert len(sts_twin.EFFECTS) == 9 and "force-ripple" in sts_twin.EFFECTS
+    assert sts_twin.SERVO_AXIS == "servo-axis" and sts_twin.SERVO_AXIS not in sts_twin.EFFECTS
     twin = sts_twin.fit(machine, epochs=1)
     with pytest.raises(sts_twin.StsTwinError, match="11 feature columns"):
         twin._native.evaluate([[1.0]] * 11)

@@ -8,7 +8,7 @@ use sts_analysis::bases::{laguerre, LAGUERRE_POLE};
 use sts_analysis::lsq::{solve, Stats};
 use sts_analysis::response::{delay, mode_grid, mode_high_pass, mul, phasor_of, sine_weights, velocity_bank, Complex};
 use sts_analysis::sine::line_amp;
-use sts_model::EFFECTS;
+use sts_model::Effect;
 
 use super::GroupCtx;
 use sts_twin_core::program::LAGUERRE_STAGES;
@@ -16,42 +16,6 @@ use sts_twin_core::SERVO_RATE_HZ;
 
 /// Reference frequency normalising the frequency powers, Hz.
 const F_REF_HZ: f64 = 40.0;
-
-/// A candidate effect.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Candidate {
-    /// `coulomb-friction`.
-    Friction,
-    /// `presliding-hysteresis`.
-    Hysteresis,
-    /// `structural-mode`.
-    Mode,
-    /// `loop-delay`.
-    Delay,
-    /// `setpoint-delay`.
-    SetpointDelay,
-    /// `thermal-drift`.
-    Thermal,
-    /// `force-ripple`.
-    Ripple,
-    /// `axis-coupling`.
-    Coupling,
-    /// `sensor-gain`.
-    Gain,
-}
-
-/// All candidates.
-pub const ALL: [Candidate; 9] = [
-    Candidate::Friction,
-    Candidate::Hysteresis,
-    Candidate::Mode,
-    Candidate::Delay,
-    Candidate::SetpointDelay,
-    Candidate::Thermal,
-    Candidate::Ripple,
-    Candidate::Coupling,
-    Candidate::Gain,
-];
 
 /// A candidate's cross-validated result.
 pub struct Evaluated {
@@ -185,52 +149,35 @@ fn cmd_amp(c: &GroupCtx) -> f64 {
     c.sample.targets.cmd.amp
 }
 
-impl Candidate {
-    /// The canonical name.
-    pub fn name(self) -> &'static str {
-        EFFECTS[ALL.iter().position(|c| *c == self).unwrap_or(0)]
-    }
-
-    /// Whether its signature reaches beyond each group's fundamental (harmonics, steps,
-    /// trends, other lines), so that a twin's formulas cannot absorb all of it. A structural
-    /// mode, a delay (in the loop or ahead of it) and a sensor's gain change the fundamental
-    /// only.
-    pub fn beyond_fundamental(self) -> bool {
-        matches!(
-            self,
-            Candidate::Friction | Candidate::Hysteresis | Candidate::Thermal | Candidate::Ripple | Candidate::Coupling
-        )
-    }
-
-    /// Cross-validated evaluation on the groups `whole` and, where given, on `free`, the same
-    /// groups with each one's fundamental taken out of the residual: the columns that read the
-    /// data alone are built once for both (the same results as two evaluations, in less time).
-    pub fn evaluate_pair(
-        self,
-        whole: &[GroupCtx],
-        free: Option<&[GroupCtx]>,
-        folds: usize,
-    ) -> (Evaluated, Option<Evaluated>) {
-        // The candidates whose columns read the residual: one evaluation per set.
-        let each =
-            |evaluate: fn(&[GroupCtx], usize) -> Evaluated| (evaluate(whole, folds), free.map(|f| evaluate(f, folds)));
-        match self {
-            Candidate::Friction => {
-                let columns = friction_columns(whole);
-                (friction(whole, &columns, folds), free.map(|f| friction(f, &columns, folds)))
-            }
-            Candidate::Hysteresis => {
-                let columns = hysteresis_columns(whole);
-                (hysteresis(whole, &columns, folds), free.map(|f| hysteresis(f, &columns, folds)))
-            }
-            Candidate::Ripple => ripple(whole, free, folds),
-            Candidate::Mode => each(mode),
-            Candidate::Delay => each(loop_delay),
-            Candidate::SetpointDelay => each(setpoint_delay),
-            Candidate::Thermal => each(thermal),
-            Candidate::Coupling => each(coupling),
-            Candidate::Gain => each(gain),
+/// `effect`'s cross-validated evaluation as a candidate on the groups `whole` and, where given,
+/// on `free`, the same groups with each one's fundamental taken out of the residual: the
+/// columns that read the data alone are built once for both (the same results as two
+/// evaluations, in less time).
+pub fn evaluate_pair(
+    effect: Effect,
+    whole: &[GroupCtx],
+    free: Option<&[GroupCtx]>,
+    folds: usize,
+) -> (Evaluated, Option<Evaluated>) {
+    // The candidates whose columns read the residual: one evaluation per set.
+    let each =
+        |evaluate: fn(&[GroupCtx], usize) -> Evaluated| (evaluate(whole, folds), free.map(|f| evaluate(f, folds)));
+    match effect {
+        Effect::CoulombFriction => {
+            let columns = friction_columns(whole);
+            (friction(whole, &columns, folds), free.map(|f| friction(f, &columns, folds)))
         }
+        Effect::PreslidingHysteresis => {
+            let columns = hysteresis_columns(whole);
+            (hysteresis(whole, &columns, folds), free.map(|f| hysteresis(f, &columns, folds)))
+        }
+        Effect::ForceRipple => ripple(whole, free, folds),
+        Effect::StructuralMode => each(mode),
+        Effect::LoopDelay => each(loop_delay),
+        Effect::SetpointDelay => each(setpoint_delay),
+        Effect::ThermalDrift => each(thermal),
+        Effect::AxisCoupling => each(coupling),
+        Effect::SensorGain => each(gain),
     }
 }
 
@@ -593,7 +540,7 @@ fn thermal(ctx: &[GroupCtx], folds: usize) -> Evaluated {
     Evaluated { improvements, params, evidence, testable: true }
 }
 
-/// [`Candidate::Ripple`] on `whole` and on `free`, the same groups without each one's
+/// [`Effect::ForceRipple`] on `whole` and on `free`, the same groups without each one's
 /// fundamental: each position sine is computed once for both where their searches reach the
 /// same pitches, and each result is what a search of that set alone gives.
 fn ripple(whole: &[GroupCtx], free: Option<&[GroupCtx]>, folds: usize) -> (Evaluated, Option<Evaluated>) {

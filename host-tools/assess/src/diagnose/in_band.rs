@@ -14,7 +14,7 @@
 //! so this stage names a mode exactly where that fit would carry one with a term.
 
 use crate::AssessError;
-use sts_model::ModelFile;
+use sts_model::{Effect, ModelFile};
 use sts_twin_core::program::TickTerm;
 
 use super::{DataError, Diagnosis, PhasorGain, Ranked};
@@ -56,7 +56,7 @@ fn rank(evidence: &sts_fit::effects::InBandModeEvidence, d: &Diagnosis) -> Optio
     let gain =
         PhasorGain::of(evidence.bank_only_ss_um2.iter().copied().zip(evidence.with_mode_ss_um2.iter().copied()))?;
     Some(Ranked {
-        effect: "structural-mode".into(),
+        effect: Effect::StructuralMode.name().into(),
         explained_fraction: gain.explained_fraction,
         p_value: gain.p_value,
         groups_improved: gain.improved(),

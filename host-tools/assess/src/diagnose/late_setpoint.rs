@@ -23,7 +23,7 @@
 use crate::AssessError;
 use sts_analysis::repeat::NOT_REPEATING_MIN_UM;
 use sts_analysis::response::phasor_of;
-use sts_model::ModelFile;
+use sts_model::{Effect, ModelFile};
 use sts_twin_core::program::{TermInput, TickTerm};
 
 use super::{DataError, Diagnosis, GroupCtx, PhasorGain, Ranked};
@@ -92,7 +92,7 @@ pub(super) fn look(
     };
     let lag_deg_at_40 = 360.0 * 40.0 * evidence.slowest_lag_us * 1e-6;
     Ok(Some(Ranked {
-        effect: "setpoint-delay".into(),
+        effect: Effect::SetpointDelay.name().into(),
         explained_fraction: gain.explained_fraction,
         p_value: gain.p_value,
         groups_improved: gain.improved(),

@@ -79,12 +79,10 @@ use sts_analysis::repeat::{group_non_repeating_um, Repeatability, NOT_REPEATING_
 use sts_analysis::{self as analysis, GroupSample};
 use sts_fit::effects::{terms_output, DataErrorPhasors};
 use sts_model::replay::predict_group;
-use sts_model::ModelFile;
+use sts_model::{Effect, ModelFile};
 use sts_twin_core::program::TickTerm;
 
 use crate::AssessError;
-
-pub use sts_model::EFFECTS;
 
 /// Smallest held-out explained fraction of a verdict.
 pub const MIN_EXPLAINED: f64 = 0.25;
@@ -274,7 +272,7 @@ pub fn sign_flip_p(d: &[f64]) -> f64 {
 /// The scores tested: every candidate on the residual, and those whose signature reaches
 /// beyond the fundamental also on the residual without it.
 fn scores_tested() -> usize {
-    candidates::ALL.len() + candidates::ALL.iter().filter(|c| c.beyond_fundamental()).count()
+    Effect::ALL.len() + Effect::ALL.iter().filter(|c| c.beyond_the_fundamental()).count()
 }
 
 /// The p-value a candidate must be below: Bonferroni over the scores tested and the statistics.
@@ -480,7 +478,7 @@ impl DataError<'_> {
 /// Whether the verdict is a structural mode the candidate found inside the test's band.
 fn named_mode_in_band(d: &Diagnosis, ctx: &[GroupCtx]) -> bool {
     let top_hz = ctx.iter().map(|c| c.sample.info.freq_hz).fold(0.0, f64::max);
-    d.verdict == "structural-mode"
+    d.verdict == Effect::StructuralMode.name()
         && d.ranking
             .first()
             .is_some_and(|r| r.effect == d.verdict && r.params.iter().any(|(name, f)| name == "freq_hz" && *f < top_hz))
@@ -500,7 +498,7 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
     // in what the formulas cannot touch (harmonics, steps, trends, lines). So the candidates
     // whose signature reaches there are also scored without the fundamental.
     let free: Option<Vec<GroupCtx>> = ctx.par_iter().map(GroupCtx::fundamental_free).collect();
-    let score = |cand: &candidates::Candidate, groups: &[GroupCtx], evaluated: candidates::Evaluated| -> Ranked {
+    let score = |cand: &Effect, groups: &[GroupCtx], evaluated: candidates::Evaluated| -> Ranked {
         let group_ss: Vec<f64> = groups.iter().map(|c| c.residual.iter().map(|r| r * r).sum::<f64>()).collect();
         let (total_ss, total_n) = sums_of_squares(groups);
         let improved = evaluated.improvements.iter().filter(|d| **d > 0.0).count();
@@ -538,11 +536,11 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
             without_fundamental,
         }
     };
-    let results: Vec<Ranked> = candidates::ALL
+    let results: Vec<Ranked> = Effect::ALL
         .par_iter()
         .map(|cand| {
-            let free = free.as_deref().filter(|_| cand.beyond_fundamental());
-            let (on_whole, on_free) = cand.evaluate_pair(ctx, free, folds);
+            let free = free.as_deref().filter(|_| cand.beyond_the_fundamental());
+            let (on_whole, on_free) = candidates::evaluate_pair(*cand, ctx, free, folds);
             let whole = score(cand, ctx, on_whole);
             match free.zip(on_free) {
                 Some((free, on_free)) => {
@@ -610,7 +608,7 @@ pub fn diagnose_contexts(ctx: &[GroupCtx], model_cv_rms_um: f64) -> Diagnosis {
     };
     let test = format!(
         "Test: each candidate's coefficients are fitted on {folds} - 1 folds of groups and scored on the held-out fold, on the residual and, for the {} whose signature reaches beyond the fundamental, also on the residual without each group's fundamental. A score is significant when it explains at least {:.0}% of its residual, its per-group reductions of that residual add up to more than chance allows (one-sided sign-flip test over groups, sum / sqrt(sum of squares) against the normal, of the reductions and of the reductions relative to each group's residual, p < {ALPHA}/{} = {:.2e}, Bonferroni over the {} scores and the 2 statistics), and the residual RMS it explains exceeds the data's own floor, the part of the error that does not repeat from one command period to the next (the lower quartile over the groups, {:.1} nm, and at least {:.0} nm). The verdict is the significant candidate that explains the most residual RMS, else none. Ahead of them, the probe's scale is read on the slowest groups, where the servo follows the command: their in-phase ratios of probe to command as 1 + c + d / stroke (weighted by the stroke squared); a c of at least {:.1}% and {} standard errors whose part of the motion holds at least {:.0}% of the error there names sensor-gain first.",
-        candidates::ALL.iter().filter(|c| c.beyond_fundamental()).count(),
+        Effect::ALL.iter().filter(|c| c.beyond_the_fundamental()).count(),
         MIN_EXPLAINED * 100.0,
         scores_tested() * STATISTICS,
         significance_threshold(),

@@ -10,6 +10,7 @@
 //! ([`sts_analysis::probe_scale`]).
 
 use sts_analysis::probe_scale::probe_scale_of;
+use sts_model::Effect;
 
 use super::{GroupCtx, Ranked, MIN_EXPLAINED};
 
@@ -54,7 +55,7 @@ pub fn probe_scale_error(ctx: &[GroupCtx]) -> Option<Ranked> {
     let amps = scale.slowest_groups().map(|g| g.amp_um);
     let (amp_lo, amp_hi) = amps.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), a| (lo.min(a), hi.max(a)));
     Some(Ranked {
-        effect: "sensor-gain".to_string(),
+        effect: Effect::SensorGain.name().to_string(),
         explained_fraction,
         p_value: libm::erfc(t.abs() / std::f64::consts::SQRT_2),
         groups_improved: scale.slowest_groups().filter(|g| (g.ratio - 1.0) * k > 0.0).count(),

@@ -122,7 +122,7 @@ mod tests {
     #[test]
     fn the_help_names_every_effect_the_emulator_has() {
         let help = Measure::command().render_long_help().to_string();
-        for name in sts_emulator::EFFECT_NAMES {
+        for name in sts_model::Effect::ALL.map(sts_model::Effect::name) {
             assert!(help.contains(name), "`measure --help` does not name {name}");
         }
     }

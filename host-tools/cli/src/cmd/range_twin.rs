@@ -4,8 +4,9 @@
 
 use sts_assess::explain::{explain, Base, ExplainConfig};
 use sts_emulator::{EffectSpec, MeasureConfig, PlantParams};
-use sts_fit::effects::{fit_with, write_model, AXIS_EFFECTS, SERVO_AXIS};
+use sts_fit::effects::{fit_with, write_model, SERVO_AXIS};
 use sts_fit::{fit, FitConfig};
+use sts_model::Effect;
 use sts_model::ModelFile;
 
 /// Where `machine` and `trial-table` keep the twin they fit without --out (replaced on each
@@ -60,16 +61,17 @@ fn measure_and_fit_range(
         );
     }
     let named: Vec<String> = explanation.effects.iter().map(|r| r.effect.clone()).collect();
-    let (mut model, records) = if named.iter().any(|n| AXIS_EFFECTS.contains(&n.as_str())) {
+    let axis_carried = |name: &str| Effect::from_name(name).is_some_and(Effect::carried_by_the_axis_twin);
+    let (mut model, records) = if named.iter().any(|n| axis_carried(n)) {
         // Friction, hysteresis and a ripple share the one axis twin, and on a measurement of
         // the whole range the diagnosis tells them apart less surely than it tells them from
         // nothing (a friction machine's was named hysteresis): the twin with all three is
         // fitted too, and the one that predicts the measurement better, held out, is kept.
         let names: Vec<String> = named
             .iter()
-            .filter(|n| **n != SERVO_AXIS && !AXIS_EFFECTS.contains(&n.as_str()))
+            .filter(|n| **n != SERVO_AXIS && !axis_carried(n))
             .cloned()
-            .chain(AXIS_EFFECTS.iter().map(|n| n.to_string()))
+            .chain(Effect::ALL.into_iter().filter(|e| e.carried_by_the_axis_twin()).map(|e| e.name().to_string()))
             .collect();
         eprintln!("fitting the axis twin with {} too ...", names.join(", "));
         let (all_three, all_records) = fit_with(&dataset, &names, description, &fit_config, &mut |_| {})?;

@@ -26,6 +26,7 @@ use sts_analysis::bases::laguerre;
 use sts_analysis::lsq::{least_squares, solve, Stats};
 use sts_analysis::response::{mode_grid, mode_high_pass, mul, phasor, velocity_bank, Complex};
 use sts_dataset::Dataset;
+use sts_model::Effect;
 use sts_twin_core::program::{resonance_params_ok, TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
 use sts_twin_core::synth::Resonance;
 use sts_twin_core::SERVO_RATE_HZ;
@@ -116,7 +117,7 @@ pub(super) fn fit_setpoint_delay(
 ) -> Result<(TickTerm, Vec<(String, f64)>), FitError> {
     let kind = velocity_input(inputs);
     let theta = fit_on_samples(dataset, inputs, &kind, None);
-    let term = bank_term(kind, &theta, "setpoint-delay")?;
+    let term = bank_term(kind, &theta, Effect::SetpointDelay.name())?;
     Ok((
         term,
         vec![
@@ -399,7 +400,7 @@ pub(super) fn fit_mode(
     if !resonance_params_ok(mode_hz as f32, zeta as f32, gain as f32) {
         return Err(FitError::ResonanceOutOfRange { freq_hz: mode_hz, damping: zeta, gain });
     }
-    let bank = bank_term(kind, &theta[..LAGUERRE_STAGES], "structural-mode")?;
+    let bank = bank_term(kind, &theta[..LAGUERRE_STAGES], Effect::StructuralMode.name())?;
     Ok(Some((
         vec![bank, resonance],
         vec![

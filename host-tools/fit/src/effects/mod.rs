@@ -44,20 +44,11 @@ use sts_twin_core::program::{terms_tick_cost, TermInput, TickTerm, MAX_HARMONIC_
 
 use sts_analysis::lsq::{solve, Projection, Stats};
 use sts_analysis::targets;
-use sts_model::EFFECTS;
-use sts_model::{hex_encode, ModelFile};
+use sts_model::{hex_encode, Effect, FitEffect, ModelFile};
 
 use crate::FitError;
 
-/// The effects the servo-axis twin carries.
-pub const AXIS_EFFECTS: [&str; 3] = ["coulomb-friction", "presliding-hysteresis", "force-ripple"];
-
 pub use sts_model::SERVO_AXIS;
-
-/// Whether `name` is carried by the servo-axis twin.
-fn is_axis(name: &str) -> bool {
-    name == SERVO_AXIS || AXIS_EFFECTS.contains(&name)
-}
 
 /// One effect added to a model.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -290,23 +281,29 @@ fn ripple_pitch_um(dataset: &Dataset, inputs: &[GroupInputs], beside_axis_effect
 /// Prepares `fit --effect` for the named effects: fits their terms and returns the dataset
 /// whose `z_tcp_um` excludes the terms' output.
 pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError> {
-    for n in names {
-        if !(EFFECTS.contains(&n.as_str()) || n == SERVO_AXIS) {
-            return Err(FitError::UnknownEffect { name: n.clone() });
-        }
-    }
-    if names.iter().any(|n| n == "sensor-gain") {
+    let effects = names
+        .iter()
+        .map(|name| name.parse::<FitEffect>().map_err(|_| FitError::UnknownEffect { name: name.clone() }))
+        .collect::<Result<Vec<_>, _>>()?;
+    prepare_effects(dataset, &effects)
+}
+
+/// [`prepare`] for effects already parsed.
+fn prepare_effects(dataset: &Dataset, effects: &[FitEffect]) -> Result<Prepared, FitError> {
+    let is = |effect: Effect| effects.contains(&FitEffect::Effect(effect));
+    if is(Effect::SensorGain) {
         // A probe gain is taken out of the readings first (the twin models the tool, not the
         // probe); an accelerometer gain is carried by the refitted formulas.
         let gain = probe_gain(dataset);
         let significant = (gain - 1.0).abs() >= sts_analysis::probe_scale::SCALE_TOLERANCE;
-        let others: Vec<String> = names.iter().filter(|n| *n != "sensor-gain").cloned().collect();
+        let others: Vec<FitEffect> =
+            effects.iter().copied().filter(|e| *e != FitEffect::Effect(Effect::SensorGain)).collect();
         let corrected = if significant {
             std::borrow::Cow::Owned(sts_model::replay::with_probe_gain(dataset, gain))
         } else {
             std::borrow::Cow::Borrowed(dataset)
         };
-        let mut prepared = prepare(&corrected, &others)?;
+        let mut prepared = prepare_effects(&corrected, &others)?;
         let note = if significant {
             format!("the probe reads {:+.2}%: its readings are divided by {gain:.5} here and, from the model file, in compare and diagnose", (gain - 1.0) * 100.0)
         } else {
@@ -314,7 +311,12 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
         };
         prepared.records.insert(
             0,
-            EffectRecord { effect: "sensor-gain".into(), params: vec![("probe_gain".into(), gain)], terms: 0, note },
+            EffectRecord {
+                effect: Effect::SensorGain.name().into(),
+                params: vec![("probe_gain".into(), gain)],
+                terms: 0,
+                note,
+            },
         );
         prepared.probe_gain = significant.then_some(gain);
         return Ok(prepared);
@@ -323,50 +325,47 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
     let inputs = all_group_inputs(dataset)?;
     let mut terms = Vec::new();
     let mut records = Vec::new();
-    let mut axis_names: Vec<String> = Vec::new();
+    let mut axis_effects: Vec<FitEffect> = Vec::new();
     // An in-band mode brings its own velocity bank, which a setpoint delay then shares (two
     // banks and a resonance would exceed the tick's budget). With a servo-axis twin, which
     // simulates the axis's whole linear response itself (a late setpoint in its command
     // delay), the mode, in the band or above it, is that twin's second mode.
-    let has_axis = names.iter().any(|n| is_axis(n));
-    let in_band_mode = if names.iter().any(|n| n == "structural-mode") && !has_axis {
-        linear::fit_mode(dataset, &inputs)?
-    } else {
-        None
-    };
-    for name in names {
-        let (new_terms, params, note) = match name.as_str() {
-            n if is_axis(n) => {
+    let has_axis = effects.iter().any(|e| e.needs_the_axis_twin());
+    let in_band_mode = if is(Effect::StructuralMode) && !has_axis { linear::fit_mode(dataset, &inputs)? } else { None };
+    for &effect in effects {
+        let (new_terms, params, note) = match effect {
+            FitEffect::ServoAxis
+            | FitEffect::Effect(Effect::CoulombFriction | Effect::PreslidingHysteresis | Effect::ForceRipple) => {
                 // One servo-axis twin carries all three (identified together below).
-                axis_names.push(name.clone());
+                axis_effects.push(effect);
                 continue;
             }
-            "thermal-drift" => {
+            FitEffect::Effect(Effect::ThermalDrift) => {
                 let (term, params) = fit_drift(dataset, &inputs, fs);
                 (vec![term], params, "offset + decay * exp(-t / tau) over machine time".to_string())
             }
-            "setpoint-delay" if has_axis => (
+            FitEffect::Effect(Effect::SetpointDelay) if has_axis => (
                 Vec::new(),
                 Vec::new(),
                 "carried by the servo-axis twin, which simulates the axis from the command (its command delay)".to_string(),
             ),
-            "setpoint-delay" if in_band_mode.is_some() => (
+            FitEffect::Effect(Effect::SetpointDelay) if in_band_mode.is_some() => (
                 Vec::new(),
                 Vec::new(),
                 "carried by the in-band structural mode's velocity bank (the axis's linear response to the command)".to_string(),
             ),
-            "setpoint-delay" => {
+            FitEffect::Effect(Effect::SetpointDelay) => {
                 let (term, params) = linear::fit_setpoint_delay(dataset, &inputs)?;
                 (vec![term], params, "the axis's linear response to the command velocity (a Laguerre bank): the setpoint's delay and the servo's own lag, so that the formulas fit only what is left".to_string())
             }
-            "structural-mode" if has_axis => {
+            FitEffect::Effect(Effect::StructuralMode) if has_axis => {
                 // Beside friction, hysteresis or a ripple, whose forces ring the mode at the
                 // command's harmonics (no formula at the command frequency carries that): the
                 // axis twin's second mode, in the band or above it.
-                axis_names.push(name.clone());
+                axis_effects.push(effect);
                 continue;
             }
-            "structural-mode" => match &in_band_mode {
+            FitEffect::Effect(Effect::StructuralMode) => match &in_band_mode {
                 Some((mode_terms, params)) => (
                     mode_terms.clone(),
                     params.clone(),
@@ -378,13 +377,14 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
                     "a mode above the measurement's band: a linear change of the response at the command frequency, carried by the refitted amplitude and phase formulas".to_string(),
                 ),
             },
-            "axis-coupling" => {
+            FitEffect::Effect(Effect::AxisCoupling) => {
                 let (term, params) = fit_coupling(dataset, &inputs)?;
                 (vec![term], params, "X acceleration gain and spindle once-per-revolution sine (the bus carries both; a machine without them sends zero)".to_string())
             }
-            _ => (Vec::new(), Vec::new(), "linear change of the response at the command frequency: carried by the refitted amplitude and phase formulas".to_string()),
+            // A sensor's gain is taken out above.
+            FitEffect::Effect(Effect::LoopDelay | Effect::SensorGain) => (Vec::new(), Vec::new(), "linear change of the response at the command frequency: carried by the refitted amplitude and phase formulas".to_string()),
         };
-        records.push(EffectRecord { effect: name.clone(), params, terms: new_terms.len(), note });
+        records.push(EffectRecord { effect: effect.name().into(), params, terms: new_terms.len(), note });
         terms.extend(new_terms);
     }
     // A late setpoint or an in-band mode is a linear response to the command: as kernel terms
@@ -392,13 +392,13 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
     // over its budget (a bank, a drift and a coupling: 839 of 800). The servo-axis twin simulates the
     // axis's whole linear response at low priority (the setpoint in its command delay, the mode
     // as its second mode), costing the tick a harmonic: the effects then ride on it instead.
-    let linear_response = names.iter().any(|n| n == "setpoint-delay") || in_band_mode.is_some();
+    let linear_response = is(Effect::SetpointDelay) || in_band_mode.is_some();
     if !has_axis && linear_response {
         let cost = terms_tick_cost(&terms);
         if cost > TICK_BUDGET_INSTRUCTIONS {
-            let mut with_axis = names.to_vec();
-            with_axis.push(SERVO_AXIS.to_string());
-            let mut prepared = prepare(dataset, &with_axis)?;
+            let mut with_axis = effects.to_vec();
+            with_axis.push(FitEffect::ServoAxis);
+            let mut prepared = prepare_effects(dataset, &with_axis)?;
             if let Some(record) = prepared.records.iter_mut().find(|r| r.effect == SERVO_AXIS) {
                 record.note.push_str(&format!(
                     ": it carries the axis's linear response, whose kernel terms beside the others would take the servo tick to about {cost} of its {TICK_BUDGET_INSTRUCTIONS} instructions"
@@ -407,7 +407,7 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
             return Ok(prepared);
         }
     }
-    if !axis_names.is_empty() {
+    if !axis_effects.is_empty() {
         // On the readings less the terms fitted so far (a drift or a coupling moves the probe
         // only, and the axis twin would otherwise bend its mode to follow them).
         let reduced;
@@ -418,9 +418,9 @@ pub fn prepare(dataset: &Dataset, names: &[String]) -> Result<Prepared, FitError
             let reduced_inputs = all_group_inputs(&reduced)?;
             (&reduced, reduced_inputs)
         };
-        let (term, mut axis_records) = fit_axis(axis_data, &axis_inputs, &axis_names)?;
+        let (term, mut axis_records) = fit_axis(axis_data, &axis_inputs, &axis_effects)?;
         terms.push(term);
-        if axis_names.iter().any(|n| AXIS_EFFECTS.contains(&n.as_str())) {
+        if axis_effects.iter().any(|e| matches!(e, FitEffect::Effect(e) if e.carried_by_the_axis_twin())) {
             let orders = higher_orders(&terms);
             if let (false, Some(record)) = (orders.is_empty(), axis_records.first_mut()) {
                 let listed: Vec<String> = orders.iter().map(u8::to_string).collect();
@@ -569,19 +569,20 @@ fn terms_output_counted(terms: &[TickTerm], group: &GroupData, start_s: f64, fs:
 fn fit_axis(
     dataset: &Dataset,
     inputs: &[GroupInputs],
-    names: &[String],
+    effects: &[FitEffect],
 ) -> Result<(TickTerm, Vec<EffectRecord>), FitError> {
-    let has = |n: &str| names.iter().any(|x| x == n);
-    let beside_axis_effects = has("coulomb-friction") || has("presliding-hysteresis");
-    let ripple_pitch_um = has("force-ripple").then(|| ripple_pitch_um(dataset, inputs, beside_axis_effects));
-    let effects = axis::AxisEffects {
-        friction: has("coulomb-friction"),
-        hysteresis: has("presliding-hysteresis"),
+    let has = |effect: Effect| effects.contains(&FitEffect::Effect(effect));
+    let beside_axis_effects = has(Effect::CoulombFriction) || has(Effect::PreslidingHysteresis);
+    let ripple_pitch_um = has(Effect::ForceRipple).then(|| ripple_pitch_um(dataset, inputs, beside_axis_effects));
+    let second_mode = has(Effect::StructuralMode);
+    let axis_effects = axis::AxisEffects {
+        friction: has(Effect::CoulombFriction),
+        hysteresis: has(Effect::PreslidingHysteresis),
         ripple_pitch_um,
-        second_mode: has("structural-mode"),
-        second_mode_start: if has("structural-mode") { linear::in_band_mode_start(dataset, inputs) } else { None },
+        second_mode,
+        second_mode_start: if second_mode { linear::in_band_mode_start(dataset, inputs) } else { None },
     };
-    let fit = axis::identify(dataset, effects).map_err(|e| FitError::IdentifyAxis { source: Box::new(e) })?;
+    let fit = axis::identify(dataset, axis_effects).map_err(|e| FitError::IdentifyAxis { source: Box::new(e) })?;
     let p = fit.params;
     let shared = |params: &mut Vec<(String, f64)>| {
         params.extend([
@@ -596,9 +597,9 @@ fn fit_axis(
         ])
     };
     let mut records = Vec::new();
-    for name in names {
-        let mut params: Vec<(String, f64)> = match name.as_str() {
-            "coulomb-friction" => p.friction.map_or_else(Vec::new, |f| {
+    for &effect in effects {
+        let mut params: Vec<(String, f64)> = match effect {
+            FitEffect::Effect(Effect::CoulombFriction) => p.friction.map_or_else(Vec::new, |f| {
                 // The Stribeck zone's steepest fall of friction with velocity (at vs / sqrt 2)
                 // is negative damping; near the servo's own damping the axis hunts there
                 // (oscillates by itself, in a phase no twin can predict from the command).
@@ -613,21 +614,21 @@ fn fit_axis(
                     ("stribeck_damping_ratio".to_string(), negative_damping / f64::from(p.kd_per_s + p.viscous_per_s)),
                 ]
             }),
-            "presliding-hysteresis" => p.hysteresis.map_or_else(Vec::new, |h| {
+            FitEffect::Effect(Effect::PreslidingHysteresis) => p.hysteresis.map_or_else(Vec::new, |h| {
                 vec![
                     ("force_mps2".to_string(), f64::from(h.force_mps2)),
                     ("presliding_distance_um".to_string(), f64::from(h.force_mps2 / h.stiffness_per_s2) * 1e6),
                 ]
             }),
-            SERVO_AXIS => Vec::new(),
-            "structural-mode" => p.second_mode.map_or_else(Vec::new, |m| {
+            FitEffect::ServoAxis => Vec::new(),
+            FitEffect::Effect(Effect::StructuralMode) => p.second_mode.map_or_else(Vec::new, |m| {
                 vec![
                     ("freq_hz".to_string(), f64::from(m.freq_hz)),
                     ("damping".to_string(), f64::from(m.damping)),
                     ("tcp_gain".to_string(), f64::from(m.tcp_gain)),
                 ]
             }),
-            _ => p.ripple.map_or_else(Vec::new, |r| {
+            FitEffect::Effect(Effect::ForceRipple) => p.ripple.map_or_else(Vec::new, |r| {
                 vec![
                     ("amp_nm".to_string(), f64::from(r.amp_nm)),
                     ("harmonic2_nm".to_string(), f64::from(r.harmonic2_nm)),
@@ -635,19 +636,27 @@ fn fit_axis(
                     ("phase_deg".to_string(), f64::from(r.phase_turns) / 4_294_967_296.0 * 360.0),
                 ]
             }),
+            // Not carried by the axis twin: `prepare` never passes them here.
+            FitEffect::Effect(
+                Effect::LoopDelay
+                | Effect::SetpointDelay
+                | Effect::ThermalDrift
+                | Effect::AxisCoupling
+                | Effect::SensorGain,
+            ) => Vec::new(),
         };
         shared(&mut params);
         let first = records.is_empty();
         records.push(EffectRecord {
-            effect: name.clone(),
+            effect: effect.name().into(),
             params,
             terms: usize::from(first),
             note: format!(
                 "servo-axis twin (controller, slide, mode{}, simulated from the command; forces per kg; the firmware compensates through it){}",
-                match name.as_str() {
-                    SERVO_AXIS => "",
-                    "structural-mode" => " and a second mode: this effect",
-                    _ => " and the effect",
+                match effect {
+                    FitEffect::ServoAxis => "",
+                    FitEffect::Effect(Effect::StructuralMode) => " and a second mode: this effect",
+                    FitEffect::Effect(_) => " and the effect",
                 },
                 if first { "" } else { ": the term above" }
             ),

@@ -27,6 +27,8 @@ from . import _native
 from ._native import StsTwinError
 
 __all__ = [
+    "EFFECTS",
+    "SERVO_AXIS",
     "Comparison",
     "Dataset",
     "Diagnosis",
@@ -40,6 +42,11 @@ __all__ = [
     "read_dataset",
 ]
 __version__ = _native.__version__
+
+#: The physical effects' names, as ``fit(effects=...)``, the model files and the diagnoses use them.
+EFFECTS: tuple[str, ...] = tuple(_native.EFFECTS)
+#: ``fit(effects=[SERVO_AXIS])``: the servo-axis twin alone, the twin for a machine's whole speed range.
+SERVO_AXIS: str = _native.SERVO_AXIS
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -195,7 +202,7 @@ def fit(
     progress: Optional[ProgressCallback] = None,
 ) -> Model:
     """Fits a twin on ``data`` as ``sts-twin fit`` does, with ``effects``' per-tick terms
-    (canonical names, e.g. ``["coulomb-friction", "thermal-drift"]``). ``None`` takes the
+    (names of ``EFFECTS`` or ``SERVO_AXIS``, e.g. ``["coulomb-friction", "thermal-drift"]``). ``None`` takes the
     CLI's default; the same data, seed and settings give the same twin. Ctrl-C stops it
     within a second (``KeyboardInterrupt``); ``progress(message, searches_done,
     searches_total)`` is called as the searches report (an exception from it stops the fit)."""

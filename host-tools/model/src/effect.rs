@@ -15,8 +15,6 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-use crate::SERVO_AXIS;
-
 /// One of the physical effects, in the library's order ([`Effect::ALL`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -42,7 +40,8 @@ pub enum Effect {
 }
 
 impl Effect {
-    /// Every effect, in the library's order.
+    /// Every effect, in the library's order. A new variant is added here by hand: the
+    /// matches on [`Effect`] are checked by the compiler, this list is not.
     pub const ALL: [Effect; 9] = [
         Effect::CoulombFriction,
         Effect::PreslidingHysteresis,
@@ -123,6 +122,12 @@ impl FromStr for Effect {
         Self::from_name(name).ok_or_else(|| UnknownEffect { name: name.into() })
     }
 }
+
+/// Not an effect but the servo-axis twin alone (controller, slide and structural mode,
+/// simulated from the command, no nonlinear effect): the twin for a machine's whole speed
+/// range, whose correction the firmware learns from the command rather than from the
+/// accelerometer's view of the compensated motion. `fit --effect servo-axis`.
+pub const SERVO_AXIS: &str = "servo-axis";
 
 /// What `fit --effect NAME` adds to a twin: a physical effect, or the servo-axis twin alone
 /// ([`SERVO_AXIS`], the twin for a machine's whole speed range). Its name is the effect's, or

@@ -12,13 +12,7 @@ use sts_symreg::{Expr, FloatType};
 use sts_twin_core::features::{FeatureConfig, FEATURE_LABELS};
 use sts_twin_core::program::Program;
 
-use crate::{Effect, ModelError, ModelFileError};
-
-/// Not an effect but the servo-axis twin alone (controller, slide and structural mode,
-/// simulated from the command, no nonlinear effect): the twin for a machine's whole speed
-/// range, whose correction the firmware learns from the command rather than from the
-/// accelerometer's view of the compensated motion. `fit --effect servo-axis`.
-pub const SERVO_AXIS: &str = "servo-axis";
+use crate::{Effect, ModelError, ModelFileError, SERVO_AXIS};
 
 /// The largest model file read, bytes: a twin of thousands of groups takes a few MB; a
 /// larger file is not one.

@@ -9,6 +9,6 @@ mod file;
 pub mod replay;
 
 pub use compile::{compile_program, expr_to_code};
-pub use effect::{Effect, FitEffect, UnknownEffect};
+pub use effect::{Effect, FitEffect, UnknownEffect, SERVO_AXIS};
 pub use error::{ModelError, ModelFileError};
 pub use file::*;

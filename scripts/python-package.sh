@@ -29,6 +29,15 @@ if [ "$mode" != build ]; then
         echo "error: no wheel in target/wheels: run scripts/python-package.sh build first" >&2
         exit 1
     fi
+    # A wheel older than the sources it is built from would be tested against a CLI built
+    # from newer ones.
+    newer=$(find host-tools firmware/core Cargo.lock host-tools/python/python \
+        \( -name '*.rs' -o -name Cargo.toml -o -name Cargo.lock -o -path '*/python/python/*.py' \) \
+        -newer "${wheels[0]}" -print -quit)
+    if [ -n "$newer" ]; then
+        echo "error: ${wheels[0]} is older than $newer: run scripts/python-package.sh build (or all) first" >&2
+        exit 1
+    fi
     cli=${STS_TWIN_CLI:-$PWD/target/$profile/sts-twin}
     if [ ! -x "$cli" ]; then
         cargo build --locked --profile "$profile" -p sts-twin

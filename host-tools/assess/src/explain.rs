@@ -277,9 +277,8 @@ fn best_partner(
 /// effect's or like no candidate's.
 fn second_mode_try(d: &Diagnosis, carried: &[String]) -> Option<usize> {
     let mode = Effect::StructuralMode.name().to_string();
-    let axis_carried = |name: &str| Effect::from_name(name).is_some_and(Effect::carried_by_the_axis_twin);
-    let has_axis = carried.iter().any(|c| axis_carried(c));
-    let axis_named_again = axis_carried(&d.verdict) && carried.contains(&d.verdict);
+    let has_axis = carried.iter().any(|c| Effect::name_carried_by_the_axis_twin(c));
+    let axis_named_again = Effect::name_carried_by_the_axis_twin(&d.verdict) && carried.contains(&d.verdict);
     let unexplained = d.verdict == "none" && d.unexplained.is_some();
     (has_axis && !carried.contains(&mode) && (axis_named_again || unexplained))
         .then(|| d.ranking.iter().position(|r| r.effect == mode))

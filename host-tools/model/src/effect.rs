@@ -85,6 +85,12 @@ impl Effect {
         matches!(self, Effect::CoulombFriction | Effect::PreslidingHysteresis | Effect::ForceRipple)
     }
 
+    /// Whether `name` names an effect the servo-axis twin carries (a model file's record
+    /// names it so; the axis twin itself, [`SERVO_AXIS`], is not such an effect).
+    pub fn name_carried_by_the_axis_twin(name: &str) -> bool {
+        Self::from_name(name).is_some_and(Self::carried_by_the_axis_twin)
+    }
+
     /// Whether its signature reaches beyond the command frequency (harmonics, steps, trends,
     /// other lines), so that the twin needs terms for it: the formulas at the command's
     /// frequency cannot carry it. A mode, a delay (in the loop or ahead of it) and a sensor's

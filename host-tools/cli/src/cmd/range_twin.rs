@@ -61,15 +61,14 @@ fn measure_and_fit_range(
         );
     }
     let named: Vec<String> = explanation.effects.iter().map(|r| r.effect.clone()).collect();
-    let axis_carried = |name: &str| Effect::from_name(name).is_some_and(Effect::carried_by_the_axis_twin);
-    let (mut model, records) = if named.iter().any(|n| axis_carried(n)) {
+    let (mut model, records) = if named.iter().any(|n| Effect::name_carried_by_the_axis_twin(n)) {
         // Friction, hysteresis and a ripple share the one axis twin, and on a measurement of
         // the whole range the diagnosis tells them apart less surely than it tells them from
         // nothing (a friction machine's was named hysteresis): the twin with all three is
         // fitted too, and the one that predicts the measurement better, held out, is kept.
         let names: Vec<String> = named
             .iter()
-            .filter(|n| **n != SERVO_AXIS && !axis_carried(n))
+            .filter(|n| **n != SERVO_AXIS && !Effect::name_carried_by_the_axis_twin(n))
             .cloned()
             .chain(Effect::ALL.into_iter().filter(|e| e.carried_by_the_axis_twin()).map(|e| e.name().to_string()))
             .collect();

@@ -4,7 +4,6 @@
 pub mod bases;
 mod error;
 pub mod features;
-pub mod lsq;
 pub mod probe_scale;
 pub mod repeat;
 pub mod resample;

@@ -8,7 +8,7 @@
 
 use std::f64::consts::PI;
 
-use crate::lsq::least_squares;
+use sts_numerics::lsq::least_squares;
 use sts_twin_core::SERVO_RATE_HZ;
 
 /// A complex number, `(re, im)`.

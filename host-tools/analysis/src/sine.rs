@@ -3,7 +3,7 @@
 
 use std::f64::consts::PI;
 
-use crate::lsq::least_squares;
+use sts_numerics::lsq::least_squares;
 
 /// A sinusoid `amp * sin(2 pi f t + phase_rad) + offset` fitted to samples.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -4,7 +4,7 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::DMatrix;
 use std::hint::black_box;
-use sts_analysis::lsq::Stats;
+use sts_numerics::lsq::Stats;
 
 fn columns(rows: usize, cols: usize) -> Vec<Vec<f64>> {
     (0..cols).map(|j| (0..rows).map(|i| ((i * (j + 3)) as f64 * 1e-3).sin() + 0.1 * j as f64).collect()).collect()

@@ -5,10 +5,10 @@ use std::f64::consts::PI;
 use rayon::prelude::*;
 
 use sts_analysis::bases::{laguerre, LAGUERRE_POLE};
-use sts_analysis::lsq::{solve, Stats};
 use sts_analysis::response::{delay, mode_grid, mode_high_pass, mul, phasor_of, sine_weights, velocity_bank, Complex};
 use sts_analysis::sine::line_amp;
 use sts_model::Effect;
+use sts_numerics::lsq::{solve, Stats};
 
 use super::GroupCtx;
 use sts_twin_core::program::LAGUERRE_STAGES;

@@ -74,12 +74,12 @@ use rayon::prelude::*;
 use serde::Serialize;
 use sts_dataset::Dataset;
 
-use sts_analysis::lsq::Stats;
 use sts_analysis::repeat::{group_non_repeating_um, Repeatability, NOT_REPEATING_MIN_UM};
 use sts_analysis::{self as analysis, GroupSample};
 use sts_fit::effects::{terms_output, DataErrorPhasors};
 use sts_model::replay::predict_group;
 use sts_model::{Effect, ModelFile};
+use sts_numerics::lsq::Stats;
 use sts_twin_core::program::TickTerm;
 
 use crate::AssessError;
@@ -190,28 +190,25 @@ pub struct GroupCtx<'a> {
 /// A group's fundamental over the scored window (the command frequency's sine and cosine),
 /// to take out of a residual and of a candidate's columns by least squares.
 pub struct Fundamental {
-    sin: Vec<f64>,
-    cos: Vec<f64>,
-    /// Inverse of the 2 x 2 Gram matrix of `sin` and `cos`.
+    /// Inverse of the 2 x 2 Gram matrix of the group's `sin_theta` and `cos_theta`.
     inv_gram: [[f64; 2]; 2],
 }
 
 impl Fundamental {
     fn new(sin: &[f64], cos: &[f64]) -> Option<Self> {
-        let (sin, cos) = (sin.to_vec(), cos.to_vec());
         let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
-        let (ss, sc, cc) = (dot(&sin, &sin), dot(&sin, &cos), dot(&cos, &cos));
+        let (ss, sc, cc) = (dot(sin, sin), dot(sin, cos), dot(cos, cos));
         let det = ss * cc - sc * sc;
-        (det > 1e-9 * ss * cc).then(|| Self { inv_gram: [[cc / det, -sc / det], [-sc / det, ss / det]], sin, cos })
+        (det > 1e-9 * ss * cc).then(|| Self { inv_gram: [[cc / det, -sc / det], [-sc / det, ss / det]] })
     }
 
-    /// `x` minus its least-squares fit by the fundamental.
-    pub fn remove(&self, x: &[f64]) -> Vec<f64> {
+    /// `x` minus its least-squares fit by the fundamental `sin`, `cos` (those it was made from).
+    pub fn remove(&self, x: &[f64], sin: &[f64], cos: &[f64]) -> Vec<f64> {
         let dot = |a: &[f64]| a.iter().zip(x).map(|(p, q)| p * q).sum::<f64>();
-        let (bs, bc) = (dot(&self.sin), dot(&self.cos));
+        let (bs, bc) = (dot(sin), dot(cos));
         let a = self.inv_gram[0][0] * bs + self.inv_gram[0][1] * bc;
         let b = self.inv_gram[1][0] * bs + self.inv_gram[1][1] * bc;
-        x.iter().zip(self.sin.iter().zip(&self.cos)).map(|(v, (s, c))| v - a * s - b * c).collect()
+        x.iter().zip(sin.iter().zip(cos)).map(|(v, (s, c))| v - a * s - b * c).collect()
     }
 }
 
@@ -228,7 +225,8 @@ impl GroupCtx<'_> {
         match &self.without_fundamental {
             None => Stats::from_columns(columns, &self.residual),
             Some(f) => {
-                let removed: Vec<Vec<f64>> = columns.iter().map(|c| f.remove(c)).collect();
+                let removed: Vec<Vec<f64>> =
+                    columns.iter().map(|c| f.remove(c, &self.sin_theta, &self.cos_theta)).collect();
                 Stats::from_columns(&removed, &self.residual)
             }
         }
@@ -243,7 +241,7 @@ impl GroupCtx<'_> {
             data: self.data,
             predicted_um: self.predicted_um.clone(),
             start: self.start,
-            residual: f.remove(&self.residual),
+            residual: f.remove(&self.residual, &self.sin_theta, &self.cos_theta),
             theta: self.theta.clone(),
             sin_theta: self.sin_theta.clone(),
             cos_theta: self.cos_theta.clone(),

@@ -8,7 +8,7 @@ use rustfft::num_complex::Complex;
 use rustfft::FftPlannerScalar;
 use serde::Serialize;
 
-use sts_analysis::lsq::{solve, Stats};
+use sts_numerics::lsq::{solve, Stats};
 
 use super::GroupCtx;
 

@@ -29,7 +29,8 @@ use sts_dataset::Dataset;
 use sts_twin_core::axis::discretise::{zoh, Continuous, STATES};
 use sts_twin_core::axis::{AxisParams, Friction, Hysteresis, Ripple, StructuralMode, MAX_CMD_DELAY_TICKS};
 
-use sts_analysis::lsq::{solve, solve_damped, Stats};
+use sts_numerics::lm::{self, rms, Settings};
+use sts_numerics::lsq::{solve, Stats};
 
 use crate::FitError;
 use sts_twin_core::{SERVO_RATE_HZ, TICK_S};
@@ -568,22 +569,13 @@ impl<'a> Sample<'a> {
     }
 }
 
-fn rms(r: &[f64]) -> f64 {
-    let s: f64 = r.iter().map(|x| x * x).sum();
-    let v = (s / r.len().max(1) as f64).sqrt();
-    if v.is_finite() {
-        v
-    } else {
-        f64::INFINITY
-    }
-}
+/// The damping of the axis's fits: from a moderate start, never below 1e-7 (the servo's gains
+/// are nearly interchangeable along a valley, where an undamped step overshoots), stopping where
+/// a step gains less than 0.01%.
+const AXIS_LM: Settings =
+    Settings { iterations: 0, tries: 8, damping_start: 1e-2, damping_min: 1e-7, min_relative_gain: 1e-4 };
 
-/// Levenberg-Marquardt over `free` slots, at most `iterations`.
-///
-/// Hand-written rather than the `levenberg-marquardt` crate (MINPACK's trust region): measured
-/// in its place, it reached the same fits no faster in all and slower where the fit is
-/// quickest, and it would pin nalgebra's version. The steps' least squares are
-/// `sts_analysis::lsq`'s QR.
+/// Levenberg-Marquardt ([`sts_numerics::lm`]) over `free` slots, at most `iterations`.
 fn levenberg_marquardt(
     start: Candidate,
     free: &[Slot],
@@ -591,65 +583,61 @@ fn levenberg_marquardt(
     what: Fit,
     iterations: usize,
 ) -> (Candidate, f64) {
-    let mut c = start;
-    let mut r = sample.residuals(&c, what);
-    let mut cost = rms(&r);
-    let mut lambda = 1e-2;
-    let moved = |c: &Candidate, slot: Slot, step: f64| -> Candidate {
-        let mut out = *c;
-        let x = &mut out.v[slot as usize];
-        match slot.additive() {
-            Some(scale) => *x += step * scale,
-            None => *x *= step.clamp(-0.7, 0.7).exp(),
-        }
-        let (lo, hi) = match (slot, c.effects.ripple_pitch_um) {
-            // Near the pitch measured from the data: at twice it, the second harmonic alone
-            // fits the same ripple.
-            (Slot::RipplePitch, Some(pitch_um)) => (pitch_um / 1.05, pitch_um * 1.05),
-            _ => slot.bounds(),
-        };
-        *x = x.clamp(lo, hi);
-        out
-    };
-    for _ in 0..iterations {
-        if !cost.is_finite() {
-            break;
-        }
-        let h = 1e-5;
-        let probes: Vec<Candidate> = free.iter().map(|&slot| moved(&c, slot, h)).collect();
-        let jac: Vec<Vec<f64>> = sample
-            .residuals_of(&probes, what)
-            .into_iter()
-            .map(|rs| rs.iter().zip(&r).map(|(a, b)| (a - b) / h).collect())
-            .collect();
-        // The step makes J step ~ -r, damped by lambda in Marquardt's scaling; J is reduced
-        // to its triangular factor once for all the lambdas tried.
-        let minus_r: Vec<f64> = r.iter().map(|v| -v).collect();
-        let step_stats = Stats::from_columns(&jac, &minus_r);
-        let mut improved = false;
-        for _ in 0..8 {
-            let step = solve_damped(&[&step_stats], lambda);
-            let mut trial = c;
-            for (&slot, &s) in free.iter().zip(&step) {
-                trial = moved(&trial, slot, s);
-            }
-            let rt = sample.residuals(&trial, what);
-            let ct = rms(&rt);
-            if ct < cost {
-                improved = (cost - ct) > 1e-4 * cost;
-                c = trial;
-                r = rt;
-                cost = ct;
-                lambda = (lambda * 0.3).max(1e-7);
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
+    lm::minimize(&mut SlotFit { free, sample, what }, start, &Settings { iterations, ..AXIS_LM })
+}
+
+/// The fit of a candidate's `free` slots to the sample's readings: a Jacobian by forward
+/// differences (the probes simulated side by side), each slot moved on its own scale and
+/// kept within its bounds.
+struct SlotFit<'s, 'a> {
+    free: &'s [Slot],
+    sample: &'s Sample<'a>,
+    what: Fit,
+}
+
+/// The forward difference's step, in each slot's scale.
+const PROBE_STEP: f64 = 1e-5;
+
+impl lm::Problem for SlotFit<'_, '_> {
+    type Point = Candidate;
+
+    fn residuals(&mut self, c: &Candidate) -> Option<Vec<f64>> {
+        Some(self.sample.residuals(c, self.what))
     }
-    (c, cost)
+
+    fn jacobian(&mut self, c: &Candidate, r: &[f64]) -> Option<Vec<Vec<f64>>> {
+        let probes: Vec<Candidate> = self.free.iter().map(|&slot| moved(c, slot, PROBE_STEP)).collect();
+        Some(
+            self.sample
+                .residuals_of(&probes, self.what)
+                .into_iter()
+                .map(|rs| rs.iter().zip(r).map(|(a, b)| (a - b) / PROBE_STEP).collect())
+                .collect(),
+        )
+    }
+
+    fn moved(&self, c: &Candidate, step: &[f64]) -> Option<Candidate> {
+        Some(self.free.iter().zip(step).fold(*c, |trial, (&slot, &s)| moved(&trial, slot, s)))
+    }
+}
+
+/// `c` with `slot` moved by `step` in its scale (additive, or a factor `exp(step)` of at most
+/// `exp(0.7)`), kept within its bounds.
+fn moved(c: &Candidate, slot: Slot, step: f64) -> Candidate {
+    let mut out = *c;
+    let x = &mut out.v[slot as usize];
+    match slot.additive() {
+        Some(scale) => *x += step * scale,
+        None => *x *= step.clamp(-0.7, 0.7).exp(),
+    }
+    let (lo, hi) = match (slot, c.effects.ripple_pitch_um) {
+        // Near the pitch measured from the data: at twice it, the second harmonic alone
+        // fits the same ripple.
+        (Slot::RipplePitch, Some(pitch_um)) => (pitch_um / 1.05, pitch_um * 1.05),
+        _ => slot.bounds(),
+    };
+    *x = x.clamp(lo, hi);
+    out
 }
 
 /// The ripple's amplitudes and phase for the candidate's servo, by linear least squares:

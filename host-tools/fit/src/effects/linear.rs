@@ -23,10 +23,10 @@ use std::cell::OnceCell;
 
 use rayon::prelude::*;
 use sts_analysis::bases::laguerre;
-use sts_analysis::lsq::{least_squares, solve, Stats};
 use sts_analysis::response::{mode_grid, mode_high_pass, mul, phasor, velocity_bank, Complex};
 use sts_dataset::Dataset;
 use sts_model::Effect;
+use sts_numerics::lsq::{least_squares, solve, Stats};
 use sts_twin_core::program::{resonance_params_ok, TermInput, TickTerm, LAGUERRE_STAGES, VELOCITY_SMOOTH_32_BIT_LIMIT};
 use sts_twin_core::synth::Resonance;
 use sts_twin_core::SERVO_RATE_HZ;

@@ -42,9 +42,9 @@ use sts_dataset::{Dataset, GroupData};
 use sts_twin_core::axis::compensate::{BASE_ORDERS, MAX_HIGHER_ORDERS};
 use sts_twin_core::program::{terms_tick_cost, TermInput, TickTerm, MAX_HARMONIC_ORDER, TICK_BUDGET_INSTRUCTIONS};
 
-use sts_analysis::lsq::{solve, Projection, Stats};
 use sts_analysis::targets;
 use sts_model::{hex_encode, Effect, FitEffect, ModelFile};
+use sts_numerics::lsq::{solve, Projection, Stats};
 
 use crate::FitError;
 

@@ -5,8 +5,8 @@
 //! - [`Stats`]: one group's regression reduced to the triangular factor of `[X | r]`, which
 //!   folds of groups stack and reduce again ([`solve`]), so cross-validation by group never
 //!   goes back to the samples (diagnose's candidates, the effects' terms);
-//! - [`solve_damped`]: the same with Marquardt's damping (the axis identification's
-//!   Levenberg-Marquardt steps, the Jacobian reduced once for every damping tried);
+//! - [`solve_damped`], [`Damped`]: the same with Marquardt's damping (the steps of
+//!   [`crate::lm`], the Jacobian reduced once for every damping tried);
 //! - [`least_squares`]: a small fit with its residuals, refusing dependent columns
 //!   (calibration, sine fits);
 //! - [`Projection`]: what many series leave after least squares on the same fixed columns
@@ -107,52 +107,67 @@ pub fn solve(stats: &[&Stats]) -> Vec<f64> {
 /// [`solve`] with a damping of `damping` in Marquardt's scaling added to the ridge
 /// (a Levenberg-Marquardt step: `X` the Jacobian, `r` minus the residuals).
 pub fn solve_damped(stats: &[&Stats], damping: f64) -> Vec<f64> {
-    let Some(first) = stats.first() else { return Vec::new() };
-    let p = first.columns();
-    if p == 0 {
-        return Vec::new();
-    }
-    let rows = p + 1;
-    let mut stacked = DMatrix::zeros(rows * stats.len(), rows);
-    for (k, s) in stats.iter().enumerate() {
-        stacked.rows_mut(k * rows, rows).copy_from(&s.r_factor);
-    }
-    let reduced = triangular_factor(stacked);
-    let x = reduced.columns(0, p).into_owned();
-    let y = reduced.column(p).into_owned();
-    ridge_solve_matrix(x, y, damping)
+    Damped::new(stats).map_or_else(Vec::new, |d| d.solve(damping))
 }
 
-/// Solves `min ||y - X b||^2 + (damping + RIDGE) ||D b||^2` where `D` holds the columns' norms
-/// (Marquardt's scaling), by QR of the augmented system.
-fn ridge_solve_matrix(x: DMatrix<f64>, y: DVector<f64>, damping: f64) -> Vec<f64> {
-    let (n, p) = x.shape();
-    let scale: Vec<f64> = (0..p).map(|j| x.column(j).norm().max(1e-300)).collect();
-    let root = (damping + RIDGE).sqrt();
-    let augmented = DMatrix::from_fn(n + p, p + 1, |i, j| match (i < n, j < p) {
-        (true, true) => x[(i, j)] / scale[j],
-        (true, false) => y[i],
-        (false, true) => {
-            if i - n == j {
-                root
-            } else {
-                0.0
-            }
+/// A regression over a set of groups' stats, stacked and reduced once, to be solved with
+/// several dampings (a Levenberg-Marquardt iteration tries dampings until a step helps).
+#[derive(Clone, Debug)]
+pub struct Damped {
+    /// The reduced regressors, `p x p` upper-triangular over `p + 1` rows.
+    x: DMatrix<f64>,
+    /// The reduced target.
+    y: DVector<f64>,
+}
+
+impl Damped {
+    /// The groups' factors stacked and reduced again; `None` without a group or a column.
+    pub fn new(stats: &[&Stats]) -> Option<Self> {
+        let p = stats.first()?.columns();
+        if p == 0 {
+            return None;
         }
-        (false, false) => 0.0,
-    });
-    let r = triangular_factor(augmented);
-    let rxx = r.view((0, 0), (p, p));
-    let rhs = r.view((0, p), (p, 1)).into_owned();
-    let w = rxx.solve_upper_triangular(&rhs).unwrap_or_else(|| DMatrix::zeros(p, 1));
-    (0..p).map(|j| w[(j, 0)] / scale[j]).collect()
+        let rows = p + 1;
+        let mut stacked = DMatrix::zeros(rows * stats.len(), rows);
+        for (k, s) in stats.iter().enumerate() {
+            stacked.rows_mut(k * rows, rows).copy_from(&s.r_factor);
+        }
+        let reduced = triangular_factor(stacked);
+        Some(Self { x: reduced.columns(0, p).into_owned(), y: reduced.column(p).into_owned() })
+    }
+
+    /// Minimises `||y - X b||^2 + (damping + RIDGE) ||D b||^2` where `D` holds the columns'
+    /// norms (Marquardt's scaling), by QR of the augmented system.
+    pub fn solve(&self, damping: f64) -> Vec<f64> {
+        let (x, y) = (&self.x, &self.y);
+        let (n, p) = x.shape();
+        let scale: Vec<f64> = (0..p).map(|j| x.column(j).norm().max(1e-300)).collect();
+        let root = (damping + RIDGE).sqrt();
+        let augmented = DMatrix::from_fn(n + p, p + 1, |i, j| match (i < n, j < p) {
+            (true, true) => x[(i, j)] / scale[j],
+            (true, false) => y[i],
+            (false, true) => {
+                if i - n == j {
+                    root
+                } else {
+                    0.0
+                }
+            }
+            (false, false) => 0.0,
+        });
+        let r = triangular_factor(augmented);
+        let rxx = r.view((0, 0), (p, p));
+        let rhs = r.view((0, p), (p, 1)).into_owned();
+        let w = rxx.solve_upper_triangular(&rhs).unwrap_or_else(|| DMatrix::zeros(p, 1));
+        (0..p).map(|j| w[(j, 0)] / scale[j]).collect()
+    }
 }
 
 /// The residual of least squares on fixed columns `X`, for any number of series: `y - Q Q^T y`
 /// with `Q` the thin orthonormal factor of `X`'s QR, computed once.
 ///
 /// ```
-/// use sts_analysis::lsq::Projection;
+/// use sts_numerics::lsq::Projection;
 /// let ones = vec![1.0; 4];
 /// let ramp = vec![0.0, 1.0, 2.0, 3.0];
 /// let left = Projection::new(&[ones, ramp]).residual(&[1.0, 3.0, 5.0, 8.0]);
@@ -200,7 +215,7 @@ pub struct LinearFit {
 /// linearly dependent or a value is not finite.
 ///
 /// ```
-/// use sts_analysis::lsq::least_squares;
+/// use sts_numerics::lsq::least_squares;
 /// let rows = [[1.0, 0.0], [1.0, 1.0], [1.0, 2.0]];
 /// let fit = least_squares(&rows, &[1.0, 3.0, 5.0]).expect("independent columns");
 /// assert!((fit.coefficients[0] - 1.0).abs() < 1e-12 && (fit.coefficients[1] - 2.0).abs() < 1e-12);

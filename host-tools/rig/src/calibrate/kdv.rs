@@ -12,7 +12,7 @@ use sts_twin_core::feedforward::FeedforwardParams;
 
 use super::rest::RestRig;
 use crate::RigError;
-use sts_analysis::lsq::least_squares;
+use sts_numerics::lsq::least_squares;
 use sts_twin_core::SERVO_RATE_HZ;
 
 /// Settings of the `K_dv` measurement.
@@ -77,7 +77,7 @@ pub struct KdvReport {
     pub residual_max_um: f64,
 }
 
-fn fit(points: &[KdvPoint], value: impl Fn(&KdvPoint) -> f64) -> Result<sts_analysis::lsq::LinearFit, RigError> {
+fn fit(points: &[KdvPoint], value: impl Fn(&KdvPoint) -> f64) -> Result<sts_numerics::lsq::LinearFit, RigError> {
     let t0 = points.first().map_or(0.0, |p| p.time_s);
     let rows: Vec<[f64; 3]> = points.iter().map(|p| [p.volts, 1.0, p.time_s - t0]).collect();
     let y: Vec<f64> = points.iter().map(value).collect();

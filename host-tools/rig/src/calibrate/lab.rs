@@ -14,7 +14,7 @@
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
-use sts_analysis::lsq::least_squares;
+use sts_numerics::lsq::least_squares;
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::Request;
 use sts_twin_core::SERVO_RATE_HZ;

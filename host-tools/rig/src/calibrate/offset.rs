@@ -18,7 +18,7 @@ use sts_twin_core::feedforward::FeedforwardParams;
 
 use super::rest::{RestAverage, RestRig};
 use crate::RigError;
-use sts_analysis::lsq::least_squares;
+use sts_numerics::lsq::least_squares;
 
 /// Settings of the offset measurement.
 #[derive(Clone, Debug)]

@@ -21,8 +21,8 @@ use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::{ProgramBuilder, REG_AMP_UM, REG_PHASE_DEG};
 use sts_twin_core::wire::Request;
 
-use sts_analysis::lsq::least_squares;
 use sts_model::replay::turns_u32;
+use sts_numerics::lsq::least_squares;
 
 use crate::{expect_ack, restore_supervisor, supervisor_off, Coprocessor, RigError};
 use sts_twin_core::SERVO_RATE_HZ;

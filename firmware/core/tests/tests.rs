@@ -12,3 +12,5 @@ mod reference;
 mod servo;
 mod servo_recovery;
 mod tick_golden;
+#[path = "support/tick_scenarios.rs"]
+mod tick_scenarios;

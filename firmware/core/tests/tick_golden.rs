@@ -1,19 +1,26 @@
-//! The servo tick's outputs pinned bit for bit: a hash of every DAC code and prediction of
-//! long runs with every kind of per-tick term (five programs within the tick budget: harmonics,
-//! Laguerre banks on each input, a drift, a servo-axis twin), program changes and both update
-//! schedules (ramps that settle between model results and ramps that never do), and of the
-//! synthesiser driven directly with random terms (64-bit Laguerre stages, divisions, couplings)
-//! and the inputs the bus does not carry yet. Any change of output, however small, fails here.
+//! The servo tick's outputs pinned bit for bit: a hash of every DAC code, prediction and flag
+//! word of long runs of the twin (five programs within the tick budget: harmonics alone,
+//! Laguerre banks on each of the three inputs, drifts, the paper's formulas), with program
+//! changes and both update schedules (ramps that settle between model results and ramps that
+//! never do), and of every prediction of the synthesiser driven directly with random terms
+//! (64-bit Laguerre stages, divisions, couplings), ramp lengths, machine-time jumps, restarts
+//! and the inputs the bus does not carry yet. The runs are `tick_scenarios`'.
+//!
+//! That the outputs are right, `tick_reference` checks on the same runs: every tick's
+//! prediction, DAC code and flags against a plain f64 reference of the synthesiser and the DAC
+//! stage, within bounds derived from the core's fixed-point formats (the servo-axis twin and
+//! the resonance, which have no simpler form there, are in none of these runs). What the hashes
+//! add is that nothing changed at all: a change within those bounds (a rounding, the order of
+//! a sum) fails here alone. Below the tick, `synth::kernel`'s unit tests hold each fast kernel
+//! to its plain 64-bit form bit for bit (or the coupling's product within its bound), and the
+//! HIL tests hold the firmware's DAC codes to the host core's.
 //!
 //! The runs without a program switch (each program alone, the synthesiser with fixed terms)
 //! and those with switches are pinned apart, so that a change of the switching behaviour
 //! leaves the first ones standing. A hash is pinned again only with a change of behaviour on
-//! purpose, whose commit says what changed and why (`git log -- firmware/core/tests/tick_golden.rs`);
-//! a change of speed alone must leave every hash as it is. What the hashes cannot say, that the
-//! outputs are right, other tests check against plain computations: `synth::kernel`'s unit
-//! tests hold each fast kernel to its plain 64-bit form (the velocity sign without a 64-bit
-//! division exactly, the coupling's product within its bound), and the HIL tests hold the
-//! firmware's DAC codes to the host core's.
+//! purpose, with `tick_reference` passing on the new outputs, and its commit says what changed
+//! and why (`git log -- firmware/core/tests/tick_golden.rs`); a change of speed alone must
+//! leave every hash as it is.
 
 use crate::tick_scenarios::{
     fixed_random_terms, one_program_requests, programs, switching_requests, synth_steps, twin_params, twin_run, Hash,

@@ -158,8 +158,9 @@ fn exp_neg(x: f64) -> f64 {
 /// Sets a drift's decaying part for machine time `ticks`.
 pub(super) fn drift_at(state: &mut KernelState, decay_pm: i32, tau_ticks: u32, ticks: u64) {
     let tau = f64::from(tau_ticks.max(DRIFT_STEP_TICKS));
-    // Held between steps: the value of the last whole step.
-    let steps = ticks / u64::from(DRIFT_STEP_TICKS);
+    // Held between steps: the value of the last whole step, less the step that the tick at
+    // `ticks` itself takes when it falls on one (`kernel_pm` steps at every multiple but 0).
+    let steps = ticks.saturating_sub(1) / u64::from(DRIFT_STEP_TICKS);
     let t = (steps * u64::from(DRIFT_STEP_TICKS)) as f64;
     state.drift_q8 = (f64::from(decay_pm) * exp_neg(t / tau) * 256.0) as i64;
     state.scale = (exp_neg(f64::from(DRIFT_STEP_TICKS) / tau) * 8388608.0) as i64;
@@ -547,6 +548,21 @@ mod tests {
         }
         let later = synth.next_input(&TickInput::default()) as f64;
         assert!((later - want(310.0)).abs() < 100.0, "{later} vs {}", want(310.0));
+    }
+
+    #[test]
+    fn a_drift_started_on_a_step_is_not_a_step_ahead() {
+        // A short time constant, where one step is 23% of the decaying part.
+        let tau_ticks = 1000;
+        for start in [0u64, 1, 255, 256, 257, 512, 1000, 1024] {
+            let mut synth = Synth::new(0);
+            synth.set_time_ticks(start);
+            synth.update(&ModelOutput::default(), &[TickTerm::Drift { offset_pm: 0, decay_pm: 1_000_000, tau_ticks }]);
+            let steps = start / u64::from(DRIFT_STEP_TICKS);
+            let want = 1e6 * libm::exp(-((steps * u64::from(DRIFT_STEP_TICKS)) as f64) / f64::from(tau_ticks));
+            let got = synth.next_input(&TickInput::default()) as f64;
+            assert!((got - want).abs() < 2.0, "start {start}: {got} pm, want {want}");
+        }
     }
 
     #[test]

@@ -11,7 +11,7 @@
 
 use std::collections::HashMap;
 
-use crate::synth_reference::{DacReference, SynthReference};
+use crate::synth_reference::{Bounded, DacReference, SynthReference};
 use crate::tick_scenarios::{
     fixed_random_terms, input, one_program_requests, programs, switching_requests, synth_steps, twin_params, twin_run,
     SynthStep, SYNTH_ONE_PROGRAM_RUNS, SYNTH_SEEDS, SYNTH_TICKS, TWIN_ONE_PROGRAM_TICKS, TWIN_TICKS, TWIN_WINDOWS,
@@ -30,6 +30,13 @@ struct Allowed {
 }
 
 impl Allowed {
+    /// Asserts that the core's prediction `got_pm` lies within the reference's bound, and
+    /// keeps the bound.
+    fn admit(&mut self, want: Bounded, got_pm: f64, at: std::fmt::Arguments) {
+        assert!(want.admits(got_pm), "{at}: {got_pm} pm, the reference {:.1} +- {:.1} pm", want.value, want.bound);
+        self.bounds_pm.push(want.bound);
+    }
+
     fn median_pm(&mut self) -> f64 {
         self.bounds_pm.sort_by(f64::total_cmp);
         self.bounds_pm[self.bounds_pm.len() / 2]
@@ -64,14 +71,7 @@ fn check_synth_run(run: &str, seed: u64, fixed_terms: Option<&[TickTerm]>) -> Al
         }
         SynthStep::Tick(input) => {
             let got = f64::from(synth.next_input(&input));
-            let want = reference.next_input(&input);
-            assert!(
-                want.admits(got),
-                "{run} tick {tick}: {got} pm, the reference {:.1} +- {:.1} pm",
-                want.value,
-                want.bound
-            );
-            allowed.bounds_pm.push(want.bound);
+            allowed.admit(reference.next_input(&input), got, format_args!("{run} tick {tick}"));
             tick += 1;
         }
     });
@@ -144,14 +144,7 @@ fn check_twin_run(
             x_acc_um_per_s2: slot.x_acc_um_per_s2,
             spindle_turns: slot.spindle_turns,
         });
-        let got = f64::from(out.de_pred_pm);
-        assert!(
-            de.admits(got),
-            "window {window} tick {k}: {got} pm, the reference {:.1} +- {:.1} pm",
-            de.value,
-            de.bound
-        );
-        allowed.bounds_pm.push(de.bound);
+        allowed.admit(de, f64::from(out.de_pred_pm), format_args!("window {window} tick {k}"));
         let dac_tick = dac.tick(de, model_active);
         let code = f64::from(out.dac_code);
         allowed.code = allowed.code.max(dac_tick.code.bound);

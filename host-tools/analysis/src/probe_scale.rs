@@ -7,8 +7,8 @@
 //! ratios of both are extrapolated to zero frequency: a test that starts at 10 Hz sees the
 //! default machine's own 3% there, which is no scale error.
 
-use nalgebra::{DMatrix, DVector};
 use sts_dataset::{Dataset, GroupData, GroupInfo};
+use sts_numerics::lsq::least_squares;
 
 /// One slow group's reading.
 #[derive(Clone, Debug, PartialEq)]
@@ -137,32 +137,18 @@ impl ProbeScale {
         // Weighted by the stroke squared: a disturbance of a given size (a ripple's, the
         // noise's) moves a group's ratio by that size over its stroke. Rows scaled by the
         // stroke: `A (ratio - 1) ~ A c + d + A f^2 e`.
-        let design = DMatrix::from_fn(n, columns, |i, j| {
-            let g = &self.groups[i];
-            match j {
-                0 => g.amp_um,
-                1 => 1.0,
-                _ => g.amp_um * g.freq_hz * g.freq_hz,
-            }
-        });
-        let y = DVector::from_fn(n, |i, _| self.groups[i].amp_um * (self.groups[i].ratio - 1.0));
-        if !design.iter().chain(y.iter()).all(|v| v.is_finite()) {
-            return None;
-        }
-        let qr = design.clone().qr();
-        let r = qr.r();
-        if (0..columns).any(|k| r[(k, k)].abs() <= 1e-12 * r[(0, 0)].abs()) {
-            return None;
-        }
-        let b = r.solve_upper_triangular(&(qr.q().transpose() * &y))?;
-        let sse = (&y - &design * &b).norm_squared();
-        let sigma2 = sse / (n - columns) as f64;
-        // The constant's variance: sigma^2 times the first diagonal of (R^T R)^-1.
-        let r_inv = r.try_inverse()?;
-        let constant_se = (sigma2 * r_inv.row(0).norm_squared()).sqrt();
+        let row = |g: &SlowGroup| [g.amp_um, 1.0, g.amp_um * g.freq_hz * g.freq_hz];
+        let y: Vec<f64> = self.groups.iter().map(|g| g.amp_um * (g.ratio - 1.0)).collect();
+        let fit = if columns == 3 {
+            least_squares(&self.groups.iter().map(row).collect::<Vec<_>>(), &y)?
+        } else {
+            let two: Vec<[f64; 2]> = self.groups.iter().map(|g| [row(g)[0], row(g)[1]]).collect();
+            least_squares(&two, &y)?
+        };
+        let b = &fit.coefficients;
         Some(ScaleSplit {
             constant: b[0],
-            constant_se,
+            constant_se: fit.standard_errors[0],
             per_inverse_amp_um: b[1],
             per_freq2_per_hz2: if columns == 3 { b[2] } else { 0.0 },
         })

@@ -209,6 +209,10 @@ pub struct LinearFit {
     pub residual_rms: f64,
     /// Largest `|y - X b|`, in the unit of `y`.
     pub residual_max: f64,
+    /// Each coefficient's standard error from the residuals' spread: the diagonal of
+    /// `s^2 (X^T X)^-1` with `s^2` the residual sum of squares over `rows - columns`;
+    /// infinite where there are no more rows than columns.
+    pub standard_errors: Vec<f64>,
 }
 
 /// Fits `y ~ X b` by QR. `None` when there are fewer rows than columns, the columns are
@@ -243,12 +247,40 @@ pub fn least_squares<const N: usize>(rows: &[[f64; N]], y: &[f64]) -> Option<Lin
         rows.iter().zip(y).map(|(row, &yi)| yi - row.iter().zip(b.iter()).map(|(x, c)| x * c).sum::<f64>()).collect();
     let residual_rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
     let residual_max = residuals.iter().fold(0.0f64, |m, r| m.max(r.abs()));
-    Some(LinearFit { coefficients: b.iter().copied().collect(), residual_rms, residual_max })
+    let degrees_of_freedom = rows.len() - N;
+    let standard_errors = if degrees_of_freedom == 0 {
+        vec![f64::INFINITY; N]
+    } else {
+        let s2 = residuals.iter().map(|r| r * r).sum::<f64>() / degrees_of_freedom as f64;
+        // (X^T X)^-1 = R^-1 R^-T: its diagonal is the squared norms of R^-1's rows.
+        let r_inv = r.try_inverse()?;
+        (0..N).map(|j| (s2 * r_inv.row(j).norm_squared()).sqrt()).collect()
+    };
+    Some(LinearFit { coefficients: b.iter().copied().collect(), residual_rms, residual_max, standard_errors })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_lines_standard_errors_are_the_textbook_ones() {
+        let x: Vec<f64> = (0..12).map(f64::from).collect();
+        let wobble = [0.3, -0.1, 0.2, -0.4, 0.1, 0.0, -0.2, 0.5, -0.3, 0.1, 0.2, -0.4];
+        let y: Vec<f64> = x.iter().zip(wobble).map(|(x, w)| 1.5 + 0.25 * x + w).collect();
+        let rows: Vec<[f64; 2]> = x.iter().map(|&x| [1.0, x]).collect();
+        let fit = least_squares(&rows, &y).unwrap();
+        let n = x.len() as f64;
+        let mean = x.iter().sum::<f64>() / n;
+        let sxx: f64 = x.iter().map(|x| (x - mean) * (x - mean)).sum();
+        let s2 = fit.residual_rms * fit.residual_rms * n / (n - 2.0);
+        let slope_se = (s2 / sxx).sqrt();
+        let intercept_se = (s2 * (1.0 / n + mean * mean / sxx)).sqrt();
+        assert!((fit.standard_errors[1] - slope_se).abs() < 1e-12 * slope_se, "{:?}", fit.standard_errors);
+        assert!((fit.standard_errors[0] - intercept_se).abs() < 1e-12 * intercept_se, "{:?}", fit.standard_errors);
+        let exact = least_squares(&rows[..2], &y[..2]).unwrap();
+        assert_eq!(exact.standard_errors, vec![f64::INFINITY; 2]);
+    }
 
     #[test]
     fn solves_a_well_posed_system_and_damping_shrinks_the_step() {

@@ -126,7 +126,6 @@ struct Effects {
 pub struct Machine {
     params: PlantParams,
     substeps: usize,
-    h_s: f64,
     phi: [[f64; NX]; NX],
     gamma: [[f64; NU]; NX],
     // Linear-only fast path: the tick split where the delayed force command changes.
@@ -178,6 +177,26 @@ fn splitmix(mut x: u64) -> u64 {
     x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     x ^ (x >> 31)
+}
+
+/// What the sensors read at one tick ([`Machine::sense`]).
+struct Sensed {
+    z_enc_um: f64,
+    z_tcp_um: f64,
+    z_tcp_true_um: f64,
+    acc_mps2: f64,
+    acc_code: i16,
+    acc_saturated: bool,
+    x_acc_mps2: f64,
+    temp_c: f64,
+}
+
+/// What the controller read and commanded at one tick ([`Machine::control`]).
+struct Control {
+    ain_read_v: f64,
+    ain_pulses: i64,
+    /// The position command after the analogue input's pulses, um.
+    r_um: f64,
 }
 
 impl Machine {
@@ -314,7 +333,6 @@ impl Machine {
         Ok(Self {
             params: params.clone(),
             substeps,
-            h_s,
             phi,
             gamma,
             split_substep,
@@ -425,11 +443,36 @@ impl Machine {
 
     /// One servo tick: sample the sensors, run the controller, integrate the plant.
     pub fn step(&mut self, input: &StepInput) -> StepOutput {
+        let time_s = self.time_s();
+        let sensed = self.sense(input, time_s);
+        let control = self.control(input, sensed.z_enc_um);
+        let force_n = self.state[2];
+        self.integrate_plant();
+        self.tick += 1;
+        StepOutput {
+            time_s,
+            z_enc_um: sensed.z_enc_um,
+            z_tcp_um: sensed.z_tcp_um,
+            z_tcp_true_um: sensed.z_tcp_true_um,
+            acc_mps2: sensed.acc_mps2,
+            acc_code: sensed.acc_code,
+            acc_saturated: sensed.acc_saturated,
+            ain_read_v: control.ain_read_v,
+            ain_pulses: control.ain_pulses,
+            z_servo_cmd_um: control.r_um,
+            force_n,
+            x_acc_mps2: sensed.x_acc_mps2,
+            temp_c: sensed.temp_c,
+        }
+    }
+
+    /// The sensors at this tick: the encoder, the probe on the tool, the accelerometer's
+    /// chain to its ADC code, the temperature, and the X slide's acceleration.
+    fn sense(&mut self, input: &StepInput, time_s: f64) -> Sensed {
         let noise_probe = self.normal();
         let noise_acc = self.normal();
         let noise_temp = self.normal();
         let p = &self.params;
-        let time_s = self.time_s();
         let x_m = self.state[0];
         let v = self.state[1];
 
@@ -475,6 +518,7 @@ impl Machine {
             let (temp, rise) = self.temperature_c(time_s);
             self.slow_temp = (block, temp, rise);
         }
+        let p = &self.params;
         let (temp_true_c, rise_k) = (self.slow_temp.1, self.slow_temp.2);
         let mut z_tcp_true_um = (x_m + modal_disp) * 1e6;
         if let Some((_, _, um_per_k)) = self.effects.thermal {
@@ -504,8 +548,14 @@ impl Machine {
         let acc_mps2 = acc_code as f64 * lsb;
 
         let temp_c = temp_true_c + noise_temp * p.thermal.sensor_noise_mk * 1e-3;
+        Sensed { z_enc_um, z_tcp_um, z_tcp_true_um, acc_mps2, acc_code, acc_saturated, x_acc_mps2, temp_c }
+    }
 
-        // Controller: analogue input -> motion pulses, added to the delayed trajectory.
+    /// The motion controller at this tick: the analogue input read and turned into motion
+    /// pulses, added to the delayed trajectory, and the PID with feedforward on the encoder's
+    /// error; its force command goes into the history the plant reads, delayed.
+    fn control(&mut self, input: &StepInput, z_enc_um: f64) -> Control {
+        let p = &self.params;
         let itf = &p.interface;
         let ain_lsb = 2.0 * itf.adc_range_v / (1u64 << itf.adc_bits) as f64;
         let ain_v = (input.analog_in_v + itf.offset_v).clamp(-itf.adc_range_v, itf.adc_range_v - ain_lsb);
@@ -551,10 +601,13 @@ impl Machine {
             self.integral_um_s -= e_um * TICK_S;
         }
         self.force_history[slot] = u;
-        let force_n = self.state[2];
+        Control { ain_read_v, ain_pulses, r_um }
+    }
 
-        // Plant: the force command delayed by the computation (and loop) delay. Linear plant:
-        // exact in at most two segments; with nonlinear forces: sub-steps.
+    /// The plant over one tick, driven by the force command delayed by the computation (and
+    /// loop) delay. Linear plant: exact in at most two segments; with nonlinear forces:
+    /// sub-steps.
+    fn integrate_plant(&mut self) {
         let n = self.substeps as u64;
         let d = self.output_delay_substeps as u64;
         let command_at = |i: u64, tick: u64, history: &[f64; HISTORY]| -> f64 {
@@ -604,24 +657,6 @@ impl Machine {
                 h.state_n += h.stiffness_n_per_m * dx * (1.0 - ratio * dx.signum());
                 h.state_n = h.state_n.clamp(-h.force_n, h.force_n);
             }
-        }
-        let _ = self.h_s;
-        self.tick += 1;
-
-        StepOutput {
-            time_s,
-            z_enc_um,
-            z_tcp_um,
-            z_tcp_true_um,
-            acc_mps2,
-            acc_code,
-            acc_saturated,
-            ain_read_v,
-            ain_pulses,
-            z_servo_cmd_um: r_um,
-            force_n,
-            x_acc_mps2,
-            temp_c,
         }
     }
 }

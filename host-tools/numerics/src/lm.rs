@@ -1,5 +1,5 @@
-//! Levenberg-Marquardt: the one damped Gauss-Newton loop of the host's nonlinear fits (the
-//! servo-axis twin's identification, the constants of symbolic regression's formulas). Each
+//! Levenberg-Marquardt: the damped Gauss-Newton loop of the servo-axis twin's identification,
+//! for any least-squares problem (symbolic regression keeps its own, see its `optimize`). Each
 //! iteration reduces the Jacobian to its triangular factor once ([`crate::lsq::Damped`]) and
 //! tries dampings on it until a step lowers the cost.
 //!

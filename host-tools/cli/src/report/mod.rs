@@ -3,9 +3,9 @@
 //! as a heat map, residual spectra, residual against the motion and machine time, and the
 //! diagnosis.
 //!
-//! The page is an askama template (`templates/compare.html`, on a base that holds the style)
-//! filled from a view of formatted strings: the layout reads as HTML and is checked when the
-//! crate compiles, askama escapes all text; the SVG charts of [`svg`] go in as built.
+//! The pages are askama templates (`templates/`, on a base that holds the style) filled from
+//! views of formatted strings: the layout reads as HTML and is checked when the crate compiles,
+//! askama escapes all text; the SVG charts of [`svg`] go in as built.
 
 pub mod explain;
 pub mod svg;
@@ -14,9 +14,6 @@ pub mod trial;
 use sts_assess::compare::{Comparison, GroupWaves};
 use sts_assess::diagnose::Diagnosis;
 use svg::{bar_chart, heat_map, line_chart, tick_label, GridAxis, Series};
-
-/// The style of the explain and trial pages (the compare page has it from templates/base.html).
-pub(crate) const STYLE: &str = "body{font-family:sans-serif;max-width:1340px;margin:20px auto;color:#222}h1{font-size:22px}h2{font-size:18px;border-bottom:1px solid #ccc;margin-top:28px}table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}th{background:#f2f2f2}td.l,th.l{text-align:left}.charts{display:flex;flex-wrap:wrap;gap:10px}.verdict{font-size:18px;padding:8px 12px;background:#fff6d6;border:1px solid #e0c060;display:inline-block}.small{color:#666;font-size:12px}";
 
 /// What goes into a report.
 pub struct ReportInput<'a> {

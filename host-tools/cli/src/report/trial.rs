@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 use std::fmt::Write as _;
 
-use super::svg::{colour_scale, esc, open_chart, tick_label};
+use super::svg::{colour_scale, open_chart, tick_label};
 use sts_rig::trial::{CutMaps, TrialReport};
 
 const SIZE: f64 = 360.0;
@@ -92,7 +92,7 @@ fn range(values: &[Vec<Option<f64>>]) -> (f64, f64) {
 }
 
 /// The surface map (TCP height) and the error map (deviation from the design) of one cut.
-pub fn cut_maps(id: &str, maps: &CutMaps) -> String {
+pub fn cut_maps(id: &str, maps: &CutMaps) -> [String; 2] {
     let (lo, hi) = range(&maps.surface_um);
     let span = (hi - lo).max(1e-9);
     let surface =
@@ -110,40 +110,56 @@ pub fn cut_maps(id: &str, maps: &CutMaps) -> String {
         extent,
         |v| diverging(v / extent),
     );
-    format!("<div class=\"charts\">{surface}{error}</div>")
+    [surface, error]
+}
+
+/// The page of `machine --html` (templates/trial.html): every number formatted as shown.
+#[derive(askama::Template)]
+#[template(path = "trial.html")]
+struct TrialPage<'a> {
+    title: &'a str,
+    cuts: Vec<Cut<'a>>,
+}
+
+/// One cut: its line in the table and its two maps.
+struct Cut<'a> {
+    /// Cut with the twin (or on the bare machine).
+    twin: bool,
+    freq_hz: String,
+    pv_um: String,
+    rms_um: String,
+    phase_deg: String,
+    points: usize,
+    coprocessor: &'a str,
+    faults: u32,
+    surface: String,
+    error: String,
 }
 
 /// The whole report for the trials of one command (e.g. without and with the twin).
 pub fn render(title: &str, reports: &[TrialReport]) -> String {
-    let mut h = String::new();
-    let _ = write!(
-        h,
-        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>sts-twin machine: {t}</title><style>{style}</style></head><body><h1 id=\"title\">{t}</h1>",
-        t = esc(title),
-        style = super::STYLE
-    );
-    h.push_str("<table id=\"trials\"><tr><th class=\"l\">cut</th><th>Z frequency (Hz)</th><th>form error PV (um)</th><th>form error RMS (um)</th><th>phase error (deg)</th><th>points</th><th>co-processor</th><th>faults</th></tr>");
-    for r in reports {
-        let _ = write!(
-            h,
-            "<tr><td class=\"l\">{}</td><td>{:.1}</td><td class=\"pv\">{:.3}</td><td>{:.3}</td><td>{:+.2}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
-            if r.twin { "with the twin" } else { "bare machine" },
-            r.freq_hz,
-            r.form_error_pv_um,
-            r.form_error_rms_um,
-            r.phase_error_deg,
-            r.points,
-            esc(&r.coprocessor),
-            r.fault_count
-        );
-    }
-    h.push_str("</table><p class=\"small\">Form error: peak-to-peak of the true TCP's deviation from the design surface z = 0.006 x sin(2C) - 0.006 x within the evaluated radius; phase error: lag of the TCP's 2C fundamental behind the design's. Maps: means over up to 25 radial x 90 angular bins, C counter-clockwise from +x.</p>");
-    for (i, r) in reports.iter().enumerate() {
-        let _ = write!(h, "<h2>{}</h2>", if r.twin { "With the twin" } else { "Bare machine" });
-        h.push_str(&cut_maps(&format!("cut{i}"), &r.maps));
-    }
-    h.push_str("</body></html>");
-    h
+    let cuts = reports
+        .iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let [surface, error] = cut_maps(&format!("cut{i}"), &r.maps);
+            Cut {
+                twin: r.twin,
+                freq_hz: format!("{:.1}", r.freq_hz),
+                pv_um: format!("{:.3}", r.form_error_pv_um),
+                rms_um: format!("{:.3}", r.form_error_rms_um),
+                phase_deg: format!("{:+.2}", r.phase_error_deg),
+                points: r.points,
+                coprocessor: &r.coprocessor,
+                faults: r.fault_count,
+                surface,
+                error,
+            }
+        })
+        .collect();
+    // A template is `Display`, failing only where a field's `Display` fails: the view holds
+    // strings and numbers, which never do.
+    TrialPage { title, cuts }.to_string()
 }
 
 #[cfg(test)]

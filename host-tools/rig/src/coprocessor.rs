@@ -1,9 +1,10 @@
 //! The co-processor as the loop sees it, and the loop that steps it with the machine.
 
-use sts_emulator::{Machine, PlantParams, StepInput, StepOutput};
+use sts_emulator::PlantParams;
 use sts_model::replay::turns_u32;
 use sts_twin_core::feedforward::FeedforwardParams;
 
+use crate::plant::{Plant, PlantInput, PlantReading};
 use crate::trajectory::{Trajectory, TrajectoryPoint};
 use crate::RigError;
 use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
@@ -73,15 +74,16 @@ pub struct LoopSample {
     /// The trajectory point.
     pub point: TrajectoryPoint,
     /// What the machine measured.
-    pub machine: StepOutput,
+    pub machine: PlantReading,
     /// What the co-processor answered.
     pub output: OutputSlot,
 }
 
-/// Runs the closed loop over the machine ticks `ticks` and hands every tick to `record`.
-/// The DAC code is converted to volts with `dac_full_scale_v` (code 32767).
+/// Runs the closed loop of `machine` and `coprocessor` over the machine ticks `ticks` and
+/// hands every tick to `record`. The DAC code is converted to volts with `dac_full_scale_v`
+/// (code 32767).
 pub fn run_loop(
-    machine: &mut Machine,
+    machine: &mut dyn Plant,
     coprocessor: &mut dyn Coprocessor,
     trajectory: &dyn Trajectory,
     ticks: std::ops::Range<u64>,
@@ -97,7 +99,7 @@ pub fn run_loop(
     let mut before = at_tick(ticks.start.saturating_sub(1));
     let mut point = at_tick(ticks.start);
     for k in ticks {
-        let machine_out = machine.step(&StepInput {
+        let machine_out = machine.step(&PlantInput {
             z_cmd_um: point.z_cmd_um,
             x_mm: point.x_mm,
             spindle_deg: point.spindle_deg,

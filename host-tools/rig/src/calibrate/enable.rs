@@ -40,7 +40,8 @@ pub struct EnableCheck {
     pub added_pulses_mean: f64,
     /// Probe reading after minus before, nm.
     pub tcp_move_nm: f64,
-    /// True TCP position after minus before (emulator only), nm.
+    /// True TCP position after minus before, nm, where the plant knows it (a simulation; a
+    /// lab's plant gives the probe's move).
     pub tcp_true_move_nm: f64,
 }
 

@@ -1,6 +1,11 @@
 //! Calibrating the co-processor against the machine before a cut: the analogue interface's
 //! offset, `K_dv`, the analogue path's phase, stored in the firmware's persistent config and
 //! verified after a reboot (`sts-twin calibrate-offset`, [`calibrate`]).
+//!
+//! The measurements ([`measure_params`], [`measure_path`], and the offset, `K_dv` and enable
+//! check on a [`RestRig`]) run on any machine stepped as a [`crate::Plant`]; [`calibrate`]
+//! builds the emulated machine itself from the plant parameters, effects and seed it is
+//! given (the command's options).
 
 pub mod board;
 pub mod enable;

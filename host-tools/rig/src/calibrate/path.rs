@@ -8,12 +8,11 @@
 //! tick `k + 1`, `u` of tick `k` is paired with the probe at tick `k + 1`: the bus's latency is
 //! part of the path, as it is in operation.
 //!
-//! Works on any [`Coprocessor`] and any [`Machine`]: nothing here reads the emulator's
-//! internals, only what a lab has (the probe, the co-processor's prediction).
+//! Works on any [`Coprocessor`] and any [`Plant`]: it reads only what a lab has (the probe,
+//! the co-processor's prediction).
 
 use std::f64::consts::TAU;
 
-use sts_emulator::{Machine, StepInput, StepOutput};
 use sts_twin_core::analogue_path::{AnaloguePath, PATH_POINTS};
 use sts_twin_core::bus::{InputSlot, OutputSlot, IN_FLAG_PHASE_VALID};
 use sts_twin_core::features::FeatureConfig;
@@ -24,6 +23,7 @@ use sts_twin_core::wire::Request;
 use sts_model::replay::turns_u32;
 use sts_numerics::lsq::least_squares;
 
+use crate::plant::{Counted, Plant, PlantInput, PlantReading};
 use crate::{expect_ack, restore_supervisor, supervisor_off, Coprocessor, RigError};
 use sts_twin_core::SERVO_RATE_HZ;
 
@@ -99,10 +99,10 @@ impl AtRest {
     fn tick(
         &mut self,
         coprocessor: &mut dyn Coprocessor,
-        machine: &mut Machine,
+        machine: &mut dyn Plant,
         cmd_phase_turns: f64,
-    ) -> Result<(StepOutput, OutputSlot), RigError> {
-        let out = machine.step(&StepInput {
+    ) -> Result<(PlantReading, OutputSlot), RigError> {
+        let out = machine.step(&PlantInput {
             z_cmd_um: 0.0,
             x_mm: 0.0,
             spindle_deg: 0.0,
@@ -129,11 +129,24 @@ impl AtRest {
 /// ramped down to the offset, its program cleared. `first_tick` is the machine's tick count so far.
 pub fn measure_path(
     coprocessor: &mut dyn Coprocessor,
-    machine: &mut Machine,
+    machine: &mut dyn Plant,
     params: FeedforwardParams,
     config: &PathConfig,
     first_tick: u64,
 ) -> Result<Vec<PathPoint>, RigError> {
+    measure_path_counted(coprocessor, machine, params, config, first_tick).map(|(points, _)| points)
+}
+
+/// [`measure_path`], with the number of ticks it stepped `machine`.
+pub(crate) fn measure_path_counted(
+    coprocessor: &mut dyn Coprocessor,
+    machine: &mut dyn Plant,
+    params: FeedforwardParams,
+    config: &PathConfig,
+    first_tick: u64,
+) -> Result<(Vec<PathPoint>, u64), RigError> {
+    let mut machine = Counted { plant: machine, ticks: 0 };
+    let machine = &mut machine;
     if config.freqs_hz.is_empty() || config.freqs_hz.len() > PATH_POINTS {
         return Err(RigError::PathFrequencyCount { count: config.freqs_hz.len() });
     }
@@ -206,7 +219,7 @@ pub fn measure_path(
     }
     expect_ack("clearing the calibration program", coprocessor.request(Request::ClearProgram)?)?;
     restore_supervisor(coprocessor, supervisor)?;
-    Ok(points)
+    Ok((points, machine.ticks))
 }
 
 #[cfg(test)]
@@ -214,7 +227,7 @@ mod tests {
     use super::*;
     use crate::machine_params;
     use crate::SimCoprocessor;
-    use sts_emulator::PlantParams;
+    use sts_emulator::{Machine, PlantParams};
 
     #[test]
     fn the_phasor_fit_recovers_amplitude_and_phase() {

@@ -24,9 +24,10 @@ use super::board::Board;
 use super::enable::{enable_check, EnableCheck, EnableConfig};
 use super::kdv::{measure_kdv, KdvConfig, KdvReport};
 use super::offset::{measure_offset, OffsetConfig, OffsetReport};
-use super::path::{measure_path, path_table, PathConfig, PathPoint};
+use super::path::{measure_path_counted, path_table, PathConfig, PathPoint};
 use super::rest::{status, RestRig};
 use crate::machine_params;
+use crate::plant::Plant;
 use crate::{expect_ack, Coprocessor, RigError};
 
 /// Settings of the whole calibration.
@@ -268,13 +269,14 @@ pub struct Measured {
     rest_tick: u64,
 }
 
-/// Steps 1-3 of the calibration on `coprocessor` against `machine` at rest: compensation off,
-/// the program cleared, then the offset, `K_dv` and (with `config.path`) the analogue path.
+/// Steps 1-3 of the calibration on `coprocessor` against `machine` (any [`Plant`]) at rest:
+/// compensation off, the program cleared, then the offset, `K_dv` and (with `config.path`) the
+/// analogue path. `plant` gives only the starting parameters ([`machine_params`]).
 /// The calibration runs them before it stores; a cut on the emulated machine runs them before
 /// it starts, as a lab calibrates its co-processor before cutting.
 pub fn measure_params(
     coprocessor: &mut dyn Coprocessor,
-    machine: &mut Machine,
+    machine: &mut dyn Plant,
     plant: &PlantParams,
     config: &CalibrationConfig,
     progress: &mut dyn FnMut(&str),
@@ -305,9 +307,7 @@ pub fn measure_params(
         Some(path_config) => {
             progress("step 3: the analogue path's phase (a sine through the analogue input at each frequency)");
             let (cop, machine, tick) = rig.parts();
-            let t0_s = machine.time_s();
-            let points = measure_path(cop, machine, params, path_config, tick)?;
-            let ticks = ((machine.time_s() - t0_s) * path_config.sample_rate_hz).round() as u64;
+            let (points, ticks) = measure_path_counted(cop, machine, params, path_config, tick)?;
             rig.advanced(ticks, -offset.offset_v);
             params.analogue_path = path_table(&points, path_config.amp_um)?;
             points

@@ -4,11 +4,11 @@
 //! Tick `k`: the machine steps with a zero command and the voltage the co-processor wrote at
 //! tick `k - 1`; the co-processor gets the (at rest, nearly silent) accelerometer code.
 
-use sts_emulator::{Machine, StepInput, StepOutput};
 use sts_twin_core::bus::{InputSlot, OutputSlot};
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::wire::{Request, Status};
 
+use crate::plant::{Plant, PlantInput, PlantReading};
 use crate::{expect_ack, Coprocessor, RigError};
 
 /// DAC codes at full scale (code 32767 is `dac_full_scale_v`).
@@ -29,7 +29,8 @@ pub struct RestAverage {
     pub z_tcp_um: f64,
     /// Encoder, um.
     pub z_enc_um: f64,
-    /// True TCP position (emulator only; a lab has the probe), um.
+    /// True TCP position where the plant knows it (a simulation; a lab's plant gives the
+    /// probe), um.
     pub z_tcp_true_um: f64,
     /// Machine time at the window's middle, s.
     pub time_s: f64,
@@ -37,10 +38,10 @@ pub struct RestAverage {
     pub ain_pulses_max: i64,
 }
 
-/// The co-processor and the machine, stepped together at rest.
+/// The co-processor and the machine (any [`Plant`]), stepped together at rest.
 pub struct RestRig<'a> {
     coprocessor: &'a mut dyn Coprocessor,
-    machine: &'a mut Machine,
+    machine: &'a mut dyn Plant,
     volts_per_code: f64,
     analog_in_v: f64,
     tick: u64,
@@ -52,7 +53,7 @@ impl<'a> RestRig<'a> {
     /// A rig from tick `first_tick`, the controller's analogue input off, the DAC at 0 V.
     pub fn new(
         coprocessor: &'a mut dyn Coprocessor,
-        machine: &'a mut Machine,
+        machine: &'a mut dyn Plant,
         dac_full_scale_v: f64,
         first_tick: u64,
     ) -> Self {
@@ -77,8 +78,8 @@ impl<'a> RestRig<'a> {
     }
 
     /// One tick.
-    pub fn step(&mut self) -> Result<(StepOutput, OutputSlot), RigError> {
-        let machine = self.machine.step(&StepInput {
+    pub fn step(&mut self) -> Result<(PlantReading, OutputSlot), RigError> {
+        let machine = self.machine.step(&PlantInput {
             z_cmd_um: 0.0,
             x_mm: 0.0,
             spindle_deg: 0.0,
@@ -144,7 +145,7 @@ impl<'a> RestRig<'a> {
 
     /// The co-processor and the machine, for procedures that drive them themselves; `tick`
     /// is where they are. Call [`RestRig::advanced`] afterwards with the ticks they ran.
-    pub fn parts(&mut self) -> (&mut dyn Coprocessor, &mut Machine, u64) {
+    pub fn parts(&mut self) -> (&mut dyn Coprocessor, &mut dyn Plant, u64) {
         (&mut *self.coprocessor, &mut *self.machine, self.tick)
     }
 

@@ -11,14 +11,14 @@
 use crate::foreign::{self, Foreign, Lugre, ToolMode};
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use sts_analysis::sine::{fit_sine, wrap_deg};
 use sts_model::replay::turns_u32;
 use sts_model::ModelFile;
-use sts_rig::calibrate::{path_table, PathConfig, PathPoint};
+use sts_rig::calibrate::{measure_path, path_table, PathConfig};
 use sts_rig::trial::cut_window_samples;
-use sts_rig::{expect_ack, Coprocessor, SimCoprocessor};
+use sts_rig::{expect_ack, run_loop, Coprocessor, SimCoprocessor, Sinusoid};
 use sts_twin_core::analogue_path::AnaloguePath;
 use sts_twin_core::bus::{InputSlot, IN_FLAG_PHASE_VALID, OUT_FLAG_DEGRADED, OUT_FLAG_MODEL_ACTIVE};
+use sts_twin_core::features::FeatureConfig;
 use sts_twin_core::feedforward::FeedforwardParams;
 use sts_twin_core::program::TickTerm;
 use sts_twin_core::wire::Request;
@@ -124,41 +124,36 @@ struct OnTheMachine {
     compensating_ticks: usize,
 }
 
-/// The analogue path's response `H(f)` of `machine`, measured as `sts-twin calibrate` measures
-/// it on a machine (`sts_rig::calibrate::path`): the command at zero, a sine of the
-/// calibration's amplitude through the controller's analogue input (acting one tick late, as
-/// the board's output does) at each of the calibration's frequencies, and the tool's response
-/// fitted over whole periods after the settling time.
+/// The co-processor's settings on the foreign machine: the defaults (1 um per volt) with a
+/// DAC slewing 1 V per tick, as on the emulated machine ([`sts_rig::machine_params`]), so that
+/// the calibration's 8 um sine at 100 Hz (0.63 V per tick) is not slew-limited.
+fn board_params() -> FeedforwardParams {
+    FeedforwardParams { slew_v_per_tick: 1.0, ..FeedforwardParams::default() }
+}
+
+/// The analogue path's table of `machine`, measured as `sts-twin calibrate` measures it
+/// ([`sts_rig::calibrate::measure_path`]): the co-processor (the firmware's core, simulated)
+/// drives a sine through the controller's analogue input with the command at zero, at each of
+/// the calibration's frequencies, and the probe's response is fitted over whole periods after
+/// the settling time.
 fn analogue_path(machine: &Foreign) -> AnaloguePath {
     let config = PathConfig::default();
-    let points: Vec<PathPoint> = config
-        .freqs_hz
-        .iter()
-        .map(|&freq_hz| {
-            let w = std::f64::consts::TAU * freq_hz;
-            let seconds = config.settle_s + config.measure_s;
-            let [_, _, tool, _] =
-                machine.run_with_analogue(freq_hz, 0.0, seconds, 11, &mut |r| -config.amp_um * (w * r.next_t_s).sin());
-            let first = (config.settle_s * foreign::RATE_HZ) as usize;
-            let periods = (config.measure_s * freq_hz).floor();
-            let last = first + (periods / freq_hz * foreign::RATE_HZ).round() as usize;
-            let t_s: Vec<f64> = (first..last).map(|k| k as f64 / foreign::RATE_HZ).collect();
-            let fit = fit_sine(&t_s, &tool[first..last], freq_hz).unwrap();
-            // The request is -amp sin(wt): amplitude amp at phase pi.
-            let phase_deg = wrap_deg((fit.phase_rad - std::f64::consts::PI).to_degrees());
-            PathPoint { freq_hz, gain: fit.amp / config.amp_um, phase_deg }
-        })
-        .collect();
+    let params = board_params();
+    let mut board = SimCoprocessor::boot(&[]);
+    // The accelerometer's range as the emulated machine's (+-5 g): the co-processor's inputs
+    // must not saturate (it would fade its output out while it still asks for the sine), and
+    // 8 um at 100 Hz through a resonant path is some 4 m/s^2.
+    let acc_scale = sts_emulator::PlantParams::default().acc_mps2_per_lsb();
+    let mut plant = machine.plant(11, f64::from(params.k_dv_um_per_v), acc_scale);
+    let points = measure_path(&mut board, &mut plant, params, &config, 0).unwrap();
     path_table(&points, config.amp_um).unwrap()
 }
 
-/// Runs `machine` at `freq_hz`, `amp_um` for 4 s with the co-processor (the firmware's core,
-/// simulated) on its controller's analogue input, as a lab wires it: the default feedforward
-/// parameters (1 um per volt) with the machine's analogue path `path` (from
+/// Runs `machine` at `freq_hz`, `amp_um` for 4 s in the rig's loop ([`sts_rig::run_loop`])
+/// with the co-processor (the firmware's core, simulated) on its controller's analogue input,
+/// as a lab wires it: [`board_params`] with the machine's analogue path `path` (from
 /// [`analogue_path`]), `model`'s features over the cut's window and its program, compensation
-/// enabled. The board reads the accelerometer and the next tick's command at every servo
-/// tick; its DAC output reaches the controller's command one tick later. `None`: the bare
-/// machine, the same run without a board.
+/// enabled. `None`: the bare machine, the controller's analogue input off.
 fn cut_on_the_machine(
     twin: Option<(&Path, &AnaloguePath)>,
     machine: &Foreign,
@@ -166,54 +161,40 @@ fn cut_on_the_machine(
     amp_um: f64,
 ) -> OnTheMachine {
     const SECONDS: f64 = 4.0;
-    let last_second_from = ((SECONDS - 1.0) * foreign::RATE_HZ) as usize;
-    let mut fault_count = 0;
-    let mut compensating_ticks = 0;
-    let columns = match twin {
-        None => machine.run_with_analogue(freq_hz, amp_um, SECONDS, 7, &mut |_| 0.0),
-        Some((model, path)) => {
-            let model = ModelFile::read(model).unwrap();
-            let params = FeedforwardParams { analogue_path: *path, ..FeedforwardParams::default() };
-            let mut board = SimCoprocessor::boot(&[]);
-            expect_ack("params", board.request(Request::SetParams(params)).unwrap()).unwrap();
-            // The cut's feature window (four periods), as `trial-table` cuts: the supervisor
-            // takes its bare baseline over the first windows before it lets the ramp in.
-            let mut features = model.feature_config;
-            features.window_samples = cut_window_samples(freq_hz, f64::from(features.sample_rate_hz));
-            expect_ack("features", board.request(Request::SetFeatureConfig(features)).unwrap()).unwrap();
-            let program = model.firmware_program().unwrap();
-            expect_ack("program", board.request(Request::UploadProgram { program, activate: true }).unwrap()).unwrap();
-            expect_ack("enable", board.request(Request::SetEnabled(true)).unwrap()).unwrap();
-            let scale = f64::from(model.feature_config.acc_mps2_per_lsb);
-            let um_per_code = f64::from(params.dac_full_scale_v) / 32767.0 * f64::from(params.k_dv_um_per_v);
-            machine.run_with_analogue(freq_hz, amp_um, SECONDS, 7, &mut |r| {
-                let out = board
-                    .tick(&InputSlot {
-                        tick: r.tick as u32,
-                        acc_code: sts_analysis::features::acc_code(r.acc_mps2, scale),
-                        flags: IN_FLAG_PHASE_VALID,
-                        cmd_phase_turns: turns_u32(freq_hz * r.next_t_s),
-                        cmd_pos_nm: (r.next_cmd_um * 1e3).round() as i32,
-                        x_acc_um_per_s2: 0,
-                        spindle_turns: 0,
-                    })
-                    .unwrap();
-                fault_count = out.fault_count;
-                if r.tick >= last_second_from
-                    && out.flags & OUT_FLAG_MODEL_ACTIVE != 0
-                    && out.flags & OUT_FLAG_DEGRADED == 0
-                {
-                    compensating_ticks += 1;
-                }
-                f64::from(out.dac_code) * um_per_code
-            })
+    let ticks = (SECONDS * foreign::RATE_HZ) as u64;
+    let last_second_from = ticks - foreign::RATE_HZ as u64;
+    let params =
+        FeedforwardParams { analogue_path: twin.map_or(AnaloguePath::NONE, |(_, path)| *path), ..board_params() };
+    let mut board = SimCoprocessor::boot(&[]);
+    expect_ack("params", board.request(Request::SetParams(params)).unwrap()).unwrap();
+    let mut acc_scale = f64::from(FeatureConfig::DEFAULT.acc_mps2_per_lsb);
+    if let Some((model, _)) = twin {
+        let model = ModelFile::read(model).unwrap();
+        // The cut's feature window (four periods), as `trial-table` cuts: the supervisor
+        // takes its bare baseline over the first windows before it lets the ramp in.
+        let mut features = model.feature_config;
+        features.window_samples = cut_window_samples(freq_hz, f64::from(features.sample_rate_hz));
+        expect_ack("features", board.request(Request::SetFeatureConfig(features)).unwrap()).unwrap();
+        let program = model.firmware_program().unwrap();
+        expect_ack("program", board.request(Request::UploadProgram { program, activate: true }).unwrap()).unwrap();
+        expect_ack("enable", board.request(Request::SetEnabled(true)).unwrap()).unwrap();
+        acc_scale = f64::from(model.feature_config.acc_mps2_per_lsb);
+    }
+    let mut plant = machine.plant(7, f64::from(params.k_dv_um_per_v), acc_scale);
+    let motion = Sinusoid { freq_hz, amp_um, duration_s: SECONDS, sample_rate_hz: foreign::RATE_HZ };
+    let (mut tick, mut fault_count, mut compensating_ticks, mut square_sum_um2) = (0, 0, 0, 0.0);
+    let fs_v = f64::from(params.dac_full_scale_v);
+    run_loop(&mut plant, &mut board, &motion, 0..ticks, fs_v, twin.is_some(), |s| {
+        fault_count = s.output.fault_count;
+        if tick >= last_second_from {
+            square_sum_um2 += (s.machine.z_tcp_true_um - s.point.z_cmd_um).powi(2);
+            compensating_ticks +=
+                usize::from(s.output.flags & OUT_FLAG_MODEL_ACTIVE != 0 && s.output.flags & OUT_FLAG_DEGRADED == 0);
         }
-    };
-    let [cmd, _, tool, _] = columns;
-    let first = cmd.len() - foreign::RATE_HZ as usize;
-    let error_rms_um =
-        ((first..cmd.len()).map(|i| (tool[i] - cmd[i]).powi(2)).sum::<f64>() / (cmd.len() - first) as f64).sqrt();
-    OnTheMachine { error_rms_um, fault_count, compensating_ticks }
+        tick += 1;
+    })
+    .unwrap();
+    OnTheMachine { error_rms_um: (square_sum_um2 / foreign::RATE_HZ).sqrt(), fault_count, compensating_ticks }
 }
 
 struct Case {

@@ -4,7 +4,9 @@
 //! late setpoint as options, written here from textbook equations and nothing of `sts-emulator`
 //! or of the twin's own axis model (which is a PID with its friction a static map). Its
 //! measurements are written as a lab would export them: CSV files by hand, columns in another
-//! order, CRLF line ends, other decimals, no ADC scale in the manifest.
+//! order, CRLF line ends, other decimals, no ADC scale in the manifest. It also steps one
+//! servo tick at a time as an [`sts_rig::Plant`] ([`Foreign::plant`]), so that the rig's
+//! calibration and loop run on it as on the emulator.
 
 use std::f64::consts::PI;
 use std::fmt::Write as _;
@@ -199,89 +201,44 @@ impl Foreign {
     /// One group: the command `amp_um sin(2 pi freq_hz t)` for `duration_s` from rest,
     /// recorded at `record_hz`. Columns: command, encoder, probe, accelerometer.
     pub fn run(&self, freq_hz: f64, amp_um: f64, duration_s: f64, seed: u64) -> [Vec<f64>; 4] {
-        self.simulate(freq_hz, amp_um, duration_s, seed, None)
-    }
-
-    /// [`Self::run`] with a co-processor on the controller's analogue input: at every servo
-    /// tick `analogue` gets the tick's [`ServoReading`] and returns the input, in micrometres
-    /// of position command, that the controller adds to the command from the next tick on.
-    /// The recorded probe column is the true tool position (no probe noise): the error a cut
-    /// leaves.
-    pub fn run_with_analogue(
-        &self,
-        freq_hz: f64,
-        amp_um: f64,
-        duration_s: f64,
-        seed: u64,
-        analogue: &mut dyn FnMut(&ServoReading) -> f64,
-    ) -> [Vec<f64>; 4] {
-        self.simulate(freq_hz, amp_um, duration_s, seed, Some(analogue))
-    }
-
-    fn simulate(
-        &self,
-        freq_hz: f64,
-        amp_um: f64,
-        duration_s: f64,
-        seed: u64,
-        mut analogue: Option<&mut dyn FnMut(&ServoReading) -> f64>,
-    ) -> [Vec<f64>; 4] {
         let grid_hz = RATE_HZ * SUBSTEPS as f64;
         let record_every = (grid_hz / self.record_hz).round() as usize;
         assert!((grid_hz / record_every as f64 - self.record_hz).abs() < 1e-9, "record_hz must divide {grid_hz} Hz");
-        let ts = 1.0 / RATE_HZ;
-        let dt = ts / SUBSTEPS as f64;
-        let mut noise = Noise::new(seed);
-        let mut s = State::default();
-        let mut out: [Vec<f64>; 4] = Default::default();
-        let (mut enc_prev, mut vel_est, mut integral, mut cmd_prev) = (0.0, 0.0, 0.0, 0.0);
-        let mut pending = vec![0.0; self.delay_ticks.max(1)];
-        let alpha = 1.0 - (-2.0 * PI * self.vel_filter_hz * ts).exp();
         // At rest before the start (a late setpoint reaches back there).
         let command = |t: f64| if t < 0.0 { 0.0 } else { amp_um * 1e-6 * (2.0 * PI * freq_hz * t).sin() };
-        let encoder = |x: f64| (x / (self.encoder_um * 1e-6)).round() * self.encoder_um * 1e-6;
         let records = (duration_s * self.record_hz).round() as usize;
         // The sensors' noise has a density: per sample it grows with the recorder's bandwidth
         // (the noise figures are per sample at the servo's 8 kHz).
         let noise_scale = (self.record_hz / RATE_HZ).sqrt();
-        let probe_noise_um = if analogue.is_some() { 0.0 } else { self.probe_noise_um };
-        let mut analogue_um = 0.0;
+        let mut run = Running::new(self, seed);
+        let mut out: [Vec<f64>; 4] = Default::default();
         for i in 0..records * record_every {
-            let t = i as f64 * dt;
             if i % record_every == 0 {
+                let t = run.t_s();
                 out[0].push(command(t) * 1e6);
-                out[1].push(encoder(s.x1) * 1e6);
-                let tool_m = s.x2 + self.mode_share() * s.r;
-                out[2].push(self.probe_gain * tool_m * 1e6 + noise_scale * probe_noise_um * noise.gaussian());
-                let d = self.derivative(&s, pending[0]);
-                let tool_mps2 = d.v2 + self.mode_share() * d.vr;
-                out[3].push(tool_mps2 + noise_scale * self.acc_noise_mps2 * noise.gaussian());
+                out[1].push(run.encoder_um());
+                out[2].push(run.probe_um(noise_scale * self.probe_noise_um));
+                out[3].push(run.acc_mps2(noise_scale * self.acc_noise_mps2));
             }
             if i % SUBSTEPS == 0 {
-                // The controller: velocity from the encoder's difference, filtered.
-                let (cmd, enc) = (command(t - self.setpoint_delay_s) + analogue_um * 1e-6, encoder(s.x1));
-                vel_est += alpha * ((enc - enc_prev) / ts - vel_est);
-                enc_prev = enc;
-                let vel_cmd = self.kpp_per_s * (cmd - enc) + self.vff * (cmd - cmd_prev) / ts;
-                cmd_prev = cmd;
-                integral += (vel_cmd - vel_est) * ts;
-                let force_cmd = self.kvp_ns_per_m * (vel_cmd - vel_est) + self.kvi_n_per_m * integral;
-                pending.rotate_left(1);
-                *pending.last_mut().unwrap() = force_cmd;
-                if let Some(analogue) = analogue.as_mut() {
-                    let d = self.derivative(&s, pending[0]);
-                    let tick = i / SUBSTEPS;
-                    analogue_um = analogue(&ServoReading {
-                        tick,
-                        acc_mps2: d.v2 + self.mode_share() * d.vr + self.acc_noise_mps2 * noise.gaussian(),
-                        next_t_s: (tick + 1) as f64 / RATE_HZ,
-                        next_cmd_um: command((tick + 1) as f64 / RATE_HZ) * 1e6,
-                    });
-                }
+                run.control(command(run.t_s() - self.setpoint_delay_s));
             }
-            s = self.rk4(&s, pending[0], dt);
+            run.integrate();
         }
         out
+    }
+
+    /// The machine on a rig ([`sts_rig::Plant`]), from rest: its controller's analogue input
+    /// adds `um_per_v` micrometres of position command per volt, and its accelerometer
+    /// reads in codes of `acc_mps2_per_lsb`.
+    pub fn plant(&self, seed: u64, um_per_v: f64, acc_mps2_per_lsb: f64) -> ForeignPlant<'_> {
+        let late_ticks = (self.setpoint_delay_s * RATE_HZ).round() as usize;
+        ForeignPlant {
+            run: Running::new(self, seed),
+            um_per_v,
+            acc_mps2_per_lsb,
+            sent_um: std::collections::VecDeque::from(vec![0.0; late_ticks]),
+        }
     }
 
     /// Measures the grid into `dir` as a lab would export it ([`write_dataset`]).
@@ -293,13 +250,136 @@ impl Foreign {
     }
 }
 
-/// What the co-processor reads at a servo tick of [`Foreign::run_with_analogue`]: the
-/// accelerometer now, and the command the controller is sent at the next tick.
-pub struct ServoReading {
-    pub tick: usize,
-    pub acc_mps2: f64,
-    pub next_t_s: f64,
-    pub next_cmd_um: f64,
+/// One run of the machine from rest: the slide's state, the controller's and the sensors'
+/// noise, advanced one integration substep (`1 / (RATE_HZ * SUBSTEPS)`) at a time. The
+/// controller acts on the first substep of each servo tick.
+struct Running<'m> {
+    machine: &'m Foreign,
+    s: State,
+    noise: Noise,
+    /// Substeps so far.
+    i: usize,
+    enc_prev: f64,
+    vel_est: f64,
+    integral: f64,
+    cmd_prev: f64,
+    /// Force commands on their way to the current loop, oldest first.
+    pending: Vec<f64>,
+    /// The velocity filter's coefficient per servo tick.
+    alpha: f64,
+}
+
+impl<'m> Running<'m> {
+    fn new(machine: &'m Foreign, seed: u64) -> Self {
+        let ts = 1.0 / RATE_HZ;
+        Self {
+            machine,
+            s: State::default(),
+            noise: Noise::new(seed),
+            i: 0,
+            enc_prev: 0.0,
+            vel_est: 0.0,
+            integral: 0.0,
+            cmd_prev: 0.0,
+            pending: vec![0.0; machine.delay_ticks.max(1)],
+            alpha: 1.0 - (-2.0 * PI * machine.vel_filter_hz * ts).exp(),
+        }
+    }
+
+    /// Time of the next substep, s.
+    fn t_s(&self) -> f64 {
+        self.i as f64 * (1.0 / RATE_HZ / SUBSTEPS as f64)
+    }
+
+    fn encoder_m(&self, x: f64) -> f64 {
+        let um = self.machine.encoder_um;
+        (x / (um * 1e-6)).round() * um * 1e-6
+    }
+
+    /// The encoder's reading, um.
+    fn encoder_um(&self) -> f64 {
+        self.encoder_m(self.s.x1) * 1e6
+    }
+
+    /// The tool's true position, m.
+    fn tool_m(&self) -> f64 {
+        self.s.x2 + self.machine.mode_share() * self.s.r
+    }
+
+    /// The probe's reading with `noise_um` RMS of noise, um.
+    fn probe_um(&mut self, noise_um: f64) -> f64 {
+        self.machine.probe_gain * self.tool_m() * 1e6 + noise_um * self.noise.gaussian()
+    }
+
+    /// The accelerometer at the tool with `noise_mps2` RMS of noise, m/s^2.
+    fn acc_mps2(&mut self, noise_mps2: f64) -> f64 {
+        let d = self.machine.derivative(&self.s, self.pending[0]);
+        d.v2 + self.machine.mode_share() * d.vr + noise_mps2 * self.noise.gaussian()
+    }
+
+    /// The controller at a servo tick, with the position command `cmd` (m) as it reaches it:
+    /// velocity from the encoder's difference, filtered, a P position loop with velocity
+    /// feedforward and a PI velocity loop; its force command joins the queue.
+    fn control(&mut self, cmd: f64) {
+        let m = self.machine;
+        let ts = 1.0 / RATE_HZ;
+        let enc = self.encoder_m(self.s.x1);
+        self.vel_est += self.alpha * ((enc - self.enc_prev) / ts - self.vel_est);
+        self.enc_prev = enc;
+        let vel_cmd = m.kpp_per_s * (cmd - enc) + m.vff * (cmd - self.cmd_prev) / ts;
+        self.cmd_prev = cmd;
+        self.integral += (vel_cmd - self.vel_est) * ts;
+        let force_cmd = m.kvp_ns_per_m * (vel_cmd - self.vel_est) + m.kvi_n_per_m * self.integral;
+        self.pending.rotate_left(1);
+        *self.pending.last_mut().unwrap() = force_cmd;
+    }
+
+    /// One integration substep with the oldest force command.
+    fn integrate(&mut self) {
+        self.s = self.machine.rk4(&self.s, self.pending[0], 1.0 / RATE_HZ / SUBSTEPS as f64);
+        self.i += 1;
+    }
+}
+
+/// [`Foreign`] on a rig, one servo tick per [`sts_rig::Plant::step`] ([`Foreign::plant`]).
+/// The command of each tick is held over the tick (a late setpoint arrives whole ticks late);
+/// the controller reads its analogue input exactly and adds `um_per_v` per volt of it to the
+/// command while enabled. Its "pulses" are that addition in whole nanometres. The probe reads
+/// with its noise and scale, the accelerometer with its noise.
+pub struct ForeignPlant<'m> {
+    run: Running<'m>,
+    um_per_v: f64,
+    acc_mps2_per_lsb: f64,
+    /// The commands sent and not yet arrived, um.
+    sent_um: std::collections::VecDeque<f64>,
+}
+
+impl sts_rig::Plant for ForeignPlant<'_> {
+    fn step(&mut self, input: &sts_rig::PlantInput) -> sts_rig::PlantReading {
+        let run = &mut self.run;
+        let machine = run.machine;
+        let time_s = run.t_s();
+        let z_enc_um = run.encoder_um();
+        let z_tcp_true_um = run.tool_m() * 1e6;
+        let z_tcp_um = run.probe_um(machine.probe_noise_um);
+        self.sent_um.push_back(input.z_cmd_um);
+        let cmd_um = self.sent_um.pop_front().unwrap_or(input.z_cmd_um);
+        let analogue_um = if input.analog_enabled { input.analog_in_v * self.um_per_v } else { 0.0 };
+        run.control((cmd_um + analogue_um) * 1e-6);
+        let acc_mps2 = run.acc_mps2(machine.acc_noise_mps2);
+        for _ in 0..SUBSTEPS {
+            run.integrate();
+        }
+        sts_rig::PlantReading {
+            time_s,
+            z_enc_um,
+            z_tcp_um,
+            z_tcp_true_um,
+            acc_code: sts_analysis::features::acc_code(acc_mps2, self.acc_mps2_per_lsb),
+            ain_read_v: input.analog_in_v,
+            ain_pulses: (input.analog_in_v * self.um_per_v * 1e3).round() as i64,
+        }
+    }
 }
 
 /// Writes groups as a lab would export them: one CSV file per group by hand (columns in

@@ -1,6 +1,7 @@
 //! `explain`: the lab's loop run by itself. Fit a twin (or start from a given one), diagnose
 //! its residual on the same data, give the twin the named effect, refit, diagnose again;
-//! until `diagnose` names nothing (the residual is at the data's floor), the named effect
+//! until `diagnose` names nothing (the residual is at the data's floor, or no term that
+//! reshapes the response at the command frequency lowers it by [`UNNAMED_MIN_GAIN`]), the named effect
 //! does not lower the error by [`NAMED_MIN_GAIN`], it cannot be added, or the effect budget is
 //! spent. No effect is kept whose own term does not lower the error.
 //!
@@ -285,6 +286,69 @@ fn second_mode_try(d: &Diagnosis, carried: &[String]) -> Option<usize> {
         .flatten()
 }
 
+/// Least relative fall of the held-out error that keeps a term tried at the command frequency
+/// when `diagnose` named nothing ([`at_the_fundamental`]): the gain a name must bring on a
+/// clean machine to be more than a twin bending closer to its data.
+pub const UNNAMED_MIN_GAIN: f64 = 0.3;
+
+/// A refit within this factor of the best one counts as as good; the one with the fewest
+/// parameters among them is kept, as the formulas' selection keeps the simplest.
+const AS_GOOD_WITHIN: f64 = 1.1;
+
+/// A refitted twin and its effects.
+type Refit = (ModelFile, Vec<EffectRecord>);
+
+/// Where `diagnose` named nothing, the twin carries no servo-axis twin, and the residual
+/// stands well above the data's floor ([`Diagnosis::unexplained`]), most of it at the command
+/// frequency: the formulas do not reproduce the axis's response there, which a term that
+/// reshapes it (a mode's, a delay's, a scale's) may. Refits the twin with each such candidate
+/// that points the right way (a positive explained fraction) and returns the simplest of the
+/// refits that lower the error by [`UNNAMED_MIN_GAIN`] and end within [`AS_GOOD_WITHIN`] of
+/// the lowest: a plant whose response the formulas cannot follow, a late setpoint the
+/// formulas bent towards.
+#[allow(clippy::too_many_arguments)]
+fn at_the_fundamental(
+    dataset: &Dataset,
+    description: &str,
+    config: &ExplainConfig,
+    d: &Diagnosis,
+    carried: &[String],
+    skip: &[String],
+    now_um: f64,
+    progress: &mut dyn FnMut(ExplainProgress),
+) -> Option<(usize, Refit)> {
+    let has_axis = carried.iter().any(|c| Effect::name_carried_by_the_axis_twin(c));
+    let s = &d.structure;
+    let at_fundamental = s.fundamental.rms_um.powi(2) >= 0.5 * s.residual_rms_um.powi(2);
+    if d.verdict != "none" || d.unexplained.is_none() || has_axis || !at_fundamental {
+        return None;
+    }
+    // Each: its place in the ranking, its error, its parameters, the refit.
+    let mut refits: Vec<(usize, f64, usize, Refit)> = Vec::new();
+    for (i, candidate) in d.ranking.iter().enumerate() {
+        let reshapes = Effect::from_name(&candidate.effect).is_some_and(|e| !e.beyond_the_fundamental());
+        if !reshapes || candidate.explained_fraction <= 0.0 || carried.contains(&candidate.effect) {
+            continue;
+        }
+        let mut with = carried.to_vec();
+        with.push(candidate.effect.clone());
+        progress(ExplainProgress::Refitting { effects: &with });
+        let Ok((m, r)) = fit_with(dataset, &with, description, &config.fit, &mut |_| {}) else { continue };
+        let after_um = Standing::of_fit(&m).repeating_rms_um(skip);
+        if after_um.is_finite() && after_um < (1.0 - UNNAMED_MIN_GAIN) * now_um {
+            let params = r.iter().find(|x| x.effect == candidate.effect).map_or(0, |x| x.params.len());
+            refits.push((i, after_um, params, (m, r)));
+        }
+    }
+    let lowest_um = refits.iter().map(|r| r.1).fold(f64::INFINITY, f64::min);
+    // The fewest parameters among the refits as good as the best; the lower error on a tie.
+    refits
+        .into_iter()
+        .filter(|r| r.1 <= AS_GOOD_WITHIN * lowest_um)
+        .min_by(|a, b| a.2.cmp(&b.2).then(a.1.total_cmp(&b.1)))
+        .map(|(i, _, _, refit)| (i, refit))
+}
+
 /// Runs the loop on `dataset`, from `base` or from a twin fitted on the data.
 pub fn explain(
     dataset: &Dataset,
@@ -359,6 +423,31 @@ pub fn explain(
                 waveform_rms_um: standing.rms_um,
             })
         };
+        if stop == Some(Stop::None) && steps.len() < config.max_effects {
+            if let Some((i, (m, r))) = at_the_fundamental(dataset, description, config, &d, &names, &skip, now_um, progress)
+            {
+                let tried = &d.ranking[i];
+                let params = r.iter().find(|x| x.effect == tried.effect).map_or_else(Vec::new, |x| x.params.clone());
+                steps.push(Step {
+                    effect: tried.effect.clone(),
+                    explained_fraction: tried.explained_fraction,
+                    p_value: tried.p_value,
+                    evidence: format!(
+                        "diagnose named nothing, yet the residual stands well above the data's floor, most of it at the command frequency, where the formulas do not follow the axis's response; of the terms that reshape it, {}'s lowered the held-out error by {:.0}% (the one with the fewest parameters within {:.0}% of the best){over}",
+                        tried.effect,
+                        gain_pct(&m),
+                        (AS_GOOD_WITHIN - 1.0) * 100.0
+                    ),
+                    params,
+                    waveform_rms_um_before: standing.rms_um,
+                    waveform_rms_um_after: m.validation.waveform_rms_um,
+                });
+                standing = Standing::of_fit(&m);
+                model = m;
+                records = r;
+                continue;
+            }
+        }
         if let Some(stop) = stop {
             return done(stop, d, steps, model, records);
         }

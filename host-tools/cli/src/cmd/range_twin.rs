@@ -101,7 +101,7 @@ fn measure_and_fit_range(
     Ok(model)
 }
 
-/// [`measure_and_fit_range`], then the twin's summary for people: on stdout, or with `json`
+/// `measure_and_fit_range`, then the twin's summary for people: on stdout, or with `json`
 /// on stderr (stdout then holds the JSON only).
 pub fn fit_and_report(
     plant: &PlantParams,

@@ -48,7 +48,7 @@ fn the_twin_on_risc_v_does_not_depend_on_the_host_pace() {
                     state ^= state << 13;
                     state ^= state >> 17;
                     state ^= state << 5;
-                    if state % 4 == 0 {
+                    if state.is_multiple_of(4) {
                         std::thread::sleep(Duration::from_micros(u64::from(state % 500)));
                     }
                     hil.hil().step(*input).unwrap()

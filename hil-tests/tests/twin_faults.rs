@@ -185,7 +185,7 @@ fn accelerometer_faults_ramp_compensation_out_and_it_resumes() {
     // the phase.
     let burst = |i: u32, slot: &mut InputSlot| {
         if i % 200 < 60 {
-            slot.acc_code = if (i / 200) % 2 == 0 { i16::MAX } else { i16::MIN };
+            slot.acc_code = if (i / 200).is_multiple_of(2) { i16::MAX } else { i16::MIN };
         }
     };
     // Stuck at an arbitrary code, and dead (zero).

@@ -174,14 +174,14 @@ impl BackgroundApp for BringUpBackground {
 
     fn on_boot(&mut self, ctx: &mut BackgroundCtx<'_, BringUpShared>) {
         let mut blob = [0u8; 3];
-        if let Ok(3) = ctx.config.read(&mut blob) {
-            if blob[0] == b'G' {
-                let gain = i16::from_le_bytes([blob[1], blob[2]]);
-                ctx.shared.with(|s| {
-                    s.gain = gain;
-                    s.pending_gain = Some(gain);
-                });
-            }
+        if let Ok(3) = ctx.config.read(&mut blob)
+            && blob[0] == b'G'
+        {
+            let gain = i16::from_le_bytes([blob[1], blob[2]]);
+            ctx.shared.with(|s| {
+                s.gain = gain;
+                s.pending_gain = Some(gain);
+            });
         }
     }
 

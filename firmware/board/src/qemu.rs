@@ -211,7 +211,7 @@ const _: () = {
     while i < QemuBoard::ALL.len() {
         let b = QemuBoard::ALL[i];
         assert!(b.shared_file_offset() + SHARED_BYTES <= b.backing_file_bytes() - 2 * 1024 * 1024);
-        assert!(b.timer_clock_hz() % SERVO_RATE_HZ == 0);
+        assert!(b.timer_clock_hz().is_multiple_of(SERVO_RATE_HZ));
         i += 1;
     }
 };

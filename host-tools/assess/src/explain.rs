@@ -423,12 +423,14 @@ pub fn explain(
                 waveform_rms_um: standing.rms_um,
             })
         };
-        if stop == Some(Stop::None) && steps.len() < config.max_effects {
-            if let Some((i, (m, r))) = at_the_fundamental(dataset, description, config, &d, &names, &skip, now_um, progress)
-            {
-                let tried = &d.ranking[i];
-                let params = r.iter().find(|x| x.effect == tried.effect).map_or_else(Vec::new, |x| x.params.clone());
-                steps.push(Step {
+        if stop == Some(Stop::None)
+            && steps.len() < config.max_effects
+            && let Some((i, (m, r))) =
+                at_the_fundamental(dataset, description, config, &d, &names, &skip, now_um, progress)
+        {
+            let tried = &d.ranking[i];
+            let params = r.iter().find(|x| x.effect == tried.effect).map_or_else(Vec::new, |x| x.params.clone());
+            steps.push(Step {
                     effect: tried.effect.clone(),
                     explained_fraction: tried.explained_fraction,
                     p_value: tried.p_value,
@@ -442,11 +444,10 @@ pub fn explain(
                     waveform_rms_um_before: standing.rms_um,
                     waveform_rms_um_after: m.validation.waveform_rms_um,
                 });
-                standing = Standing::of_fit(&m);
-                model = m;
-                records = r;
-                continue;
-            }
+            standing = Standing::of_fit(&m);
+            model = m;
+            records = r;
+            continue;
         }
         if let Some(stop) = stop {
             return done(stop, d, steps, model, records);

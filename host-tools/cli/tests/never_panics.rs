@@ -104,10 +104,10 @@ fn the_dataset_reader_never_panics() {
         let mut text = header + "\n";
         for (k, row) in rows.iter().enumerate() {
             let mut fields = row.clone();
-            if let Some(t) = fields.first_mut() {
-                if k % 2 == 0 {
-                    *t = (k as f64 / 8000.0).to_string();
-                }
+            if let Some(t) = fields.first_mut()
+                && k % 2 == 0
+            {
+                *t = (k as f64 / 8000.0).to_string();
             }
             text += &fields.join(",");
             text.push('\n');

@@ -613,7 +613,7 @@ impl Waiter {
             std::hint::spin_loop();
             return Ok(());
         }
-        if self.spins % 256 == 0 {
+        if self.spins.is_multiple_of(256) {
             check_alive(qemu, logs, what)?;
             let waited = self.start.elapsed();
             if waited >= self.timeout {

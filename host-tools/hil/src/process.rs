@@ -154,11 +154,11 @@ impl QemuProcess {
 
     /// The exit status if QEMU has ended.
     pub(crate) fn try_status(&mut self) -> Option<ExitStatus> {
-        if self.status.is_none() {
-            if let Ok(Some(status)) = self.child.try_wait() {
-                self.forget();
-                self.status = Some(status);
-            }
+        if self.status.is_none()
+            && let Ok(Some(status)) = self.child.try_wait()
+        {
+            self.forget();
+            self.status = Some(status);
         }
         self.status
     }

@@ -220,7 +220,7 @@ pub fn import(
                     write(rows, sample_rate_hz)?;
                 }
             }
-            if k % 65_536 == 0 {
+            if k.is_multiple_of(65_536) {
                 progress(done_bytes + source.bytes_read(), total_bytes);
             }
         }

@@ -135,10 +135,11 @@ impl Scheduler {
             self.next += 1;
             let done = std::mem::take(&mut self.rows);
             // The row may open the next window.
-            if let Some(&(s, e)) = self.windows.get(self.next) {
-                if row.t_s >= s && row.t_s < e {
-                    self.rows.push(row);
-                }
+            if let Some(&(s, e)) = self.windows.get(self.next)
+                && row.t_s >= s
+                && row.t_s < e
+            {
+                self.rows.push(row);
             }
             return (!done.is_empty()).then_some(done);
         }

@@ -161,10 +161,10 @@ impl<T: Transport> Board<T> {
                 if frame.is_empty() {
                     continue;
                 }
-                if let Some((_, outbound)) = &mut self.faults {
-                    if outbound.pass(&mut frame) == FrameFate::Dropped {
-                        continue;
-                    }
+                if let Some((_, outbound)) = &mut self.faults
+                    && outbound.pass(&mut frame) == FrameFate::Dropped
+                {
+                    continue;
                 }
                 if let Some(answer) = self.judge(&frame, seq) {
                     return Ok(Some(answer));

@@ -81,13 +81,13 @@ pub fn export(model: &ModelFile, language: ExportLanguage, name: &str, origin: &
             return Err(ModelError::Constant { field, message: format!("{c} is not a finite number") });
         }
         // C's float functions carry the constants as f32.
-        if language == ExportLanguage::C {
-            if let Some(c) = constants.iter().find(|c| c.abs() > f64::from(f32::MAX)) {
-                return Err(ModelError::Constant {
-                    field,
-                    message: format!("{c:e} overflows the float functions of the C header (at most {:e})", f32::MAX),
-                });
-            }
+        if language == ExportLanguage::C
+            && let Some(c) = constants.iter().find(|c| c.abs() > f64::from(f32::MAX))
+        {
+            return Err(ModelError::Constant {
+                field,
+                message: format!("{c:e} overflows the float functions of the C header (at most {:e})", f32::MAX),
+            });
         }
     }
     let not_exported: Vec<String> = program.terms.iter().map(term_in_words).collect();

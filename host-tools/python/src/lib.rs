@@ -86,10 +86,10 @@ fn run_long<T: Send + 'static>(
         receiver = back;
         match message {
             Ok(Report::Progress(text, done, total)) => {
-                if let Some(callback) = progress {
-                    if let Err(error) = callback.call1((text, done, total)) {
-                        return interrupted(error);
-                    }
+                if let Some(callback) = progress
+                    && let Err(error) = callback.call1((text, done, total))
+                {
+                    return interrupted(error);
                 }
             }
             Ok(Report::Done(Ok(result))) => return result.map_err(to_py),

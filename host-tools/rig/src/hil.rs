@@ -68,10 +68,10 @@ pub fn request_on(hil: &mut Hil, seq: u16, request: Request) -> Result<Response,
     let reply = hil.transact(&frame[..len + 1], REQUEST_TIMEOUT, |bytes| answered(bytes, seq))?;
     let mut decoder = FrameDecoder::<Response>::new();
     for &byte in &reply {
-        if let Some(Ok(envelope)) = decoder.push(byte) {
-            if envelope.seq == seq {
-                return Ok(envelope.body);
-            }
+        if let Some(Ok(envelope)) = decoder.push(byte)
+            && envelope.seq == seq
+        {
+            return Ok(envelope.body);
         }
     }
     Err(RigError::NoAnswer { request: Box::new(request), seq })

@@ -133,10 +133,10 @@ impl<'a> Workspace<'a> {
                 break;
             }
             // Converged to rounding level: further steps cannot help.
-            if let Some(c) = current {
-                if mse - c <= 1e-10 * mse {
-                    break;
-                }
+            if let Some(c) = current
+                && mse - c <= 1e-10 * mse
+            {
+                break;
             }
         }
         if accepted {

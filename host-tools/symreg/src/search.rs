@@ -315,11 +315,11 @@ impl Island {
                 .collect();
             alt.set_constants(&consts);
             let alt_mse = ws.optimize_constants(&mut alt, p.cfg.lm_iterations * 2);
-            if let Some(a) = alt_mse {
-                if mse.is_none_or(|m| a < m) {
-                    e = alt;
-                    mse = Some(a);
-                }
+            if let Some(a) = alt_mse
+                && mse.is_none_or(|m| a < m)
+            {
+                e = alt;
+                mse = Some(a);
             }
         }
         let mse = mse?;
@@ -627,22 +627,21 @@ fn polish(ws: &mut Workspace<'_>, rng: &mut Rand, p: &Problem<'_>, m: &Member) -
             let mut alt = best.clone();
             let consts: Vec<f64> = alt.constants().iter().map(|c| c * (1.0 + 0.3 * rng.normal())).collect();
             alt.set_constants(&consts);
-            if let Some(a) = ws.optimize_constants(&mut alt, p.cfg.polish_iterations) {
-                if a < best_mse {
-                    best = alt;
-                    best_mse = a;
-                }
+            if let Some(a) = ws.optimize_constants(&mut alt, p.cfg.polish_iterations)
+                && a < best_mse
+            {
+                best = alt;
+                best_mse = a;
             }
         }
     }
     let simplified = simplify(&best);
-    if simplified != best {
-        if let Some(s) = ws.mse(&simplified) {
-            if s <= best_mse * (1.0 + 1e-9) + 1e-300 {
-                best = simplified;
-                best_mse = s;
-            }
-        }
+    if simplified != best
+        && let Some(s) = ws.mse(&simplified)
+        && s <= best_mse * (1.0 + 1e-9) + 1e-300
+    {
+        best = simplified;
+        best_mse = s;
     }
     let complexity = best.complexity();
     if complexity > p.cfg.max_complexity || best_mse > m.mse {

@@ -241,7 +241,7 @@ impl FeatureConfig {
                 min_samples: MIN_WINDOW_SAMPLES as u32,
             });
         }
-        if w % BLOCK_SAMPLES != 0 {
+        if !w.is_multiple_of(BLOCK_SAMPLES) {
             return Err(FeatureError::WindowNotWholeBlocks { window_samples: self.window_samples });
         }
         let s = self.acc_mps2_per_lsb;

@@ -247,7 +247,7 @@ pub(super) fn kernel_pm(term: &TickTerm, st: &mut KernelState, input: &TickInput
     match term {
         TickTerm::Harmonic { .. } | TickTerm::AxisHarmonic { .. } => 0,
         TickTerm::Drift { offset_pm, .. } => {
-            if ticks % u64::from(DRIFT_STEP_TICKS) == 0 && ticks != 0 {
+            if ticks.is_multiple_of(u64::from(DRIFT_STEP_TICKS)) && ticks != 0 {
                 st.drift_q8 = (st.drift_q8 * st.scale) >> 23;
             }
             *offset_pm as i64 + (st.drift_q8 >> 8)
@@ -511,7 +511,7 @@ mod tests {
             let mut u = 1i64 << 30;
             for k in 0..400_000u32 {
                 if k < 200_000 {
-                    if rng(&mut seed) % (1 + 2 * one as u64 / (one - a).max(1) as u64 / 4).max(1) == 0 {
+                    if rng(&mut seed).is_multiple_of((1 + 2 * one as u64 / (one - a).max(1) as u64 / 4).max(1)) {
                         u = -u;
                     }
                 } else {

@@ -708,7 +708,8 @@ mod tests {
                 // Prepared some ticks before its tick, usually for that tick (while the ramps
                 // still run or after they settled), sometimes for another one (the fallback).
                 let wait = rng(&mut seed) % 120;
-                let ahead = if rng(&mut seed) % 5 == 0 { (wait + 1 + rng(&mut seed) % 3) as u32 } else { wait as u32 };
+                let ahead =
+                    if rng(&mut seed).is_multiple_of(5) { (wait + 1 + rng(&mut seed) % 3) as u32 } else { wait as u32 };
                 prepared.prepare(&targets, terms, ahead);
                 for _ in 0..wait {
                     tick(&mut plain, &mut prepared, "before the update");

@@ -230,7 +230,7 @@ pub fn synth_steps(seed: u64, ticks: u32, fixed_terms: Option<&[TickTerm]>, mut 
     let mut theta = 0u32;
     for _ in 0..ticks {
         let r = xorshift(&mut seed);
-        if r % 97 == 0 {
+        if r.is_multiple_of(97) {
             let terms: Vec<TickTerm> = match fixed_terms {
                 Some(terms) => terms.to_vec(),
                 None => {
@@ -246,10 +246,10 @@ pub fn synth_steps(seed: u64, ticks: u32, fixed_terms: Option<&[TickTerm]>, mut 
             let ramp_ticks = [0, 1, 7, 80, 80][(xorshift(&mut seed) % 5) as usize];
             each(SynthStep::Update { output, terms, ramp_ticks });
         }
-        if r % 1009 == 0 {
+        if r.is_multiple_of(1009) {
             each(SynthStep::SetTime(xorshift(&mut seed) % 100_000_000));
         }
-        if r % 1013 == 0 {
+        if r.is_multiple_of(1013) {
             each(SynthStep::Restart);
         }
         pos += match (r >> 12) % 50 {

@@ -202,14 +202,14 @@ fn rename_vars(explanation: &str, features: &[String]) -> String {
                 j += 1;
             }
             let ends_word = j == bytes.len() || !(bytes[j].is_ascii_alphanumeric() || bytes[j] == b'_');
-            if j > i + 1 && ends_word {
-                if let Ok(k) = explanation[i + 1..j].parse::<usize>() {
-                    if let Some(name) = features.get(k) {
-                        out.push_str(name);
-                        i = j;
-                        continue;
-                    }
-                }
+            if j > i + 1
+                && ends_word
+                && let Ok(k) = explanation[i + 1..j].parse::<usize>()
+                && let Some(name) = features.get(k)
+            {
+                out.push_str(name);
+                i = j;
+                continue;
             }
         }
         let ch = explanation[i..].chars().next().unwrap_or(' ');

@@ -1,13 +1,13 @@
-//! Levenberg-Marquardt: the damped Gauss-Newton loop of the servo-axis twin's identification,
-//! for any least-squares problem (symbolic regression keeps its own, see its `optimize`). Each
-//! iteration reduces the Jacobian to its triangular factor once ([`crate::lsq::Damped`]) and
-//! tries dampings on it until a step lowers the cost.
+//! Levenberg-Marquardt: the damped Gauss-Newton loop of every nonlinear fit of the host (the
+//! servo-axis twin's identification, symbolic regression's constants). Each iteration
+//! prepares its Jacobian once, as [`Steps`] says, and tries dampings on it until a step
+//! lowers the cost.
 //!
 //! Hand-written rather than the `levenberg-marquardt` crate (MINPACK's trust region): measured
 //! in the axis identification's place, it reached the same fits no faster in all and slower
 //! where the fit is quickest, and it would pin nalgebra's version.
 
-use crate::lsq::{Damped, Stats};
+use crate::lsq::{Damped, Normal, Stats};
 
 /// A nonlinear least-squares problem: residuals `r(p)` to bring towards zero.
 pub trait Problem {
@@ -45,6 +45,43 @@ pub struct Settings {
     pub damping_min: f64,
     /// A step that lowers the cost by less than this fraction of it is taken, and ends the fit.
     pub min_relative_gain: f64,
+    /// How the steps are solved.
+    pub steps: Steps,
+}
+
+/// How an iteration solves for its steps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Steps {
+    /// The Jacobian reduced to its triangular factor once ([`Damped`]), each damping by QR:
+    /// every digit, for Jacobians that may be ill-conditioned (the axis identification).
+    Triangular,
+    /// The normal equations by Cholesky ([`Normal`]): half the digits for a fraction of the
+    /// work, where the columns are few and the fit runs many thousand times (symbolic
+    /// regression's constants). A damping whose matrix is not positive definite counts as a
+    /// step that failed.
+    Normal,
+}
+
+/// An iteration's Jacobian, prepared for its steps.
+enum System {
+    Triangular(Damped),
+    Normal(Normal),
+}
+
+impl System {
+    fn new(steps: Steps, jacobian: &[Vec<f64>], minus_r: &[f64]) -> Option<Self> {
+        match steps {
+            Steps::Triangular => Damped::new(&[&Stats::from_columns(jacobian, minus_r)]).map(System::Triangular),
+            Steps::Normal => Some(System::Normal(Normal::new(jacobian, minus_r))),
+        }
+    }
+
+    fn step(&self, damping: f64) -> Option<Vec<f64>> {
+        match self {
+            System::Triangular(d) => Some(d.solve(damping)),
+            System::Normal(n) => n.solve(damping),
+        }
+    }
 }
 
 /// The loop from `start`: the best point found and its cost (`f64::INFINITY` where the
@@ -60,11 +97,10 @@ pub fn minimize<P: Problem>(problem: &mut P, start: P::Point, settings: &Setting
         }
         let Some(jacobian) = problem.jacobian(&point, &r) else { break };
         let minus_r: Vec<f64> = r.iter().map(|v| -v).collect();
-        let Some(system) = Damped::new(&[&Stats::from_columns(&jacobian, &minus_r)]) else { break };
+        let Some(system) = System::new(settings.steps, &jacobian, &minus_r) else { break };
         let mut improved = false;
         for _ in 0..settings.tries {
-            let step = system.solve(damping);
-            let trial = problem.moved(&point, &step);
+            let trial = system.step(damping).and_then(|step| problem.moved(&point, &step));
             if let Some((trial, rt)) = trial.and_then(|t| problem.residuals(&t).map(|rt| (t, rt))) {
                 let ct = problem.cost(&rt);
                 if ct < cost {
@@ -124,8 +160,14 @@ mod tests {
         }
     }
 
-    const SETTINGS: Settings =
-        Settings { iterations: 100, tries: 8, damping_start: 1e-3, damping_min: 1e-12, min_relative_gain: 1e-12 };
+    const SETTINGS: Settings = Settings {
+        iterations: 100,
+        tries: 8,
+        damping_start: 1e-3,
+        damping_min: 1e-12,
+        min_relative_gain: 1e-12,
+        steps: Steps::Triangular,
+    };
 
     #[test]
     fn recovers_an_exponential_from_far_off() {
@@ -134,6 +176,16 @@ mod tests {
         let (p, cost) = minimize(&mut Exponential { x, y }, [1.0, 0.5], &SETTINGS);
         assert!(cost < 1e-10, "cost {cost}");
         assert!((p[0] - 2.5).abs() < 1e-8 && (p[1] + 1.3).abs() < 1e-8, "{p:?}");
+    }
+
+    #[test]
+    fn the_normal_equations_recover_it_too() {
+        let x: Vec<f64> = (0..30).map(|i| f64::from(i) * 0.1).collect();
+        let y = x.iter().map(|x| 2.5 * (-1.3 * x).exp()).collect();
+        let settings = Settings { steps: Steps::Normal, ..SETTINGS };
+        let (p, cost) = minimize(&mut Exponential { x, y }, [1.0, 0.5], &settings);
+        assert!(cost < 1e-7, "cost {cost}");
+        assert!((p[0] - 2.5).abs() < 1e-6 && (p[1] + 1.3).abs() < 1e-6, "{p:?}");
     }
 
     #[test]

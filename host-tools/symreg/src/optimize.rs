@@ -1,13 +1,10 @@
-//! Constant optimisation by Levenberg-Marquardt on the squared error, with forward-mode
-//! derivatives from [`crate::eval::Evaluator::eval_with_jacobian`].
-//!
-//! Its own loop on the normal equations rather than `sts_numerics::lm`'s QR steps: on the
-//! shared loop the formulas differ in their last digits, and CI's explain set of friction
-//! beside hysteresis then misses the friction (61.5 nm against 8.0 nm clean), a sensitivity
-//! of the ladder to mend first.
+//! Constant optimisation: Levenberg-Marquardt ([`sts_numerics::lm`], its steps on the normal
+//! equations) on the squared error, with forward-mode derivatives from
+//! [`crate::eval::Evaluator::eval_with_jacobian`].
 
 use crate::eval::{Evaluator, Program};
 use crate::expr::Expr;
+use sts_numerics::lm::{self, Problem, Settings, Steps};
 
 /// Evaluation context shared by a search thread: the data and reusable buffers.
 pub(crate) struct Workspace<'a> {
@@ -42,150 +39,81 @@ impl<'a> Workspace<'a> {
         mse.is_finite().then_some(mse)
     }
 
-    /// Runs up to `iterations` Levenberg-Marquardt steps on the constants of `expr` (in
-    /// place, only if that lowers the error) and returns the final MSE (`None` if invalid).
+    /// Runs up to `iterations` Levenberg-Marquardt steps ([`sts_numerics::lm`] on the normal
+    /// equations) on the constants of `expr` (in place, only if that lowers the error) and
+    /// returns the final MSE (`None` if invalid).
     pub fn optimize_constants(&mut self, expr: &mut Expr, iterations: usize) -> Option<f64> {
-        let mut theta = expr.constants();
-        let k = theta.len();
-        let mut program = Program::compile(expr);
-        if k == 0 || iterations == 0 {
+        let theta = expr.constants();
+        let program = Program::compile(expr);
+        if theta.is_empty() || iterations == 0 {
             return self.mse_program(&program);
         }
-        let n = self.y.len();
-        self.jac.resize(k * n, 0.0);
-        let mut lambda = 1e-3;
-        let mut current: Option<f64> = None;
-        let mut jtj = vec![0.0; k * k];
-        let mut jtr = vec![0.0; k];
-        let mut trial = vec![0.0; k];
-        // Whether `theta` moved from the expression's constants (written back at the end).
-        let mut accepted = false;
-        let mut iter = 0;
-        while iter < iterations {
-            iter += 1;
-            self.evaluations += 1;
-            if !self.evaluator.eval_with_jacobian(&program, self.columns, &mut self.pred, &mut self.jac) {
-                break;
-            }
-            let sse: f64 = self.pred.iter().zip(self.y).map(|(p, y)| (p - y) * (p - y)).sum();
-            let mse = sse / n as f64;
-            if !mse.is_finite() {
-                break;
-            }
-            current = Some(mse);
-            if mse == 0.0 {
-                break;
-            }
-            // Normal equations J^T J d = -J^T r, r = pred - y.
-            for a in 0..k {
-                let ja = &self.jac[a * n..(a + 1) * n];
-                let mut s = 0.0;
-                for ((j, p), y) in ja.iter().zip(&self.pred[..n]).zip(&self.y[..n]) {
-                    s += j * (p - y);
-                }
-                jtr[a] = s;
-                for b in 0..=a {
-                    let jb = &self.jac[b * n..(b + 1) * n];
-                    let mut s = 0.0;
-                    for r in 0..n {
-                        s += ja[r] * jb[r];
-                    }
-                    jtj[a * k + b] = s;
-                    jtj[b * k + a] = s;
-                }
-            }
-            // Try damped steps until one lowers the error (a few attempts per iteration).
-            let mut improved = false;
-            for _ in 0..6 {
-                let mut m = jtj.clone();
-                for a in 0..k {
-                    let d = jtj[a * k + a];
-                    m[a * k + a] = d + lambda * d.max(1e-12);
-                }
-                let Some(step) = solve_spd(&mut m, &jtr, k) else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                for a in 0..k {
-                    trial[a] = theta[a] - step[a];
-                }
-                if trial.iter().any(|v| !v.is_finite()) {
-                    lambda *= 10.0;
-                    continue;
-                }
-                program.set_constants(&trial);
-                match self.mse_program(&program) {
-                    Some(m2) if m2 < mse => {
-                        theta.copy_from_slice(&trial);
-                        accepted = true;
-                        current = Some(m2);
-                        lambda = (lambda * 0.3).max(1e-12);
-                        improved = true;
-                        break;
-                    }
-                    _ => {
-                        program.set_constants(&theta);
-                        lambda *= 10.0;
-                    }
-                }
-            }
-            if !improved {
-                break;
-            }
-            // Converged to rounding level: further steps cannot help.
-            if let Some(c) = current
-                && mse - c <= 1e-10 * mse
-            {
-                break;
-            }
+        let (best, mse) =
+            lm::minimize(&mut Constants { ws: self, program }, theta.clone(), &Settings { iterations, ..CONSTANTS_LM });
+        if best != theta {
+            expr.set_constants(&best);
         }
-        if accepted {
-            expr.set_constants(&theta);
-        }
-        match current {
-            Some(c) => Some(c),
-            None => self.mse_program(&program),
-        }
+        mse.is_finite().then_some(mse)
     }
 }
 
-/// Solves `m x = b` for a symmetric positive definite `k x k` matrix by Cholesky (in place).
-fn solve_spd(m: &mut [f64], b: &[f64], k: usize) -> Option<Vec<f64>> {
-    for j in 0..k {
-        let mut d = m[j * k + j];
-        for p in 0..j {
-            d -= m[j * k + p] * m[j * k + p];
-        }
-        if d <= 0.0 || !d.is_finite() {
+/// The damping of the constants' fits: from 1e-3, down to 1e-12 after each step that helps,
+/// six tries per Jacobian, stopping where a step gains less than 1e-10 of the error.
+const CONSTANTS_LM: Settings = Settings {
+    iterations: 0,
+    tries: 6,
+    damping_start: 1e-3,
+    damping_min: 1e-12,
+    min_relative_gain: 1e-10,
+    steps: Steps::Normal,
+};
+
+/// An expression's constants as a least-squares problem: residuals `prediction - y`, the
+/// Jacobian by forward-mode derivatives, the cost the mean squared error.
+struct Constants<'w, 'a> {
+    ws: &'w mut Workspace<'a>,
+    program: Program,
+}
+
+impl Problem for Constants<'_, '_> {
+    type Point = Vec<f64>;
+
+    fn residuals(&mut self, theta: &Vec<f64>) -> Option<Vec<f64>> {
+        let ws = &mut *self.ws;
+        ws.evaluations += 1;
+        self.program.set_constants(theta);
+        if !ws.evaluator.eval(&self.program, ws.columns, &mut ws.pred) {
             return None;
         }
-        let d = d.sqrt();
-        m[j * k + j] = d;
-        for i in j + 1..k {
-            let mut s = m[i * k + j];
-            for p in 0..j {
-                s -= m[i * k + p] * m[j * k + p];
-            }
-            m[i * k + j] = s / d;
+        Some(ws.pred.iter().zip(ws.y).map(|(p, y)| p - y).collect())
+    }
+
+    fn jacobian(&mut self, theta: &Vec<f64>, _r: &[f64]) -> Option<Vec<Vec<f64>>> {
+        let ws = &mut *self.ws;
+        ws.evaluations += 1;
+        let n = ws.y.len();
+        ws.jac.resize(theta.len() * n, 0.0);
+        self.program.set_constants(theta);
+        if !ws.evaluator.eval_with_jacobian(&self.program, ws.columns, &mut ws.pred, &mut ws.jac) {
+            return None;
+        }
+        Some(ws.jac.chunks(n.max(1)).map(<[f64]>::to_vec).collect())
+    }
+
+    fn moved(&self, theta: &Vec<f64>, step: &[f64]) -> Option<Vec<f64>> {
+        let trial: Vec<f64> = theta.iter().zip(step).map(|(t, s)| t + s).collect();
+        trial.iter().all(|v| v.is_finite()).then_some(trial)
+    }
+
+    fn cost(&self, r: &[f64]) -> f64 {
+        let sse: f64 = r.iter().map(|v| v * v).sum();
+        let mse = sse / r.len() as f64;
+        if mse.is_finite() {
+            mse
+        } else {
+            f64::INFINITY
         }
     }
-    let mut z = vec![0.0; k];
-    for i in 0..k {
-        let mut s = b[i];
-        for p in 0..i {
-            s -= m[i * k + p] * z[p];
-        }
-        z[i] = s / m[i * k + i];
-    }
-    let mut x = vec![0.0; k];
-    for i in (0..k).rev() {
-        let mut s = z[i];
-        for p in i + 1..k {
-            s -= m[p * k + i] * x[p];
-        }
-        x[i] = s / m[i * k + i];
-    }
-    x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
 #[cfg(test)]

@@ -10,13 +10,19 @@
 //! - [`least_squares`]: a small fit with its residuals, refusing dependent columns
 //!   (calibration, sine fits);
 //! - [`Projection`]: what many series leave after least squares on the same fixed columns
-//!   (the ripple's pitch search, whose candidate columns all lose the same nuisance).
+//!   (the ripple's pitch search, whose candidate columns all lose the same nuisance);
+//! - [`Normal`]: the one exception, a damped step on the normal equations, for
+//!   [`crate::lm`] where a step is only kept if it lowers the cost and must cost least
+//!   (symbolic regression's constants).
 //!
 //! Collinear regressors are common (a candidate's columns can nearly coincide on a short
 //! window), so [`solve`] adds a ridge of [`RIDGE`] relative to each column's norm: a finite,
 //! nearly minimal answer instead of a blow-up.
 
+mod normal;
 mod triangular;
+
+pub use normal::Normal;
 
 use nalgebra::{DMatrix, DVector};
 use triangular::{dot, triangular_factor, Triangular};

@@ -1,6 +1,6 @@
 //! The Levenberg-Marquardt fits of a candidate's slots ([`sts_numerics::lm`]).
 
-use sts_numerics::lm::{self, Settings};
+use sts_numerics::lm::{self, Settings, Steps};
 
 use super::candidate::{moved, Candidate, Slot};
 use super::sample::{Fit, Sample};
@@ -8,8 +8,14 @@ use super::sample::{Fit, Sample};
 /// The damping of the axis's fits: from a moderate start, never below 1e-7 (the servo's gains
 /// are nearly interchangeable along a valley, where an undamped step overshoots), stopping where
 /// a step gains less than 0.01%.
-const AXIS_LM: Settings =
-    Settings { iterations: 0, tries: 8, damping_start: 1e-2, damping_min: 1e-7, min_relative_gain: 1e-4 };
+const AXIS_LM: Settings = Settings {
+    iterations: 0,
+    tries: 8,
+    damping_start: 1e-2,
+    damping_min: 1e-7,
+    min_relative_gain: 1e-4,
+    steps: Steps::Triangular,
+};
 
 /// Levenberg-Marquardt ([`sts_numerics::lm`]) over `free` slots, at most `iterations`.
 pub(super) fn levenberg_marquardt(

@@ -487,6 +487,14 @@ fn release_bin(target_dir: &Path, name: &str) -> PathBuf {
     target_dir.join("release").join(format!("{name}{}", std::env::consts::EXE_SUFFIX))
 }
 
+/// Puts the file `built` at `kept` too: a hard link, or a copy where there can be none.
+fn keep(built: &Path, kept: &Path) -> Result<(), String> {
+    remove_if_there(kept)?;
+    std::fs::hard_link(built, kept)
+        .or_else(|_| std::fs::copy(built, kept).map(drop))
+        .map_err(|e| format!("cannot copy {} to {}: {e}", built.display(), kept.display()))
+}
+
 /// `path` relative to `root` when under it (the children run in `root`).
 fn shown_path(root: &Path, path: &Path) -> String {
     path.strip_prefix(root).unwrap_or(path).display().to_string()
@@ -528,15 +536,14 @@ pub fn run_suites(root: &Path, target_dir: &Path, options: &Options) -> Result<(
         builds.push((inv.shown(), took));
     }
     // A script's binary, kept beside the logs: a later `cargo test` of its package may put a
-    // build with its tests' features in its place.
+    // build with its tests' features in its place (cargo replaces the file, so a hard link
+    // keeps this build).
     let mut bins = Vec::new();
     for suite in &selected {
         if let Run::Script { bin_name, .. } = suite.run {
-            let kept = dir.join(format!("{bin_name}{}", std::env::consts::EXE_SUFFIX));
             if !bins.iter().any(|(n, _)| *n == bin_name) {
-                let built = release_bin(target_dir, bin_name);
-                std::fs::copy(&built, &kept)
-                    .map_err(|e| format!("cannot copy {} to {}: {e}", built.display(), kept.display()))?;
+                let kept = dir.join(format!("{bin_name}{}", std::env::consts::EXE_SUFFIX));
+                keep(&release_bin(target_dir, bin_name), &kept)?;
                 bins.push((bin_name, shown_path(root, &kept)));
             }
         }

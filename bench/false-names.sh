@@ -30,6 +30,7 @@ for plant in ${PLANTS:-default slide-32kg}; do
                 exit 1
             fi
             start=$(date +%s.%N)
+            rm -f "$work/twin.json"
             "$bin" explain "$data" --out "$work/twin.json" --json 2>/dev/null >"$work/ladder.json"
             end=$(date +%s.%N)
             python3 - "$plant" "$name" "$seed" "$work/ladder.json" "$start" "$end" <<'P'

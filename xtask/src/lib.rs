@@ -1,5 +1,6 @@
-//! The build tasks' library: where `cargo xtask firmware` puts the firmware ELFs, and the
-//! module-layering check of `cargo xtask layering` ([`layering`]).
+//! The build tasks' library: where `cargo xtask firmware` puts the firmware ELFs, the
+//! module-layering check of `cargo xtask layering` ([`layering`]), and the full suites of
+//! `cargo xtask suites` ([`suites`], the table; [`recording`], running and recording them).
 //!
 //! The firmware apps (`firmware/qemu-app`, `firmware/stm32h7-app` for [`FIRMWARE_TARGET`],
 //! `firmware/riscv-virt-app` for [`RISCV_TARGET`]) are workspaces of their own; each image lands in a fixed place under its
@@ -8,7 +9,9 @@
 //! the two agree).
 
 pub mod layering;
+pub mod recording;
 pub mod size;
+pub mod suites;
 
 /// The Arm firmware's Rust target (`rustup target add thumbv7em-none-eabihf`).
 pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";

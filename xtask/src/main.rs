@@ -26,6 +26,42 @@ enum Task {
     /// Print the flash and RAM use of each built firmware image (from its ELF's load
     /// segments; the stack is not counted).
     Size,
+    /// Run the full suites whose tables BENCHMARKS.md quotes, at HEAD, one after another, and
+    /// record their output and a summary in target/suites/<commit> (hours).
+    #[command(long_about = SUITES_ABOUT)]
+    Suites(SuitesArgs),
+}
+
+const SUITES_ABOUT: &str = "\
+Run the full suites whose tables BENCHMARKS.md quotes, at the checked-out commit, one after
+another (hours on 2 cores), and record them: every figure from one commit.
+
+Refuses a work tree with changes (it names them) unless --allow-dirty, which marks every output
+dirty. Builds the test binaries once (cargo test --locked --release --no-run, per package),
+then runs each suite in the configuration BENCHMARKS.md quotes (`--list` shows each with its
+command and the section it feeds), its whole output shown and kept in
+target/suites/<commit>/<name>.txt. At the end, target/suites/<commit>/SUMMARY.md gives the
+commit, the date, the machine and, per run, its command (environment included), wall time,
+pass or fail and the table lines it printed, as printed. A suite that fails (a target not
+met) does not stop the others; the task exits non-zero at the end, naming the failures.
+
+With --seeds N (a quick try) the output goes to target/suites/<commit>-seeds<N>, a dirty run's
+to <commit>-dirty. Ctrl-C stops the runs with the task and leaves no SUMMARY.md.";
+
+#[derive(Debug, clap::Args)]
+struct SuitesArgs {
+    /// Run only these suites (comma-separated or repeated; `--list` names them).
+    #[arg(long, value_name = "NAME", value_delimiter = ',')]
+    only: Vec<String>,
+    /// List the suites, their commands and the BENCHMARKS.md sections they feed; run nothing.
+    #[arg(long)]
+    list: bool,
+    /// Run N seeds instead of each suite's own count (refits at most N), for a quick try.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    seeds: Option<u64>,
+    /// Run on a work tree with changes, marking every output dirty.
+    #[arg(long)]
+    allow_dirty: bool,
 }
 
 const FIRMWARE_ABOUT: &str = "\
@@ -100,6 +136,7 @@ fn main() -> ExitCode {
         Task::Firmware(args) => firmware(&args),
         Task::Layering => layering(),
         Task::Size => size(),
+        Task::Suites(args) => suites(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -113,6 +150,31 @@ fn main() -> ExitCode {
 /// The repository root (this crate lives in `<root>/xtask`).
 fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("xtask sits in the repository root").to_path_buf()
+}
+
+/// The root workspace's target directory: `CARGO_TARGET_DIR` where set, else `target`.
+fn target_dir(root: &Path) -> PathBuf {
+    match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) if !dir.is_empty() => std::env::current_dir().unwrap_or_default().join(dir),
+        _ => root.join("target"),
+    }
+}
+
+fn suites(args: &SuitesArgs) -> Result<(), String> {
+    let root = repo_root();
+    let target = target_dir(&root);
+    // Checked before anything else, also for --list.
+    xtask::suites::select(&args.only)?;
+    if args.list {
+        if !args.only.is_empty() || args.allow_dirty {
+            return Err("--list runs nothing: give it alone (or with --seeds, to see the changed commands)".into());
+        }
+        print!("{}", xtask::suites::listing(args.seeds, "target/release/sts-twin"));
+        return Ok(());
+    }
+    let options =
+        xtask::recording::Options { only: args.only.clone(), seeds: args.seeds, allow_dirty: args.allow_dirty };
+    xtask::recording::run_suites(&root, &target, &options)
 }
 
 fn firmware(args: &FirmwareArgs) -> Result<(), String> {
@@ -264,5 +326,41 @@ fn check_target_installed(target: &str) -> Result<(), String> {
             "the Rust target {target} is not installed (no {}): run `rustup target add {target}`",
             lib.display()
         ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn suites_args(args: &[&str]) -> Result<SuitesArgs, String> {
+        let cli = Cli::try_parse_from(["cargo xtask", "suites"].iter().chain(args)).map_err(|e| e.to_string())?;
+        match cli.task {
+            Task::Suites(a) => Ok(a),
+            other => Err(format!("parsed as {other:?}")),
+        }
+    }
+
+    #[test]
+    fn suites_arguments() {
+        let a = suites_args(&[]).unwrap();
+        assert!(a.only.is_empty() && !a.list && a.seeds.is_none() && !a.allow_dirty);
+        let a = suites_args(&["--only", "lab,sets", "--only", "reference", "--seeds", "2", "--allow-dirty"]).unwrap();
+        assert_eq!(a.only, ["lab", "sets", "reference"]);
+        assert_eq!(a.seeds, Some(2));
+        assert!(a.allow_dirty);
+        assert!(suites_args(&["--list"]).unwrap().list);
+        for bad in [&["--seeds", "0"][..], &["--seeds", "x"], &["--seeds", "-1"], &["--only"], &["--bogus"]] {
+            assert!(suites_args(bad).is_err(), "{bad:?} accepted");
+        }
+    }
+
+    #[test]
+    fn unknown_names_are_refused_before_anything_runs() {
+        let a = suites_args(&["--only", "lab,nope"]).unwrap();
+        let err = suites(&a).unwrap_err();
+        assert!(err.starts_with("unknown suite `nope` (known: "), "{err}");
+        let a = suites_args(&["--list", "--only", "lab"]).unwrap();
+        assert!(suites(&a).unwrap_err().starts_with("--list runs nothing"));
     }
 }

@@ -24,6 +24,10 @@
 //!   cargo test --release -p sts-assess --test tests diagnose_hidden_effects:: -- --ignored --nocapture
 //! ```
 //!
+//! `cargo xtask suites` runs every configuration of it that BENCHMARKS.md quotes (`--list` names
+//! them, `--only` picks some) at one commit, and keeps their tables in
+//! `target/suites/<commit>/SUMMARY.md`.
+//!
 //! Each effect of the emulator is a case, and a structural mode inside the test band
 //! (`structural-mode-in-band`, a resonance between the test's frequencies) is one more; its
 //! right verdict is `structural-mode`.

@@ -23,6 +23,9 @@
 //!   cargo test --release -p sts-assess --test tests explain_several_effects::full_sets -- --ignored --nocapture
 //! ```
 //!
+//! `cargo xtask suites --only sets,sets-60kg` runs the configurations BENCHMARKS.md quotes at
+//! one commit and keeps their tables in `target/suites/<commit>/SUMMARY.md`.
+//!
 //! `STS_SETS_FIRST_SEED` starts at another seed (to split a run); `STS_SETS_ONLY=a+b,c+d+e`
 //! runs only those sets, `STS_SETS_WITH=a,b` only the sets holding `a` or `b`,
 //! `STS_SETS_WITHOUT=a,b` only those holding neither; `STS_PLANT=FILE` measures another machine

@@ -2,7 +2,8 @@
 //! (`foreign::ball_screw`: three masses, the encoder on the motor, one PID with a sample of
 //! delay, sharp Coulomb friction, a piezo accelerometer on the table): `explain` from nothing,
 //! as a lab runs it on its one measurement. The clean machine gives no name; with friction,
-//! friction is named and its error falls.
+//! friction is named and its error falls. `cargo xtask suites --only foreign-ball-screw` keeps
+//! what it prints, as BENCHMARKS.md quotes it, in `target/suites/<commit>/SUMMARY.md`.
 
 use crate::foreign::ball_screw::{BallScrew, Coulomb};
 use std::path::{Path, PathBuf};

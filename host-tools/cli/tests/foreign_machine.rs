@@ -6,7 +6,8 @@
 //! held-out figures, and with the refitted twin on the board (the firmware's core, simulated)
 //! in the machine's own loop, its analogue path measured first as `calibrate` measures it.
 //!
-//! Prints the table of each run.
+//! Prints the table of each run; `cargo xtask suites --only foreign-machine` keeps them, as
+//! BENCHMARKS.md quotes them, in `target/suites/<commit>/SUMMARY.md`.
 
 use crate::foreign::{self, Foreign, Lugre, ToolMode};
 use std::path::{Path, PathBuf};

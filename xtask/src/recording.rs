@@ -540,12 +540,12 @@ pub fn run_suites(root: &Path, target_dir: &Path, options: &Options) -> Result<(
     // keeps this build).
     let mut bins = Vec::new();
     for suite in &selected {
-        if let Run::Script { bin_name, .. } = suite.run {
-            if !bins.iter().any(|(n, _)| *n == bin_name) {
-                let kept = dir.join(format!("{bin_name}{}", std::env::consts::EXE_SUFFIX));
-                keep(&release_bin(target_dir, bin_name), &kept)?;
-                bins.push((bin_name, shown_path(root, &kept)));
-            }
+        if let Run::Script { bin_name, .. } = suite.run
+            && !bins.iter().any(|(n, _)| *n == bin_name)
+        {
+            let kept = dir.join(format!("{bin_name}{}", std::env::consts::EXE_SUFFIX));
+            keep(&release_bin(target_dir, bin_name), &kept)?;
+            bins.push((bin_name, shown_path(root, &kept)));
         }
     }
 

@@ -21,6 +21,15 @@ pub trait Problem {
     /// step; `None` where it is not defined.
     fn jacobian(&mut self, p: &Self::Point, r: &[f64]) -> Option<Vec<Vec<f64>>>;
 
+    /// The residuals at the start `p` and, where the problem gets them in the same pass, the
+    /// Jacobian there (forward-mode derivatives carry the values along); by default the
+    /// residuals alone, the Jacobian then asked of [`Self::jacobian`]. `None` where the
+    /// residuals are not defined.
+    #[allow(clippy::type_complexity)]
+    fn start(&mut self, p: &Self::Point) -> Option<(Vec<f64>, Option<Vec<Vec<f64>>>)> {
+        self.residuals(p).map(|r| (r, None))
+    }
+
     /// `p` moved by `step` (one entry per Jacobian column), `None` where that leaves the
     /// problem's domain.
     fn moved(&self, p: &Self::Point, step: &[f64]) -> Option<Self::Point>;
@@ -88,14 +97,14 @@ impl System {
 /// residuals at `start` are not defined; the start is then returned as it was).
 pub fn minimize<P: Problem>(problem: &mut P, start: P::Point, settings: &Settings) -> (P::Point, f64) {
     let mut point = start;
-    let Some(mut r) = problem.residuals(&point) else { return (point, f64::INFINITY) };
+    let Some((mut r, mut start_jacobian)) = problem.start(&point) else { return (point, f64::INFINITY) };
     let mut cost = problem.cost(&r);
     let mut damping = settings.damping_start;
     for _ in 0..settings.iterations {
         if !cost.is_finite() || cost == 0.0 {
             break;
         }
-        let Some(jacobian) = problem.jacobian(&point, &r) else { break };
+        let Some(jacobian) = start_jacobian.take().or_else(|| problem.jacobian(&point, &r)) else { break };
         let minus_r: Vec<f64> = r.iter().map(|v| -v).collect();
         let Some(system) = System::new(settings.steps, &jacobian, &minus_r) else { break };
         let mut improved = false;

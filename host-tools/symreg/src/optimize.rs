@@ -75,6 +75,22 @@ struct Constants<'w, 'a> {
     program: Program,
 }
 
+impl Constants<'_, '_> {
+    /// The residuals and the Jacobian at `theta`, by forward-mode derivatives.
+    fn derivatives(&mut self, theta: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
+        let ws = &mut *self.ws;
+        ws.evaluations += 1;
+        let n = ws.y.len();
+        ws.jac.resize(theta.len() * n, 0.0);
+        self.program.set_constants(theta);
+        if !ws.evaluator.eval_with_jacobian(&self.program, ws.columns, &mut ws.pred, &mut ws.jac) {
+            return None;
+        }
+        let r = ws.pred.iter().zip(ws.y).map(|(p, y)| p - y).collect();
+        Some((r, ws.jac.chunks(n.max(1)).map(<[f64]>::to_vec).collect()))
+    }
+}
+
 impl Problem for Constants<'_, '_> {
     type Point = Vec<f64>;
 
@@ -89,15 +105,15 @@ impl Problem for Constants<'_, '_> {
     }
 
     fn jacobian(&mut self, theta: &Vec<f64>, _r: &[f64]) -> Option<Vec<Vec<f64>>> {
-        let ws = &mut *self.ws;
-        ws.evaluations += 1;
-        let n = ws.y.len();
-        ws.jac.resize(theta.len() * n, 0.0);
-        self.program.set_constants(theta);
-        if !ws.evaluator.eval_with_jacobian(&self.program, ws.columns, &mut ws.pred, &mut ws.jac) {
-            return None;
+        self.derivatives(theta).map(|(_, jacobian)| jacobian)
+    }
+
+    /// One pass of forward-mode derivatives at the start gives its residuals too.
+    fn start(&mut self, theta: &Vec<f64>) -> Option<(Vec<f64>, Option<Vec<Vec<f64>>>)> {
+        match self.derivatives(theta) {
+            Some((r, jacobian)) => Some((r, Some(jacobian))),
+            None => self.residuals(theta).map(|r| (r, None)),
         }
-        Some(ws.jac.chunks(n.max(1)).map(<[f64]>::to_vec).collect())
     }
 
     fn moved(&self, theta: &Vec<f64>, step: &[f64]) -> Option<Vec<f64>> {

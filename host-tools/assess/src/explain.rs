@@ -270,6 +270,16 @@ fn best_partner(
     best
 }
 
+/// Whether the effects `carried` hold one that the servo-axis twin carries.
+fn carries_axis_twin(carried: &[String]) -> bool {
+    carried.iter().any(|c| Effect::name_carried_by_the_axis_twin(c))
+}
+
+/// The parameters `records` give for `effect` (none where it has no record).
+fn params_of(records: &[EffectRecord], effect: &str) -> Vec<(String, f64)> {
+    records.iter().find(|r| r.effect == effect).map_or_else(Vec::new, |r| r.params.clone())
+}
+
 /// Where the twin carries a servo-axis twin with one mode and `diagnose` names again an effect
 /// that twin carries, or names nothing though the residual stands well above the data's floor
 /// ([`Diagnosis::unexplained`]): the structural-mode candidate, to be tried as the axis twin's
@@ -278,7 +288,7 @@ fn best_partner(
 /// effect's or like no candidate's.
 fn second_mode_try(d: &Diagnosis, carried: &[String]) -> Option<usize> {
     let mode = Effect::StructuralMode.name().to_string();
-    let has_axis = carried.iter().any(|c| Effect::name_carried_by_the_axis_twin(c));
+    let has_axis = carries_axis_twin(carried);
     let axis_named_again = Effect::name_carried_by_the_axis_twin(&d.verdict) && carried.contains(&d.verdict);
     let unexplained = d.verdict == "none" && d.unexplained.is_some();
     (has_axis && !carried.contains(&mode) && (axis_named_again || unexplained))
@@ -317,7 +327,7 @@ fn at_the_fundamental(
     now_um: f64,
     progress: &mut dyn FnMut(ExplainProgress),
 ) -> Option<(usize, Refit)> {
-    let has_axis = carried.iter().any(|c| Effect::name_carried_by_the_axis_twin(c));
+    let has_axis = carries_axis_twin(carried);
     let s = &d.structure;
     let at_fundamental = s.fundamental.rms_um.powi(2) >= 0.5 * s.residual_rms_um.powi(2);
     if d.verdict != "none" || d.unexplained.is_none() || has_axis || !at_fundamental {
@@ -336,7 +346,7 @@ fn at_the_fundamental(
         let Ok((m, r)) = fit_with(dataset, &with, description, &config.fit, &mut |_| {}) else { continue };
         let after_um = Standing::of_fit(&m).repeating_rms_um(skip);
         if after_um.is_finite() && after_um < (1.0 - UNNAMED_MIN_GAIN) * now_um {
-            let params = r.iter().find(|x| x.effect == candidate.effect).map_or(0, |x| x.params.len());
+            let params = params_of(&r, &candidate.effect).len();
             refits.push((i, after_um, params, (m, r)));
         }
     }
@@ -429,21 +439,20 @@ pub fn explain(
                 at_the_fundamental(dataset, description, config, &d, &names, &skip, now_um, progress)
         {
             let tried = &d.ranking[i];
-            let params = r.iter().find(|x| x.effect == tried.effect).map_or_else(Vec::new, |x| x.params.clone());
             steps.push(Step {
-                    effect: tried.effect.clone(),
-                    explained_fraction: tried.explained_fraction,
-                    p_value: tried.p_value,
-                    evidence: format!(
-                        "diagnose named nothing, yet the residual stands well above the data's floor, most of it at the command frequency, where the formulas do not follow the axis's response; of the terms that reshape it, {}'s lowered the held-out error by {:.0}% (the one with the fewest parameters within {:.0}% of the best){over}",
-                        tried.effect,
-                        gain_pct(&m),
-                        (AS_GOOD_WITHIN - 1.0) * 100.0
-                    ),
-                    params,
-                    waveform_rms_um_before: standing.rms_um,
-                    waveform_rms_um_after: m.validation.waveform_rms_um,
-                });
+                effect: tried.effect.clone(),
+                explained_fraction: tried.explained_fraction,
+                p_value: tried.p_value,
+                evidence: format!(
+                    "diagnose named nothing, yet the residual stands well above the data's floor, most of it at the command frequency, where the formulas do not follow the axis's response; of the terms that reshape it, {}'s lowered the held-out error by {:.0}% (the one with the fewest parameters within {:.0}% of the best){over}",
+                    tried.effect,
+                    gain_pct(&m),
+                    (AS_GOOD_WITHIN - 1.0) * 100.0
+                ),
+                params: params_of(&r, &tried.effect),
+                waveform_rms_um_before: standing.rms_um,
+                waveform_rms_um_after: m.validation.waveform_rms_um,
+            });
             standing = Standing::of_fit(&m);
             model = m;
             records = r;
@@ -509,8 +518,6 @@ pub fn explain(
             } else if let Some((j, (m, r))) = pair {
                 let (a, b) = (&d.ranking[first], &d.ranking[j]);
                 let after_um = m.validation.waveform_rms_um;
-                let params_of =
-                    |effect: &str| r.iter().find(|x| x.effect == effect).map_or_else(Vec::new, |x| x.params.clone());
                 steps.push(Step {
                     effect: a.effect.clone(),
                     explained_fraction: a.explained_fraction,
@@ -520,7 +527,7 @@ pub fn explain(
                         a.evidence,
                         alone_um * 1e3
                     ),
-                    params: params_of(&a.effect),
+                    params: params_of(&r, &a.effect),
                     waveform_rms_um_before: standing.rms_um,
                     waveform_rms_um_after: *alone_um,
                 });
@@ -535,7 +542,7 @@ pub fn explain(
                         a.effect,
                         gain_pct(&m)
                     ),
-                    params: params_of(&b.effect),
+                    params: params_of(&r, &b.effect),
                     waveform_rms_um_before: *alone_um,
                     waveform_rms_um_after: after_um,
                 });
@@ -551,7 +558,7 @@ pub fn explain(
         };
         let named = &d.ranking[i];
         let after_um = next_model.validation.waveform_rms_um;
-        let params = next_records.iter().find(|r| r.effect == named.effect).map_or_else(Vec::new, |r| r.params.clone());
+        let params = params_of(&next_records, &named.effect);
         steps.push(Step {
             effect: named.effect.clone(),
             explained_fraction: named.explained_fraction,

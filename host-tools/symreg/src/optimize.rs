@@ -39,6 +39,11 @@ impl<'a> Workspace<'a> {
         mse.is_finite().then_some(mse)
     }
 
+    /// The last evaluation's residuals, prediction minus target.
+    fn residuals(&self) -> Vec<f64> {
+        self.pred.iter().zip(self.y).map(|(p, y)| p - y).collect()
+    }
+
     /// Runs up to `iterations` Levenberg-Marquardt steps ([`sts_numerics::lm`] on the normal
     /// equations) on the constants of `expr` (in place, only if that lowers the error) and
     /// returns the final MSE (`None` if invalid).
@@ -86,8 +91,7 @@ impl Constants<'_, '_> {
         if !ws.evaluator.eval_with_jacobian(&self.program, ws.columns, &mut ws.pred, &mut ws.jac) {
             return None;
         }
-        let r = ws.pred.iter().zip(ws.y).map(|(p, y)| p - y).collect();
-        Some((r, ws.jac.chunks(n.max(1)).map(<[f64]>::to_vec).collect()))
+        Some((ws.residuals(), ws.jac.chunks(n.max(1)).map(<[f64]>::to_vec).collect()))
     }
 }
 
@@ -101,7 +105,7 @@ impl Problem for Constants<'_, '_> {
         if !ws.evaluator.eval(&self.program, ws.columns, &mut ws.pred) {
             return None;
         }
-        Some(ws.pred.iter().zip(ws.y).map(|(p, y)| p - y).collect())
+        Some(ws.residuals())
     }
 
     fn jacobian(&mut self, theta: &Vec<f64>, _r: &[f64]) -> Option<Vec<Vec<f64>>> {

@@ -4,4 +4,5 @@
 mod axis_twin;
 mod fit_model_file;
 mod fit_twin;
+mod identification_spread;
 mod linear_terms;

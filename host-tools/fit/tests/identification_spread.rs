@@ -19,8 +19,7 @@ use sts_fit::effects::prepare;
 fn probe_fit_nm(data: &sts_dataset::Dataset) -> f64 {
     let effects = ["coulomb-friction", "presliding-hysteresis", "force-ripple"].map(String::from);
     let prepared = prepare(data, &effects).expect("prepare");
-    let record = prepared.records.iter().find(|r| r.effect == "coulomb-friction").expect("record");
-    record.params.iter().find(|(k, _)| k == "axis_tcp_rms_nm").map(|(_, v)| *v).expect("axis_tcp_rms_nm")
+    crate::linear_terms::param(&prepared.records, "coulomb-friction", "axis_tcp_rms_nm")
 }
 
 #[test]

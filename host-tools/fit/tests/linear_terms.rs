@@ -17,7 +17,8 @@ fn measure(effects: &[&str]) -> sts_dataset::Dataset {
     sts_emulator::measure::run(&config, &|_| {}).expect("measurement")
 }
 
-fn param(records: &[sts_fit::effects::EffectRecord], effect: &str, key: &str) -> f64 {
+/// The parameter `key` of `effect`'s record.
+pub(crate) fn param(records: &[sts_fit::effects::EffectRecord], effect: &str, key: &str) -> f64 {
     let record = records.iter().find(|r| r.effect == effect).expect("record");
     record.params.iter().find(|(k, _)| k == key).map(|(_, v)| *v).expect("parameter")
 }

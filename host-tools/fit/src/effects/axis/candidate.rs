@@ -87,6 +87,12 @@ impl Candidate {
         self.v[s as usize]
     }
 
+    /// Sets `s` to `x`, kept within its bounds.
+    pub(super) fn set_within(&mut self, s: Slot, x: f64) {
+        let (lo, hi) = s.bounds();
+        self.v[s as usize] = x.clamp(lo, hi);
+    }
+
     /// The firmware's parameters.
     pub(super) fn params(&self) -> AxisParams {
         let g = |s| self.get(s) as f32;

@@ -63,9 +63,9 @@ pub struct AxisEffects {
 /// delay; a grid that stops short of it bends the servo's gains instead.
 const GRID_TOP_DELAY_TICKS: usize = 6;
 
-/// The share of the Coulomb level the sharp split ([`identify`]) gives the Dahl force, and its
-/// presliding distance there, m.
+/// The share of the Coulomb level the sharp split ([`identify`]) gives the Dahl force.
 const SHARP_SHARE: f64 = 0.7;
+/// The Dahl force's presliding distance in the sharp split, m.
 const SHARP_PRESLIDING_M: f64 = 1e-9;
 
 /// The ripple's amplitudes and phase for the candidate's servo, by linear least squares:
@@ -271,15 +271,14 @@ pub fn identify(dataset: &Dataset, effects: AxisEffects) -> Result<AxisFit, FitE
         // A sharp Coulomb step, sharper than the friction law's smoothed sign, is carried by
         // the Dahl force with a presliding distance of a nanometre beside it. The fit reaches
         // that split from some starts and from others leaves the Dahl force unused or
-        // wandering (a spring of a metre's presliding): once more from the split, the lower
-        // cost kept (a machine with Coulomb friction alone, its probe readings moved by 10 pm:
-        // 34.6 nm held out without this, 23.7-27.8 nm for the other draws).
+        // wandering off into a spring of a metre's presliding: once more from the split, the
+        // lower cost kept (BENCHMARKS.md, "Friction, hysteresis and ripple at low speed").
         let mut split = c;
-        let coulomb = split.v[Slot::Coulomb as usize];
-        split.v[Slot::DahlForce as usize] = SHARP_SHARE * coulomb;
-        split.v[Slot::DahlStiffness as usize] = SHARP_SHARE * coulomb / SHARP_PRESLIDING_M;
-        split.v[Slot::Coulomb as usize] = (1.0 - SHARP_SHARE) * coulomb;
-        split.v[Slot::Static as usize] -= SHARP_SHARE * coulomb;
+        let (coulomb, stat) = (c.get(Slot::Coulomb), c.get(Slot::Static));
+        split.set_within(Slot::DahlForce, SHARP_SHARE * coulomb);
+        split.set_within(Slot::DahlStiffness, SHARP_SHARE * coulomb / SHARP_PRESLIDING_M);
+        split.set_within(Slot::Coulomb, (1.0 - SHARP_SHARE) * coulomb);
+        split.set_within(Slot::Static, stat - SHARP_SHARE * coulomb);
         let split = levenberg_marquardt(split, &all, &fine, Fit::Both, 30);
         if split.1 < cost {
             c = split.0;

@@ -2,17 +2,18 @@
 # Installs what sts-twin needs and a fresh machine lacks. Idempotent: does nothing when
 # everything is present.
 #
-#   scripts/setup.sh [rust|packages]   (default: both)
+#   scripts/setup.sh [rust|toolchain|targets|packages]   (default: rust and packages)
 #
-# `rust`: rustup's clippy and rustfmt and the firmware's Rust targets, which every build needs.
+# `rust`: `toolchain` and `targets`. `toolchain`: rustup's clippy and rustfmt, which every
+# check needs; `targets`: the firmware's Rust targets, which only the firmware build needs.
 # `packages`: QEMU (Arm and RISC-V) for the HIL rig, Chromium when STS_TWIN_WITH_BROWSER=1,
 # and the Python packages the tests use; only the tests need them, so scripts/test.sh installs
 # them beside the build.
 set -euo pipefail
 part=${1:-all}
 case "$part" in
-    rust | packages | all) ;;
-    *) echo "usage: scripts/setup.sh [rust|packages]" >&2; exit 2 ;;
+    rust | toolchain | targets | packages | all) ;;
+    *) echo "usage: scripts/setup.sh [rust|toolchain|targets|packages]" >&2; exit 2 ;;
 esac
 
 as_root() {
@@ -20,11 +21,15 @@ as_root() {
         echo "error: need root to run: $*" >&2; exit 1; fi
 }
 
-rust() {
+need_rustup() {
     if ! command -v rustup >/dev/null; then
         echo "error: rustup not found; install Rust from https://rustup.rs first" >&2
         exit 1
     fi
+}
+
+toolchain() {
+    need_rustup
     # clippy lints, rustfmt checks the format.
     components=$(rustup component list --installed)
     for component in clippy rustfmt; do
@@ -33,6 +38,10 @@ rust() {
             rustup component add "$component"
         fi
     done
+}
+
+targets() {
+    need_rustup
     installed=$(rustup target list --installed)
     for target in thumbv7em-none-eabihf riscv32imac-unknown-none-elf; do
         if ! grep -qx "$target" <<<"$installed"; then
@@ -62,12 +71,21 @@ packages() {
         fi
         echo "setup: installing ${apt_packages[*]}"
         as_root apt-get update -qq
-        as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --allow-downgrades "${apt_packages[@]}" >/dev/null
+        # Without the recommended packages: QEMU's would bring some 400 MB of UEFI firmware, its
+        # GTK display and Ceph's and GlusterFS's block drivers, none of which a board booted
+        # with `-bios none`, `-nographic` and a file for RAM uses.
+        as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends --allow-downgrades \
+            "${apt_packages[@]}" >/dev/null
     fi
 
     # Python and the packages the tests use.
     bash "$(dirname "$0")/setup-python.sh"
 }
 
-[ "$part" = packages ] || rust
-[ "$part" = rust ] || packages
+case "$part" in
+    toolchain) toolchain ;;
+    targets) targets ;;
+    rust) toolchain && targets ;;
+    packages) packages ;;
+    all) toolchain && targets && packages ;;
+esac

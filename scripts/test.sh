@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Runs every test of sts-twin, as CI does (.ci/run):
-#   1. formatting and the layering check;
+#   1. formatting;
 #   2. the root workspace built for its tests and linted; beside it, the firmware apps built and
-#      linted, and the packages the tests need (QEMU, Chromium, Python's) installed;
+#      linted, and the packages the tests need (QEMU, Chromium, Python's) installed; then the
+#      layering check;
 #   3. the Python package's wheel;
 #   4. the tests that boot the firmware in QEMU, one at a time: each lockstep tick is a hand-off
 #      between the host and QEMU's threads, which any load of the same priority on the 2 cores
@@ -14,8 +15,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 step() { printf '\n== %s (%s)\n' "$*" "$(date -u +%H:%M:%S)"; }
-step "setup: the Rust components and targets this machine lacks (scripts/setup.sh rust)"
-bash scripts/setup.sh rust
+step "setup: rustup's clippy and rustfmt, where this machine lacks them (scripts/setup.sh toolchain)"
+bash scripts/setup.sh toolchain
 export CARGO_TERM_COLOR=${CARGO_TERM_COLOR:-never}
 # The `ci` profile (Cargo.toml); scripts/python-package.sh builds the wheel and finds the CLI in it.
 export STS_TWIN_CARGO_PROFILE=ci
@@ -55,18 +56,23 @@ RUSTC_WORKSPACE_WRAPPER=$(rustup which clippy-driver)
 step "formatting (the root workspace and each firmware app, a workspace of its own)"
 cargo fmt --all -- --check
 for app in firmware/*-app; do (cd "$app" && cargo fmt -- --check); done
-step "layering: no import cycle between the top-level modules of any crate"
-cargo --locked xtask layering >/dev/null
 
+# The build tasks (xtask/) in a target directory of their own: building them never waits on
+# the test build's lock on target/, nor the test build on theirs.
+xtask() { CARGO_TARGET_DIR=target/xtask cargo --locked xtask "$@"; }
 # QEMU, Chromium and the Python packages: only the tests need them, and on a fresh machine
 # their download and unpacking takes a minute or more that the builds need not wait for.
 beside "setup: the packages the tests need (scripts/setup.sh packages)" bash scripts/setup.sh packages
 # Without DWARF (the firmware profile's `debug = 2`): the same code and sections in flash and
 # RAM, 35 CPU-s less to build; a failing test's firmware log lines lose their file:line.
-beside "the firmware images, linted" env CARGO_PROFILE_FIRMWARE_DEBUG=0 cargo --locked xtask firmware --locked
-step "the root workspace's test build, linted (every target)"
-cargo test --workspace --all-targets --locked --profile ci --no-run
-finish "the firmware images, linted"
+firmware() { bash scripts/setup.sh targets && CARGO_PROFILE_FIRMWARE_DEBUG=0 xtask firmware --locked; }
+beside "the firmware's Rust targets (scripts/setup.sh targets), then its images, linted" firmware
+# Every target but the Python extension's, which holds no tests (maturin builds it below).
+step "the root workspace's test build, linted (tests, benches, examples)"
+cargo test --workspace --tests --benches --examples --locked --profile ci --no-run
+finish "the firmware's Rust targets (scripts/setup.sh targets), then its images, linted"
+step "layering: no import cycle between the top-level modules of any crate"
+xtask layering >/dev/null
 finish "setup: the packages the tests need (scripts/setup.sh packages)"
 step "the Python package's wheel (maturin), from the test build's crates"
 bash scripts/python-package.sh build
@@ -80,23 +86,22 @@ export STS_TWIN_RISCV_FIRMWARE_ELF="$PWD/firmware/target/riscv32imac-unknown-non
 # SCHED_IDLE busy loops), so it runs alone, before the rest starts beside the HIL tests.
 qemu_alone=(board_cli)
 qemu_with_rest_beside=(hil)
-other_tests=$(cargo metadata --locked --no-deps --format-version 1 | python3 -c '
-import json, sys
-qemu = set(sys.argv[1:])
-names = {t["name"] for p in json.load(sys.stdin)["packages"] for t in p["targets"] if "test" in t["kind"]}
-assert qemu <= names, f"no test binary named {sorted(qemu - names)}"
-print(" ".join("--test=" + name for name in sorted(names - qemu)))' "${qemu_alone[@]}" "${qemu_with_rest_beside[@]}")
-# Every other test binary (unit and integration), as built above, with its package's folder, where
-# cargo would run it. They run without cargo, which would hold its lock on target/ until they end.
-# shellcheck disable=SC2086 # one word per test binary
-other_runs=$(cargo test --workspace --locked --profile ci --lib --bins $other_tests --no-run --message-format=json \
+# Every other test binary (unit and integration: every target with `test = true`), as built
+# above, with its package's folder, where cargo would run it. They run without cargo, which
+# would hold its lock on target/ until they end.
+other_runs=$(cargo test --workspace --tests --locked --profile ci --no-run --message-format=json \
     | python3 -c '
 import json, os, sys
+qemu, seen = set(sys.argv[1:]), set()
 for line in sys.stdin:
     m = json.loads(line)
-    # A target with `test = false` (the Python extension) is built by --lib but holds no tests.
-    if m.get("reason") == "compiler-artifact" and m.get("executable") and m["profile"]["test"] and m["target"]["test"]:
-        print(os.path.dirname(m["manifest_path"]), m["executable"], sep="\t")')
+    if m.get("reason") == "compiler-artifact" and m.get("executable") and m["profile"]["test"]:
+        name = m["target"]["name"]
+        if "test" in m["target"]["kind"] and name in qemu:
+            seen.add(name)
+        else:
+            print(os.path.dirname(m["manifest_path"]), m["executable"], sep="\t")
+assert seen == qemu, f"no test binary named {sorted(qemu - seen)}"' "${qemu_alone[@]}" "${qemu_with_rest_beside[@]}")
 [ -n "$other_runs" ] || { echo "error: no test binary to run" >&2; exit 1; }
 # One test binary ("folder<TAB>executable"), run as cargo would run it; its output printed
 # whole when it ends, under a lock, so that two binaries' outputs never interleave.

@@ -96,15 +96,18 @@ impl<'a> Sample<'a> {
     /// The body of [`Self::group_residuals`], for every instruction set.
     #[inline(always)]
     pub(super) fn group_residuals_generic(&self, chunk: Chunk, index: usize, what: Fit) -> Vec<Vec<f64>> {
+        /// `N` lanes for the chunk's candidates, the last repeated in the lanes beyond them
+        /// (whose residuals are dropped).
         #[inline(always)]
         fn lanes<const N: usize>(sample: &Sample, (cs, discrete): Chunk, index: usize, what: Fit) -> Vec<Vec<f64>> {
             let g = &sample.dataset.groups[sample.groups[index]];
             let (first, end) = sample.windows[index];
             let mut out = vec![Vec::new(); N];
             let mut next = first;
+            let last = cs.len() - 1;
             simulate::<N>(
-                std::array::from_fn(|l| &cs[l]),
-                std::array::from_fn(|l| &discrete[l]),
+                std::array::from_fn(|l| &cs[l.min(last)]),
+                std::array::from_fn(|l| &discrete[l.min(last)]),
                 &g.z_cmd_um,
                 first..end,
                 |k, enc, tcp| {
@@ -122,12 +125,13 @@ impl<'a> Sample<'a> {
                     }
                 },
             );
+            out.truncate(cs.len());
             out
         }
         match chunk.0.len() {
             1 => lanes::<1>(self, chunk, index, what),
             2 => lanes::<2>(self, chunk, index, what),
-            3 => lanes::<3>(self, chunk, index, what),
+            3 | 4 => lanes::<4>(self, chunk, index, what),
             _ => lanes::<LANES>(self, chunk, index, what),
         }
     }

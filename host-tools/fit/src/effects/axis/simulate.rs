@@ -50,8 +50,9 @@ pub(super) fn discretise(c: &Candidate) -> Discrete {
 /// of dependent operations per tick (divisions among them), so a lone simulation waits on
 /// latencies; the lanes are written as loops over the lanes of each step, without branches,
 /// which the compiler turns into vector instructions. Each lane does the operations of a lone
-/// simulation in the same order: the same bits as one at a time.
-pub(super) const LANES: usize = 4;
+/// simulation in the same order: the same bits as one at a time. Eight lanes: two AVX2
+/// vectors, whose chains of operations overlap where one vector's would wait.
+pub(super) const LANES: usize = 8;
 
 /// Candidates simulated together, with their linear parts.
 pub(super) type Chunk<'a> = (&'a [Candidate], &'a [Discrete]);

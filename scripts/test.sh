@@ -4,14 +4,13 @@
 #   2. the root workspace built for its tests and linted; beside it, the firmware apps built and
 #      linted, and the packages the tests need (QEMU, Chromium, Python's) installed; then the
 #      layering check;
-#   3. the Python package's wheel;
-#   4. the tests that boot the firmware in QEMU, one at a time: each lockstep tick is a hand-off
+#   3. the tests that boot the firmware in QEMU, one at a time: each lockstep tick is a hand-off
 #      between the host and QEMU's threads, which any load of the same priority on the 2 cores
 #      delays many times over. The command's board tests alone, then the HIL tests with, beside
 #      them at idle priority (SCHED_IDLE) so that they take only the CPU QEMU leaves, every
-#      other test binary (unit, integration) and pytest;
-#   5. the doc tests, then the logs of the tests beside.
-# Every test binary of the workspace runs in step 4: those the QEMU steps do not name run beside.
+#      other test binary (unit, integration), and the Python package's wheel and pytest;
+#   4. the doc tests, then the logs of the tests beside.
+# Every test binary of the workspace runs in step 3: those the QEMU steps do not name run beside.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 step() { printf '\n== %s (%s)\n' "$*" "$(date -u +%H:%M:%S)"; }
@@ -74,8 +73,6 @@ finish "the firmware's Rust targets (scripts/setup.sh targets), then its images,
 step "layering: no import cycle between the top-level modules of any crate"
 xtask layering >/dev/null
 finish "setup: the packages the tests need (scripts/setup.sh packages)"
-step "the Python package's wheel (maturin), from the test build's crates"
-bash scripts/python-package.sh build
 
 export STS_TWIN_FIRMWARE_ELF="$PWD/firmware/target/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
 export STS_TWIN_BRINGUP_ELF="$PWD/firmware/target/bringup/thumbv7em-none-eabihf/firmware/sts-twin-firmware"
@@ -86,34 +83,49 @@ export STS_TWIN_RISCV_FIRMWARE_ELF="$PWD/firmware/target/riscv32imac-unknown-non
 # SCHED_IDLE busy loops), so it runs alone, before the rest starts beside the HIL tests.
 qemu_alone=(board_cli)
 qemu_with_rest_beside=(hil)
-# Every other test binary (unit and integration: every target with `test = true`), as built
-# above, with its package's folder, where cargo would run it. They run without cargo, which
-# would hold its lock on target/ until they end.
-other_runs=$(cargo test --workspace --tests --locked --profile ci --no-run --message-format=json \
+# Every test binary (every target with `test = true`: unit and integration), as built above,
+# with its package's folder, where cargo would run it ("folder<TAB>executable"): the QEMU ones
+# by name, the others in `other_runs`, a line each. They run without cargo, which would hold
+# its lock on target/ until they end (the wheel's build needs it beside them).
+binaries=$(cargo test --workspace --tests --locked --profile ci --no-run --message-format=json \
     | python3 -c '
 import json, os, sys
-qemu, seen = set(sys.argv[1:]), set()
+qemu = set(sys.argv[1:])
 for line in sys.stdin:
     m = json.loads(line)
     if m.get("reason") == "compiler-artifact" and m.get("executable") and m["profile"]["test"]:
-        name = m["target"]["name"]
-        if "test" in m["target"]["kind"] and name in qemu:
-            seen.add(name)
-        else:
-            print(os.path.dirname(m["manifest_path"]), m["executable"], sep="\t")
-assert seen == qemu, f"no test binary named {sorted(qemu - seen)}"' "${qemu_alone[@]}" "${qemu_with_rest_beside[@]}")
+        name = m["target"]["name"] if "test" in m["target"]["kind"] and m["target"]["name"] in qemu else "-"
+        print(name, os.path.dirname(m["manifest_path"]), m["executable"], sep="\t")' \
+    "${qemu_alone[@]}" "${qemu_with_rest_beside[@]}")
+declare -A qemu_run
+other_runs=
+while IFS=$'\t' read -r name dir exe; do
+    if [ "$name" = - ]; then other_runs+=$dir$'\t'$exe$'\n'; else qemu_run[$name]=$dir$'\t'$exe; fi
+done <<<"$binaries"
+for name in "${qemu_alone[@]}" "${qemu_with_rest_beside[@]}"; do
+    [ -n "${qemu_run[$name]:-}" ] || { echo "error: no test binary named $name" >&2; exit 1; }
+done
+other_runs=${other_runs%$'\n'}
 [ -n "$other_runs" ] || { echo "error: no test binary to run" >&2; exit 1; }
-# One test binary ("folder<TAB>executable"), run as cargo would run it; its output printed
-# whole when it ends, under a lock, so that two binaries' outputs never interleave.
-run_binary() {
-    local dir=${1%%$'\t'*} exe=${1#*$'\t'} log status=0
-    log=$(mktemp)
-    (cd "$dir" && CARGO_MANIFEST_DIR=$dir "$exe") >"$log" 2>&1 || status=$?
-    { printf '\n     Running %s in %s\n' "${exe#"$PWD/"}" "${dir#"$PWD/"}" && cat "$log"; } | flock "$RUN_BINARY_LOCK" cat
-    rm -f "$log"
-    [ "$status" -eq 0 ] || { echo "error: ${exe#"$PWD/"} failed (exit status $status)" | flock "$RUN_BINARY_LOCK" cat >&2; return 1; }
+# One test binary ("folder<TAB>executable", then its arguments), run as cargo would run it.
+run_here() {
+    local dir=${1%%$'\t'*} exe=${1#*$'\t'}
+    shift
+    printf '\n     Running %s in %s\n' "${exe#"$PWD/"}" "${dir#"$PWD/"}"
+    (cd "$dir" && CARGO_MANIFEST_DIR=$dir "$exe" "$@")
 }
-export -f run_binary
+# The same beside other steps: the output printed whole when it ends, with its time, under a
+# lock, so that two binaries' outputs never interleave.
+run_binary() {
+    local log status=0 start=$SECONDS
+    log=$(mktemp)
+    run_here "$@" >"$log" 2>&1 || status=$?
+    { cat "$log" && printf '     (%s s, ended %s)\n' "$((SECONDS - start))" "$(date -u +%H:%M:%S)"; } \
+        | flock "$RUN_BINARY_LOCK" cat
+    rm -f "$log"
+    [ "$status" -eq 0 ] || { echo "error: ${1#*$'\t'} failed (exit status $status)" | flock "$RUN_BINARY_LOCK" cat >&2; return 1; }
+}
+export -f run_here run_binary
 export RUN_BINARY_LOCK
 other_binaries() {
     # Idle priority: they take only the CPU the QEMU tests leave, so each lockstep hand-off
@@ -123,13 +135,13 @@ other_binaries() {
     printf '%s\n' "$other_runs" | xargs -d '\n' -P 2 -I{} bash -c 'run_binary "$1"' run_binary {}
 }
 step "the QEMU tests that run alone (${qemu_alone[*]})"
-cargo test --workspace --locked --profile ci "${qemu_alone[@]/#/--test=}" -- --test-threads=1
+for name in "${qemu_alone[@]}"; do run_here "${qemu_run[$name]}" --test-threads=1; done
 beside "every other test binary: unit, integration" other_binaries
-beside "pytest: the Python package against the CLI, docs/python-loop.py" \
-    chrt --idle 0 bash scripts/python-package.sh test
+python_job="the Python package's wheel (maturin, from the test build's crates), then pytest: the package against the CLI"
+beside "$python_job" chrt --idle 0 bash scripts/python-package.sh all
 step "the QEMU tests (${qemu_with_rest_beside[*]}), one at a time, the others beside them at idle priority"
-cargo test --workspace --locked --profile ci "${qemu_with_rest_beside[@]/#/--test=}" -- --test-threads=1
+for name in "${qemu_with_rest_beside[@]}"; do run_here "${qemu_run[$name]}" --test-threads=1; done
 step "the doc tests"
 cargo test --workspace --locked --profile ci --doc
 finish "every other test binary: unit, integration"
-finish "pytest: the Python package against the CLI, docs/python-loop.py"
+finish "$python_job"

@@ -19,9 +19,14 @@ use crate::expr::{BinaryOp, Expr, UnaryOp};
 /// assert_eq!(simplify(&e).to_string(), "6.0*x0");
 /// ```
 pub fn simplify(expr: &Expr) -> Expr {
-    let mut e = expr.clone();
-    for _ in 0..8 {
-        let next = pass(e.clone());
+    // Each pass builds its result from a borrowed tree: one new tree a pass, where cloning the
+    // tree to compare against would take a second (symbolic regression simplifies every child).
+    let mut e = pass(expr);
+    if e == *expr {
+        return e;
+    }
+    for _ in 1..8 {
+        let next = pass(&e);
         if next == e {
             break;
         }
@@ -58,11 +63,11 @@ fn non_negative(e: &Expr) -> bool {
     }
 }
 
-fn pass(e: Expr) -> Expr {
+fn pass(e: &Expr) -> Expr {
     match e {
-        Expr::Const(_) | Expr::Var(_) => e,
-        Expr::Unary(op, a) => unary(op, pass(*a)),
-        Expr::Binary(op, a, b) => binary(op, pass(*a), pass(*b)),
+        Expr::Const(_) | Expr::Var(_) => e.clone(),
+        Expr::Unary(op, a) => unary(*op, pass(a)),
+        Expr::Binary(op, a, b) => binary(*op, pass(a), pass(b)),
     }
 }
 

@@ -10,6 +10,7 @@
 //! held out for it) and "after" the refitted twin's held-out RMS, so the ladder compares like
 //! with like from the second step on.
 
+use rayon::prelude::*;
 use serde::Serialize;
 use sts_analysis::repeat::rms_without;
 use sts_dataset::Dataset;
@@ -242,7 +243,7 @@ fn best_partner(
     named: usize,
     carried: &[String],
     progress: &mut dyn FnMut(ExplainProgress),
-) -> Option<(usize, (ModelFile, Vec<EffectRecord>))> {
+) -> Option<(usize, Refit)> {
     let mut partners: Vec<usize> = (0..d.ranking.len())
         .filter(|&j| j != named && d.ranking[j].explained_fraction > 0.0)
         .filter(|&j| {
@@ -256,12 +257,22 @@ fn best_partner(
         .sort_by(|&a, &b| d.ranking[b].explained_fraction.total_cmp(&d.ranking[a].explained_fraction).then(a.cmp(&b)));
     partners.truncate(MAX_TRIES);
     let skip = &d.not_repeating_files();
-    let mut best: Option<(usize, (ModelFile, Vec<EffectRecord>))> = None;
-    for j in partners {
-        let mut with: Vec<String> = carried.to_vec();
-        with.extend([d.ranking[named].effect.clone(), d.ranking[j].effect.clone()]);
-        progress(ExplainProgress::Refitting { effects: &with });
-        let Ok((m, r)) = fit_with(dataset, &with, description, &config.fit, &mut |_| {}) else { continue };
+    let tries: Vec<(usize, Vec<String>)> = partners
+        .into_iter()
+        .map(|j| (j, [carried, &[d.ranking[named].effect.clone(), d.ranking[j].effect.clone()]].concat()))
+        .collect();
+    for (_, with) in &tries {
+        progress(ExplainProgress::Refitting { effects: with });
+    }
+    // Side by side, as `at_the_fundamental`'s; the first of the lowest in the order above.
+    let refits: Vec<(usize, Refit)> = tries
+        .par_iter()
+        .filter_map(|(j, with)| {
+            fit_with(dataset, with, description, &config.fit, &mut |_| {}).ok().map(|fit| (*j, fit))
+        })
+        .collect();
+    let mut best: Option<(usize, Refit)> = None;
+    for (j, (m, r)) in refits {
         let lowest = best.as_ref().map_or(f64::INFINITY, |(_, (b, _))| Standing::of_fit(b).repeating_rms_um(skip));
         if Standing::of_fit(&m).repeating_rms_um(skip) < lowest {
             best = Some((j, (m, r)));
@@ -333,23 +344,34 @@ fn at_the_fundamental(
     if d.verdict != "none" || d.unexplained.is_none() || has_axis || !at_fundamental {
         return None;
     }
-    // Each: its place in the ranking, its error, its parameters, the refit.
-    let mut refits: Vec<(usize, f64, usize, Refit)> = Vec::new();
-    for (i, candidate) in d.ranking.iter().enumerate() {
-        let reshapes = Effect::from_name(&candidate.effect).is_some_and(|e| !e.beyond_the_fundamental());
-        if !reshapes || candidate.explained_fraction <= 0.0 || carried.contains(&candidate.effect) {
-            continue;
-        }
-        let mut with = carried.to_vec();
-        with.push(candidate.effect.clone());
-        progress(ExplainProgress::Refitting { effects: &with });
-        let Ok((m, r)) = fit_with(dataset, &with, description, &config.fit, &mut |_| {}) else { continue };
-        let after_um = Standing::of_fit(&m).repeating_rms_um(skip);
-        if after_um.is_finite() && after_um < (1.0 - UNNAMED_MIN_GAIN) * now_um {
-            let params = params_of(&r, &candidate.effect).len();
-            refits.push((i, after_um, params, (m, r)));
-        }
+    // Each candidate that reshapes the response, with the effects of its refit.
+    let tries: Vec<(usize, Vec<String>)> = d
+        .ranking
+        .iter()
+        .enumerate()
+        .filter(|(_, candidate)| {
+            let reshapes = Effect::from_name(&candidate.effect).is_some_and(|e| !e.beyond_the_fundamental());
+            reshapes && candidate.explained_fraction > 0.0 && !carried.contains(&candidate.effect)
+        })
+        .map(|(i, candidate)| (i, [carried, std::slice::from_ref(&candidate.effect)].concat()))
+        .collect();
+    for (_, with) in &tries {
+        progress(ExplainProgress::Refitting { effects: with });
     }
+    // Every one is refitted (the choice below compares them all), side by side: each fit is
+    // deterministic whatever runs beside it, and the refits keep the ranking's order.
+    // Each: its place in the ranking, its error, its parameters, the refit.
+    let refits: Vec<(usize, f64, usize, Refit)> = tries
+        .par_iter()
+        .filter_map(|(i, with)| {
+            let (m, r) = fit_with(dataset, with, description, &config.fit, &mut |_| {}).ok()?;
+            let after_um = Standing::of_fit(&m).repeating_rms_um(skip);
+            (after_um.is_finite() && after_um < (1.0 - UNNAMED_MIN_GAIN) * now_um).then(|| {
+                let params = params_of(&r, &d.ranking[*i].effect).len();
+                (*i, after_um, params, (m, r))
+            })
+        })
+        .collect();
     let lowest_um = refits.iter().map(|r| r.1).fold(f64::INFINITY, f64::min);
     // The fewest parameters among the refits as good as the best; the lower error on a tie.
     refits

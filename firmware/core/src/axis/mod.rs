@@ -32,7 +32,7 @@ mod model;
 pub use model::{AxisModel, AxisState};
 
 /// The table `exp(-x)`, smoothed sign and table sine of the axis twin, which live with the
-/// rest of the core's arithmetic in [`crate::math`] (re-exported at their former path).
+/// rest of the core's arithmetic in [`crate::math`] (re-exported here, beside the model that uses them).
 pub use crate::math;
 
 use serde::{Deserialize, Serialize};

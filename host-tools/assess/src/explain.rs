@@ -257,22 +257,13 @@ fn best_partner(
         .sort_by(|&a, &b| d.ranking[b].explained_fraction.total_cmp(&d.ranking[a].explained_fraction).then(a.cmp(&b)));
     partners.truncate(MAX_TRIES);
     let skip = &d.not_repeating_files();
-    let tries: Vec<(usize, Vec<String>)> = partners
+    let tries = partners
         .into_iter()
         .map(|j| (j, [carried, &[d.ranking[named].effect.clone(), d.ranking[j].effect.clone()]].concat()))
         .collect();
-    for (_, with) in &tries {
-        progress(ExplainProgress::Refitting { effects: with });
-    }
-    // Side by side, as `at_the_fundamental`'s; the first of the lowest in the order above.
-    let refits: Vec<(usize, Refit)> = tries
-        .par_iter()
-        .filter_map(|(j, with)| {
-            fit_with(dataset, with, description, &config.fit, &mut |_| {}).ok().map(|fit| (*j, fit))
-        })
-        .collect();
+    // The first of the lowest in the order above.
     let mut best: Option<(usize, Refit)> = None;
-    for (j, (m, r)) in refits {
+    for (j, (m, r)) in refit_each(dataset, description, config, tries, progress) {
         let lowest = best.as_ref().map_or(f64::INFINITY, |(_, (b, _))| Standing::of_fit(b).repeating_rms_um(skip));
         if Standing::of_fit(&m).repeating_rms_um(skip) < lowest {
             best = Some((j, (m, r)));
@@ -319,6 +310,28 @@ const AS_GOOD_WITHIN: f64 = 1.1;
 /// A refitted twin and its effects.
 type Refit = (ModelFile, Vec<EffectRecord>);
 
+/// Refits the twin with each of `tries` (a candidate's place in the ranking, the effects of
+/// its refit), every one reported first, then fitted side by side: the choices that follow
+/// compare them all, and each fit is deterministic whatever runs beside it. The refits that
+/// fit, in the order of `tries`.
+fn refit_each(
+    dataset: &Dataset,
+    description: &str,
+    config: &ExplainConfig,
+    tries: Vec<(usize, Vec<String>)>,
+    progress: &mut dyn FnMut(ExplainProgress),
+) -> Vec<(usize, Refit)> {
+    for (_, with) in &tries {
+        progress(ExplainProgress::Refitting { effects: with });
+    }
+    tries
+        .into_par_iter()
+        .filter_map(|(i, with)| {
+            fit_with(dataset, &with, description, &config.fit, &mut |_| {}).ok().map(|fit| (i, fit))
+        })
+        .collect()
+}
+
 /// Where `diagnose` named nothing, the twin carries no servo-axis twin, and the residual
 /// stands well above the data's floor ([`Diagnosis::unexplained`]), most of it at the command
 /// frequency: the formulas do not reproduce the axis's response there, which a term that
@@ -345,7 +358,7 @@ fn at_the_fundamental(
         return None;
     }
     // Each candidate that reshapes the response, with the effects of its refit.
-    let tries: Vec<(usize, Vec<String>)> = d
+    let tries = d
         .ranking
         .iter()
         .enumerate()
@@ -355,20 +368,14 @@ fn at_the_fundamental(
         })
         .map(|(i, candidate)| (i, [carried, std::slice::from_ref(&candidate.effect)].concat()))
         .collect();
-    for (_, with) in &tries {
-        progress(ExplainProgress::Refitting { effects: with });
-    }
-    // Every one is refitted (the choice below compares them all), side by side: each fit is
-    // deterministic whatever runs beside it, and the refits keep the ranking's order.
     // Each: its place in the ranking, its error, its parameters, the refit.
-    let refits: Vec<(usize, f64, usize, Refit)> = tries
-        .par_iter()
-        .filter_map(|(i, with)| {
-            let (m, r) = fit_with(dataset, with, description, &config.fit, &mut |_| {}).ok()?;
+    let refits: Vec<(usize, f64, usize, Refit)> = refit_each(dataset, description, config, tries, progress)
+        .into_iter()
+        .filter_map(|(i, (m, r))| {
             let after_um = Standing::of_fit(&m).repeating_rms_um(skip);
             (after_um.is_finite() && after_um < (1.0 - UNNAMED_MIN_GAIN) * now_um).then(|| {
-                let params = params_of(&r, &d.ranking[*i].effect).len();
-                (*i, after_um, params, (m, r))
+                let params = params_of(&r, &d.ranking[i].effect).len();
+                (i, after_um, params, (m, r))
             })
         })
         .collect();

@@ -211,6 +211,11 @@ impl AxisModel {
         })
     }
 
+    /// Ticks the command is delayed before the servo loop (a correction is not).
+    pub fn cmd_delay_ticks(&self) -> u32 {
+        self.delay as u32
+    }
+
     /// One servo tick with the command position `cmd_pos_nm`: the axis's dynamic error at
     /// the TCP this tick (TCP minus command, before the tick's motion), picometres. Out of
     /// line: inlined, its register use made the servo tick's other kernel terms dearer.

@@ -21,10 +21,11 @@ pub const DRIFT_STEP_TICKS: u32 = 256;
 /// Stage outputs of a Laguerre bank.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Stages {
-    /// Twice the stage outputs (Q25), for a pole of at most [`NARROW_POLE_MAX_Q30`] and
-    /// gains of at most 2^32 in sum: they provably stay within `i32`, so a stage is two
-    /// 32x32 -> 64-bit multiplies (`smull`, `smlal` on a Cortex-M4) whose high word is the
-    /// step (see [`laguerre_step_narrow`]).
+    /// Twice the stage outputs (Q25), for a pole of at most
+    /// [`NARROW_POLE_MAX_Q30`](crate::program::NARROW_POLE_MAX_Q30) and gains of at most 2^32
+    /// in sum: they provably stay within `i32`, so a stage is two 32x32 -> 64-bit multiplies
+    /// (`smull`, `smlal` on a Cortex-M4) whose high word is the step (see
+    /// [`laguerre_step_narrow`]).
     Narrow([i32; LAGUERRE_STAGES]),
     /// Stage outputs, Q24: any pole, 64-bit arithmetic throughout.
     Wide([i64; LAGUERRE_STAGES]),

@@ -33,9 +33,6 @@ mod kernel;
 mod ramp;
 mod resonance;
 
-// The conversions and the sine, at the paths they had before `math` gathered them.
-pub use crate::math::{deg_to_turns, sin_q31, um_to_pm};
-pub use crate::program::{laguerre_stages_are_narrow, NARROW_POLE_MAX_Q30, VELOCITY_SMOOTH_32_BIT_LIMIT};
 pub use harmonics::SynthTargets;
 pub use kernel::DRIFT_STEP_TICKS;
 pub use resonance::Resonance;

@@ -95,8 +95,9 @@ use std::f64::consts::TAU;
 use std::sync::{Mutex, OnceLock};
 
 use sts_twin_core::feedforward::FeedforwardParams;
+use sts_twin_core::math::{deg_to_turns, um_to_pm};
 use sts_twin_core::program::{ModelOutput, TermInput, TickTerm, LAGUERRE_STAGES, MAX_TERMS};
-use sts_twin_core::synth::{deg_to_turns, um_to_pm, TickInput, DRIFT_STEP_TICKS};
+use sts_twin_core::synth::{TickInput, DRIFT_STEP_TICKS};
 
 /// 2^32: a full turn of a phase in `u32` turns.
 const TURN: f64 = 4_294_967_296.0;

@@ -193,9 +193,9 @@ pub struct Compensator {
     /// The linear twin's correction of the fundamental per unit of the command's
     /// fundamental, `1 / G(f) - z^-d` (an axis with effects; see [`Compensator::learn`]).
     linear_per_command: Phasor,
-    /// Correction beyond which an axis with effects runs away, over
-    /// [`MAX_RELATIVE_CORRECTION`], nm: the command's amplitude plus the displacement at which
-    /// the controller's stiffness holds the friction and hysteresis forces.
+    /// The error at which the controller's stiffness holds the friction's and hysteresis's
+    /// force, nm: with the command's amplitude, what bounds the correction of an axis with
+    /// effects (times [`MAX_RELATIVE_CORRECTION`]) before it counts as a runaway.
     stuck_error_nm: f32,
     /// The stroke below which the effects' error scales with the command's amplitude, nm.
     effect_stroke_nm: f32,
@@ -357,8 +357,8 @@ impl Compensator {
             }
             self.responses_measured = 0;
         }
-        // The orders' responses, a few per call so that no model update carries more than
-        // the base orders' (an order not measured yet is not learned).
+        // The orders' responses, at most RESPONSES_PER_LEARNING per call (an order not
+        // measured yet is not learned).
         for _ in 0..RESPONSES_PER_LEARNING {
             let i = self.responses_measured;
             if i >= self.learned {

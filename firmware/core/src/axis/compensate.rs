@@ -62,10 +62,10 @@ pub const MAX_HIGHER_ORDERS: usize = 6;
 /// Most orders a compensator learns.
 pub const MAX_ORDERS: usize = BASE_ORDERS.len() + MAX_HIGHER_ORDERS;
 /// Highest frequency a higher order is learned at, Hz (the base orders are learned at any):
-/// the fifth harmonic of an 80 Hz command. Swept on five friction twins identified on 1-100 Hz
-/// measurements: at 160 Hz the 40 Hz cuts left the fifth harmonic, 23 nm of the 32 kg
-/// plant's 0.13 um PV (94.8% less than bare; 95.1% at 400), and its 60 Hz cut 93.7% (95.5%);
-/// 240 to 480 Hz are within half a point of each other elsewhere.
+/// the fifth harmonic of an 80 Hz command. Against 160 Hz, where a 40 Hz cut keeps its fifth
+/// harmonic, on twins identified on 1-100 Hz measurements: the 60 kg plant's friction cut at
+/// 20 and 40 Hz 85.3 -> 87.8% and 92.6 -> 94.1%, the default machine's fixture at 40 Hz
+/// 96.3 -> 96.9%; 240 to 480 Hz were within half a point of each other.
 pub const MAX_HARMONIC_HZ: f32 = 400.0;
 
 /// Fraction of the simulated error's harmonics removed per command period (swept on three

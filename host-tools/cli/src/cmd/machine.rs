@@ -23,7 +23,7 @@ pub struct Args {
     pub freq: f64,
     /// Model file of the twin. Without it (and without `--bare`) the machine is measured over
     /// its whole range and its twin fitted by itself, as `trial-table` does (the servo-axis
-    /// twin and the effects the data shows, 20-170 s), written to `--out`, then the cut.
+    /// twin and the effects the data shows, 20-200 s), written to `--out`, then the cut.
     #[arg(long)]
     pub twin: Option<PathBuf>,
     /// Cut the bare machine: no twin, nothing fitted.

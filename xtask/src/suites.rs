@@ -84,7 +84,7 @@ loop-delay,structural-mode,sensor-gain";
 const PLANT_60KG: &str = "host-tools/assess/tests/plants/slide-60kg.toml";
 
 /// Every run, in the order of BENCHMARKS.md.
-pub const SUITES: [Suite; 13] = [
+pub const SUITES: [Suite; 14] = [
     Suite {
         name: "foreign-machine",
         feeds: "The loop on a foreign machine",
@@ -104,6 +104,17 @@ pub const SUITES: [Suite; 13] = [
         env: &[],
         seeds: Seeds::Fixed,
         tables: EVERY_LINE,
+    },
+    Suite {
+        name: "foreign-seeds",
+        feeds: "The loop on a foreign machine",
+        part: "the lab's workflow on both foreign machines, 20 seeds",
+        source: "host-tools/cli/tests/foreign_suite.rs",
+        run: Run::Test { package: "sts-twin", test: "tests", filter: "foreign_suite::", ignored: true },
+        env: &[("STS_FOREIGN_SEEDS", "20")],
+        seeds: Seeds::Count { var: "STS_FOREIGN_SEEDS", fit_var: None },
+        // The rates; each case's line stays in the run's log.
+        tables: Tables { lines: &[], from: Some("seeds ") },
     },
     Suite {
         name: "reference",
@@ -267,7 +278,7 @@ pub const SUITES: [Suite; 13] = [
 /// so. Each run then sets its own.
 pub const CLEARED_ENV: [&str; 4] = ["STS_PLANT", "PLANTS", "GRIDS", "SEEDS"];
 /// Prefixes of the variables cleared likewise.
-pub const CLEARED_ENV_PREFIXES: [&str; 2] = ["STS_SUITE_", "STS_SETS_"];
+pub const CLEARED_ENV_PREFIXES: [&str; 3] = ["STS_SUITE_", "STS_SETS_", "STS_FOREIGN_"];
 
 /// Whether the run leaves `name` out of its children's environment.
 pub fn is_cleared(name: &str) -> bool {

@@ -9,6 +9,7 @@ mod export;
 mod foreign;
 mod foreign_ball_screw;
 mod foreign_machine;
+mod foreign_suite;
 mod import;
 mod machine_report;
 mod never_panics;

@@ -339,9 +339,10 @@ fn refit_each(
 /// whatever the sign of its explained fraction (diagnose scores a linear correction of the
 /// formulas' residual, not the twin a refit builds: on the clean foreign two-mass machine every
 /// such score was below zero where the mode's refit took the error from 27.9 to 8.8 nm), and
-/// returns the simplest of the refits that lower the error by [`UNNAMED_MIN_GAIN`] and end
-/// within [`AS_GOOD_WITHIN`] of the lowest: a plant whose response the formulas cannot follow,
-/// a late setpoint the formulas bent towards.
+/// returns, of the refits that lower the error by [`UNNAMED_MIN_GAIN`] and end within
+/// [`AS_GOOD_WITHIN`] of the lowest, one that diagnose's score points to where there is one
+/// (a name is a claim about the machine), the simplest: a plant whose response the formulas
+/// cannot follow, a late setpoint the formulas bent towards.
 #[allow(clippy::too_many_arguments)]
 fn at_the_fundamental(
     dataset: &Dataset,
@@ -382,11 +383,13 @@ fn at_the_fundamental(
         })
         .collect();
     let lowest_um = refits.iter().map(|r| r.1).fold(f64::INFINITY, f64::min);
-    // The fewest parameters among the refits as good as the best; the lower error on a tie.
+    // Among the refits as good as the best: one diagnose points to first, then the fewest
+    // parameters, then the lower error.
+    let unsupported = |i: usize| d.ranking[i].explained_fraction <= 0.0;
     refits
         .into_iter()
         .filter(|r| r.1 <= AS_GOOD_WITHIN * lowest_um)
-        .min_by(|a, b| a.2.cmp(&b.2).then(a.1.total_cmp(&b.1)))
+        .min_by(|a, b| unsupported(a.0).cmp(&unsupported(b.0)).then(a.2.cmp(&b.2)).then(a.1.total_cmp(&b.1)))
         .map(|(i, _, _, refit)| (i, refit))
 }
 

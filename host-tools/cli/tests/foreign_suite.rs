@@ -285,7 +285,7 @@ impl Rates {
 }
 
 #[test]
-#[ignore = "long: both foreign machines, 14 measurements and ladders a seed (about 4 minutes a seed)"]
+#[ignore = "long: both foreign machines, 14 measurements and ladders a seed (about 5 minutes a seed on 2 cores)"]
 fn the_lab_workflow_over_seeds_on_both_foreign_machines() {
     let env_u64 = |name: &str, default: u64| std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default);
     let first_seed = env_u64("STS_FOREIGN_FIRST_SEED", 1);

@@ -382,15 +382,35 @@ fn at_the_fundamental(
             })
         })
         .collect();
-    let lowest_um = refits.iter().map(|r| r.1).fold(f64::INFINITY, f64::min);
-    // Among the refits as good as the best: one diagnose points to first, then the fewest
-    // parameters, then the lower error.
-    let unsupported = |i: usize| d.ranking[i].explained_fraction <= 0.0;
-    refits
-        .into_iter()
-        .filter(|r| r.1 <= AS_GOOD_WITHIN * lowest_um)
-        .min_by(|a, b| unsupported(a.0).cmp(&unsupported(b.0)).then(a.2.cmp(&b.2)).then(a.1.total_cmp(&b.1)))
-        .map(|(i, _, _, refit)| (i, refit))
+    let tried: Vec<Reshaped> = refits
+        .iter()
+        .map(|r| Reshaped { after_um: r.1, params: r.2, supported: d.ranking[r.0].explained_fraction > 0.0 })
+        .collect();
+    let kept = reshaping_to_keep(&tried)?;
+    refits.into_iter().nth(kept).map(|(i, _, _, refit)| (i, refit))
+}
+
+/// A refit [`at_the_fundamental`] tried: its error, its term's parameter count, and whether
+/// diagnose's score points to its term (a positive explained fraction).
+#[derive(Clone, Copy, Debug)]
+struct Reshaped {
+    after_um: f64,
+    params: usize,
+    supported: bool,
+}
+
+/// Which of the refits to keep: among those within [`AS_GOOD_WITHIN`] of the lowest error,
+/// one diagnose points to first, then the fewest parameters, then the lower error.
+fn reshaping_to_keep(tried: &[Reshaped]) -> Option<usize> {
+    let lowest_um = tried.iter().map(|r| r.after_um).fold(f64::INFINITY, f64::min);
+    tried
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.after_um <= AS_GOOD_WITHIN * lowest_um)
+        .min_by(|(_, a), (_, b)| {
+            b.supported.cmp(&a.supported).then(a.params.cmp(&b.params)).then(a.after_um.total_cmp(&b.after_um))
+        })
+        .map(|(i, _)| i)
 }
 
 /// Runs the loop on `dataset`, from `base` or from a twin fitted on the data.
@@ -627,5 +647,28 @@ pub fn explain(
         standing = Standing::of_fit(&next_model);
         model = next_model;
         records = next_records;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{reshaping_to_keep, Reshaped};
+
+    fn refit(after_um: f64, params: usize, supported: bool) -> Reshaped {
+        Reshaped { after_um, params, supported }
+    }
+
+    #[test]
+    fn a_reshaping_term_diagnose_points_to_is_kept_first_then_the_simplest() {
+        // The clean foreign two-mass machine: every score below zero; the late setpoint's two
+        // parameters within 10% of the mode's five.
+        assert_eq!(reshaping_to_keep(&[refit(0.0088, 5, false), refit(0.0096, 2, false)]), Some(1));
+        // The mode pointed to: kept over the simpler term nobody pointed to.
+        assert_eq!(reshaping_to_keep(&[refit(0.0088, 5, true), refit(0.0096, 2, false)]), Some(0));
+        // Pointed to but more than 10% worse than the best: not as good, not kept.
+        assert_eq!(reshaping_to_keep(&[refit(0.0110, 2, true), refit(0.0088, 5, false)]), Some(1));
+        // Equal support and parameters: the lower error.
+        assert_eq!(reshaping_to_keep(&[refit(0.0092, 2, true), refit(0.0090, 2, true)]), Some(1));
+        assert_eq!(reshaping_to_keep(&[]), None);
     }
 }

@@ -224,13 +224,6 @@ const RESPONSES_PER_LEARNING: usize = 1;
 /// error is at most about its command (the default machine's 0.87 at 40 Hz), and the path
 /// amplifies the correction (1.94 at 40 Hz), so four times the command is a runaway.
 const MAX_RELATIVE_CORRECTION: f32 = 4.0;
-/// The two ways of keeping the learned part of an axis with effects, each alone, and the
-/// blend [`Compensator::learned_scale_nm`] takes instead, on six friction twins (the default
-/// machine, its 3 N fixture, the 32 kg plant at seeds 1 and 3, the 60 kg plant), 5-60 Hz: kept
-/// in nanometres down to half the stroke `S` and in proportion below, the 32 kg plant's cut
-/// at 40 Hz removed 95.1% at seed 1 but its 10 Hz cut 28% at seed 3 (a sticking slide pushed
-/// by a correction kept too long); kept all in proportion, 92.7% and 74.4%; blended, 93.1%
-/// and 73.3%, and no cut below either by more than two points.
 /// Command amplitude below which the correction is not learned (relative to it), nm.
 const MIN_COMMAND_NM: f32 = 20.0;
 /// Fraction per period by which the command's fundamental is tracked.
@@ -430,7 +423,12 @@ impl Compensator {
     /// What the learned part of the correction is relative to, for a command of amplitude
     /// `amplitude_nm`: the amplitude itself (a linear axis), or for an axis with effects
     /// `A S / (A + S)` with `S` the stroke at which the effects hold the slide: the amplitude
-    /// well below `S`, `S` well above it.
+    /// well below `S`, `S` well above it. Against each alone, on six friction twins (the
+    /// default machine, its 3 N fixture, the 32 kg plant at seeds 1 and 3, the 60 kg plant),
+    /// 5-60 Hz: kept in nanometres down to half of `S` and in proportion below, the 32 kg
+    /// plant's cut at 40 Hz removed 95.1% at seed 1 but its 10 Hz cut 28% at seed 3 (a sticking
+    /// slide pushed by a correction kept too long); kept all in proportion, 92.7% and 74.4%;
+    /// blended, 93.1% and 73.3%, and no cut below either by more than two points.
     fn learned_scale_nm(&self, amplitude_nm: f32) -> f32 {
         if self.linear_only {
             amplitude_nm
